@@ -1,0 +1,15 @@
+"""Robots: Pinocchio models of serial arms with batched forward kinematics.
+
+    import robots
+    robots.names()                  # every name load() accepts
+    arm = robots.load("planar")     # also "scara", "ur5", "panda", ...
+    arm.fk(q)                       # (..., nq) -> (..., 3) end-effector positions
+    arm.sample_goals(70, seed=0)    # (70, len(arm.task_axes)) reachable goals
+
+Nothing here knows about networks or evolution.
+"""
+
+from .arm import Arm, from_urdf
+from .registry import load, names
+
+__all__ = ["Arm", "from_urdf", "load", "names"]

@@ -1,0 +1,258 @@
+"""`Arm`: one serial arm as a Pinocchio model of its chain, with batched kinematics.
+
+An arm is built from a URDF and the name of its end-effector frame. Joints that are
+not on the path from the root to that frame (grippers, fingers) are locked at a
+reference posture, so `model` holds the arm's chain only, with a fixed base.
+
+Joint coordinates are angles [rad] and lengths [URDF units], one per joint: a
+continuous joint is a single angle in [-pi, pi] (Pinocchio stores it as cos/sin).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from .kinematics import PRISMATIC, ChainKinematics
+
+
+@dataclass(frozen=True, eq=False)
+class Arm:
+    """A serial arm: Pinocchio model, joint limits, task axes and batched kinematics.
+
+    Attributes:
+        name       registry name ("planar", "ur5", ...)
+        model      pinocchio.Model of the chain only (fixed base, other joints locked)
+        nq         number of joint coordinates (angles / lengths)
+        lower      (nq,) lower joint limits
+        upper      (nq,) upper joint limits
+        task_axes  end-effector coordinates that make a goal: (0, 1) planar, (0, 1, 2) others
+        ee_frame   name of the end-effector frame in `model`
+        ee_frame_id  its index in model.frames
+        urdf_path  the URDF it was built from
+        package_dirs  directories that resolve package:// mesh paths
+        joint_names   (nq,) names of the chain's joints, root first
+        rest       (nq,) rest posture (the model's reference posture, clipped to the limits)
+    """
+
+    name: str
+    model: pin.Model
+    lower: np.ndarray
+    upper: np.ndarray
+    task_axes: tuple[int, ...]
+    ee_frame: str
+    ee_frame_id: int
+    urdf_path: str
+    package_dirs: tuple[str, ...]
+    joint_names: tuple[str, ...]
+    rest: np.ndarray
+    q_ref: np.ndarray = field(repr=False)  # Pinocchio configuration for coordinates off the chain
+    chain: ChainKinematics = field(repr=False)
+    _visual_builder: object = field(repr=False, default=None)
+
+    @property
+    def nq(self) -> int:
+        return self.chain.n
+
+    @property
+    def is_prismatic(self) -> np.ndarray:
+        """(nq,) True where the joint is prismatic (a length, not an angle)."""
+        return self.chain.kind == PRISMATIC
+
+    # ---------------------------------------------------------------- kinematics
+    def _as_batch(self, q) -> tuple[np.ndarray, tuple[int, ...]]:
+        q = np.asarray(q, dtype=np.float64)
+        if q.ndim == 0 or q.shape[-1] != self.nq:
+            raise ValueError(
+                f"{self.name}: q must have shape (..., {self.nq}) (one value per joint: "
+                f"{', '.join(self.joint_names)}), got shape {q.shape}"
+            )
+        batch = q.shape[:-1]
+        return np.ascontiguousarray(q.reshape(-1, self.nq)), batch
+
+    def fk(self, q) -> np.ndarray:
+        """End-effector positions: q (..., nq) -> (..., 3), in the base frame."""
+        flat, batch = self._as_batch(q)
+        return self.chain.positions(flat).reshape(*batch, 3)
+
+    def joint_positions(self, q) -> np.ndarray:
+        """Base, joint and end-effector origins: q (..., nq) -> (..., nq + 2, 3); a polyline of the arm."""
+        flat, batch = self._as_batch(q)
+        return self.chain.joint_positions(flat).reshape(*batch, self.nq + 2, 3)
+
+    def reach(self, q) -> np.ndarray:
+        """The goal coordinates reached by q: (..., nq) -> (..., len(task_axes))."""
+        return self.fk(q)[..., list(self.task_axes)]
+
+    def to_pinocchio(self, q) -> np.ndarray:
+        """Angle vectors (..., nq) -> Pinocchio configurations (..., model.nq)."""
+        flat, batch = self._as_batch(q)
+        return self.chain.to_pinocchio(flat, self.q_ref).reshape(*batch, self.model.nq)
+
+    def from_pinocchio(self, q_pin) -> np.ndarray:
+        """Pinocchio configurations (..., model.nq) -> angle vectors (..., nq)."""
+        q_pin = np.asarray(q_pin, dtype=np.float64)
+        cols = []
+        for k in range(self.nq):
+            i = self.chain.idx_q[k]
+            if self.chain.continuous[k]:
+                cols.append(np.arctan2(q_pin[..., i + 1], q_pin[..., i]))
+            else:
+                cols.append(q_pin[..., i])
+        return np.stack(cols, axis=-1)
+
+    # ---------------------------------------------------------------- sampling
+    def sample_q(self, n: int, seed: int | None = None) -> np.ndarray:
+        """(n, nq) joint vectors drawn uniformly within the limits."""
+        if int(n) < 0:
+            raise ValueError(f"n must be >= 0, got {n}")
+        rng = np.random.default_rng(seed)
+        return self.lower + (self.upper - self.lower) * rng.random((int(n), self.nq))
+
+    def sample_goals(self, n: int, seed: int | None = None) -> np.ndarray:
+        """(n, len(task_axes)) reachable goals: end-effector positions of uniformly drawn joint vectors."""
+        return self.reach(self.sample_q(n, seed))
+
+    @functools.cached_property
+    def workspace_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) of the task coordinates over 20,000 uniform joint samples (a fixed seed)."""
+        goals = self.sample_goals(20_000, seed=12345)
+        lo, hi = goals.min(axis=0), goals.max(axis=0)
+        flat = hi - lo < 1e-9  # a coordinate that never moves: give it a unit range
+        return np.where(flat, lo - 0.5, lo), np.where(flat, hi + 0.5, hi)
+
+    # ---------------------------------------------------------------- geometry
+    def visual_model(self) -> pin.GeometryModel:
+        """Visual geometry of the chain (meshes loaded on first call; may take ~1 s)."""
+        return _visual_cache(self)
+
+    def __repr__(self) -> str:
+        return f"Arm({self.name!r}, nq={self.nq}, ee={self.ee_frame!r}, task_axes={self.task_axes})"
+
+
+@functools.lru_cache(maxsize=None)
+def _visual_cache(arm: Arm) -> pin.GeometryModel:
+    return arm._visual_builder()
+
+
+def from_urdf(
+    urdf_path: str | os.PathLike,
+    ee_frame: str,
+    *,
+    name: str | None = None,
+    task_axes: Sequence[int] = (0, 1, 2),
+    package_dirs: Sequence[str] = (),
+    xml_replace: Sequence[tuple[str, str]] = (),
+    reference: np.ndarray | None = None,
+    limits: dict[str, tuple[float, float]] | None = None,
+    srdf: tuple[str, str] | None = None,
+) -> Arm:
+    """Build an `Arm` from a URDF file and the name of its end-effector frame.
+
+    xml_replace: text substitutions applied to the URDF before parsing (name fixes).
+    reference:   Pinocchio configuration of the full model at which off-chain joints are locked.
+    limits:      overrides of joint limits by joint name.
+    srdf:        (SRDF path, posture name) giving the reference posture, when `reference` is None.
+    """
+    urdf_path = os.path.realpath(os.fspath(urdf_path))
+    name = name or os.path.splitext(os.path.basename(urdf_path))[0]
+    try:
+        with open(urdf_path, encoding="utf-8") as f:
+            xml = f.read()
+    except OSError as e:
+        raise OSError(f"{name}: cannot read URDF {urdf_path}: {e.strerror}") from e
+    for old, new in xml_replace:
+        xml = xml.replace(old, new)
+    try:
+        full = pin.buildModelFromXML(xml)
+    except Exception as e:  # Pinocchio raises ValueError/RuntimeError with its parser's text
+        raise ValueError(f"{name}: {urdf_path} is not a valid URDF: {e}") from e
+    frame_id = _find_frame(full, ee_frame, name, urdf_path)
+
+    on_chain = set(full.supports[full.frames[frame_id].parentJoint])
+    locked = [j for j in range(1, full.njoints) if j not in on_chain]
+    q_full = pin.neutral(full) if reference is None else np.asarray(reference, float)
+    if reference is None and srdf is not None:
+        pin.loadReferenceConfigurations(full, srdf[0], False)
+        if srdf[1] in full.referenceConfigurations:
+            q_full = np.array(full.referenceConfigurations[srdf[1]])
+    model = pin.buildReducedModel(full, locked, q_full) if locked else full
+    frame_id = _find_frame(model, ee_frame, name, urdf_path)
+    chain = ChainKinematics(model, frame_id)
+    if chain.n == 0:
+        raise ValueError(f"{name}: frame {ee_frame!r} in {urdf_path} is not moved by any joint")
+
+    lower, upper = _limits(model, chain, limits or {}, name)
+    q_ref = pin.neutral(model)
+    joint_names = tuple(model.names[int(j)] for j in chain.joint_ids)
+    arm_q_ref = _reduce_reference(full, model, q_full)
+    rest = np.clip(_angles(chain, arm_q_ref), lower, upper)
+    dirs = tuple(package_dirs)
+    ee_name = model.frames[frame_id].name
+
+    def build_visual() -> pin.GeometryModel:
+        vis_full = pin.buildGeomFromUrdfString(full, xml, pin.GeometryType.VISUAL, package_dirs=list(dirs))
+        if not locked:
+            return vis_full
+        _, vis = pin.buildReducedModel(full, vis_full, locked, q_full)
+        return vis
+
+    return Arm(
+        name=name, model=model, lower=lower, upper=upper, task_axes=tuple(int(a) for a in task_axes),
+        ee_frame=ee_name, ee_frame_id=frame_id, urdf_path=urdf_path, package_dirs=dirs, joint_names=joint_names,
+        rest=rest, q_ref=q_ref, chain=chain, _visual_builder=build_visual,
+    )
+
+
+def _find_frame(model: pin.Model, ee_frame: str, name: str, urdf_path: str) -> int:
+    matches = [i for i, f in enumerate(model.frames) if f.name == ee_frame]
+    if not matches:
+        raise ValueError(
+            f"{name}: end-effector frame {ee_frame!r} not found in {urdf_path}; "
+            f"frames: {', '.join(sorted({f.name for f in model.frames}))}"
+        )
+    # a link and a joint may share a name: prefer the link (BODY) frame
+    bodies = [i for i in matches if model.frames[i].type == pin.FrameType.BODY]
+    return (bodies or matches)[0]
+
+
+def _limits(model, chain, overrides, name) -> tuple[np.ndarray, np.ndarray]:
+    lower = np.empty(chain.n)
+    upper = np.empty(chain.n)
+    for k, j in enumerate(chain.joint_ids):
+        jname = model.names[int(j)]
+        if jname in overrides:
+            lower[k], upper[k] = overrides[jname]
+        elif chain.continuous[k]:
+            lower[k], upper[k] = -np.pi, np.pi
+        else:
+            i = chain.idx_q[k]
+            lower[k], upper[k] = model.lowerPositionLimit[i], model.upperPositionLimit[i]
+        if not (np.isfinite(lower[k]) and np.isfinite(upper[k]) and lower[k] < upper[k]):
+            if chain.kind[k] == PRISMATIC:
+                raise ValueError(f"{name}: prismatic joint {jname!r} has no finite limits")
+            lower[k], upper[k] = -np.pi, np.pi
+    return lower, upper
+
+
+def _reduce_reference(full: pin.Model, model: pin.Model, q_full: np.ndarray) -> np.ndarray:
+    """The reduced model's configuration that matches q_full joint by joint (by name)."""
+    q = pin.neutral(model)
+    for j in range(1, model.njoints):
+        jf = full.getJointId(model.names[j])
+        jm, jfm = model.joints[j], full.joints[jf]
+        q[jm.idx_q : jm.idx_q + jm.nq] = q_full[jfm.idx_q : jfm.idx_q + jfm.nq]
+    return q
+
+
+def _angles(chain: ChainKinematics, q_pin: np.ndarray) -> np.ndarray:
+    out = np.empty(chain.n)
+    for k in range(chain.n):
+        i = chain.idx_q[k]
+        out[k] = np.arctan2(q_pin[i + 1], q_pin[i]) if chain.continuous[k] else q_pin[i]
+    return out

@@ -1,0 +1,85 @@
+"""The arms `robots.load` knows: the paper's two arms and serial arms of example-robot-data.
+
+Each entry names where the URDF comes from, the end-effector frame and the task axes.
+example-robot-data URDFs are located without building their (slow) mesh models:
+the loader classes of `example_robot_data` give the file's path.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass, field
+
+from .arm import Arm, from_urdf
+
+URDF_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "urdf")
+
+
+@dataclass(frozen=True)
+class ArmSpec:
+    """How to build one named arm."""
+
+    ee_frame: str
+    urdf: str | None = None  # a file under robots/urdf/
+    erd: str | None = None  # an example-robot-data name
+    task_axes: tuple[int, ...] = (0, 1, 2)
+    xml_replace: tuple[tuple[str, str], ...] = ()
+    description: str = ""
+    extra: dict = field(default_factory=dict)
+
+
+SPECS: dict[str, ArmSpec] = {
+    "planar": ArmSpec("ee", urdf="planar.urdf", task_axes=(0, 1),
+                      description="the paper's three-link planar arm (Table 1, eq. 3)"),
+    "scara": ArmSpec("ee", urdf="scara.urdf",
+                     description="the paper's SCARA arm (Table 2, eq. 4)"),
+    "ur5": ArmSpec("tool0", erd="ur5", description="Universal Robots UR5, 6 DoF"),
+    "ur10": ArmSpec("tool0", erd="ur10", description="Universal Robots UR10, 6 DoF"),
+    "panda": ArmSpec("panda_hand_tcp", erd="panda", description="Franka Emika Panda, 7 DoF (fingers locked)"),
+    "so100": ArmSpec(
+        "gripper", erd="so100", description="SO-100 low-cost arm, 5 DoF (jaw locked)",
+        # its URDF names a link and a joint "gripper", which breaks pin.buildReducedModel
+        xml_replace=(('<joint name="gripper"', '<joint name="gripper_joint"'),),
+    ),
+    "so101": ArmSpec("gripper_frame_link", erd="so101", description="SO-101 low-cost arm, 5 DoF (jaw locked)"),
+    "z1": ArmSpec("gripperStator", erd="z1", description="Unitree Z1, 6 DoF (gripper locked)"),
+    "xarm7": ArmSpec("link_eef", erd="xarm7", description="UFactory xArm7, 7 DoF"),
+    "kinova": ArmSpec("j2s6s200_end_effector", erd="kinova",
+                      description="Kinova Jaco j2s6s200, 6 DoF (3 continuous joints)"),
+}
+
+
+def names() -> tuple[str, ...]:
+    """Every name `load` accepts."""
+    return tuple(SPECS)
+
+
+@functools.cache
+def load(name: str) -> Arm:
+    """The arm registered under `name` (see `names()`); built once, then shared."""
+    if name not in SPECS:
+        raise ValueError(f"unknown robot {name!r}; known robots: {', '.join(names())}")
+    spec = SPECS[name]
+    if spec.urdf is not None:
+        return from_urdf(os.path.join(URDF_DIR, spec.urdf), spec.ee_frame, name=name,
+                         task_axes=spec.task_axes)
+    path, share, srdf = _erd_paths(spec.erd)
+    return from_urdf(path, spec.ee_frame, name=name, task_axes=spec.task_axes,
+                     package_dirs=(share,), xml_replace=spec.xml_replace, srdf=srdf)
+
+
+def _erd_paths(erd_name: str) -> tuple[str, str, tuple[str, str] | None]:
+    """(URDF path, share dir for package:// meshes, (SRDF, posture) or None) of an example-robot-data robot."""
+    import example_robot_data as erd
+
+    loader = erd.ROBOTS[erd_name]
+    sub = os.path.join(loader.path, loader.urdf_subpath, loader.urdf_filename)
+    model_path = loader.model_path or erd.getModelPath(sub)
+    urdf = os.path.realpath(os.path.join(model_path, sub))
+    share = os.path.realpath(os.path.join(model_path, os.pardir, os.pardir))
+    srdf = None
+    if loader.srdf_filename:
+        srdf_path = os.path.join(model_path, loader.path, loader.srdf_subpath, loader.srdf_filename)
+        srdf = (os.path.realpath(srdf_path), loader.ref_posture)
+    return urdf, share, srdf

@@ -1,0 +1,195 @@
+"""robots: kinematics equal Pinocchio and the paper's equations; bad input is refused clearly."""
+
+import os
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+import robots
+
+ALL = robots.names()
+
+
+def pinocchio_fk(arm, q):
+    """End-effector positions and rotations, one configuration at a time, with Pinocchio itself."""
+    data = arm.model.createData()
+    pos, rot = [], []
+    for x in arm.to_pinocchio(q):
+        pin.forwardKinematics(arm.model, data, x)
+        pin.updateFramePlacements(arm.model, data)
+        pos.append(data.oMf[arm.ee_frame_id].translation.copy())
+        rot.append(data.oMf[arm.ee_frame_id].rotation.copy())
+    return np.array(pos), np.array(rot)
+
+
+def test_names_include_the_paper_arms_and_example_robot_data_arms():
+    for name in ("planar", "scara", "ur5", "panda", "so100", "z1", "xarm7", "kinova"):
+        assert name in ALL
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_fk_equals_pinocchio(name):
+    arm = robots.load(name)
+    rng = np.random.default_rng(7)
+    # within the limits, and well outside them (fk is plain kinematics, no clipping)
+    q = np.concatenate([arm.sample_q(300, seed=1), rng.uniform(-4, 4, (100, arm.nq))])
+    expected, _ = pinocchio_fk(arm, q)
+    np.testing.assert_allclose(arm.fk(q), expected, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_chain_model_is_fixed_base_and_arm_only(name):
+    arm = robots.load(name)
+    assert arm.lower.shape == arm.upper.shape == (arm.nq,)
+    assert np.all(arm.lower < arm.upper)
+    assert arm.model.nv == arm.nq  # one velocity per joint: no free flyer, no locked-out gripper left
+    assert len(arm.joint_names) == arm.nq
+    assert np.all((arm.rest >= arm.lower) & (arm.rest <= arm.upper))
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_joint_positions_are_the_joint_origins(name):
+    arm = robots.load(name)
+    q = arm.sample_q(20, seed=3)
+    chain = arm.joint_positions(q)
+    assert chain.shape == (20, arm.nq + 2, 3)
+    np.testing.assert_allclose(chain[:, -1], arm.fk(q), atol=1e-12)
+    data = arm.model.createData()
+    for x, pts in zip(arm.to_pinocchio(q), chain):
+        pin.forwardKinematics(arm.model, data, x)
+        for k, j in enumerate(arm.chain.joint_ids):
+            # a joint's origin before its own motion = oMi of its parent composed with its placement
+            parent = data.oMi[int(arm.model.parents[int(j)])]
+            origin = (parent * arm.model.jointPlacements[int(j)]).translation
+            np.testing.assert_allclose(pts[k + 1], origin, atol=1e-9)
+
+
+def eq3_planar(q):
+    """Translation column of the paper's eq. (3)."""
+    a1, a2, a3 = 8.625, 8.625, 6.125
+    t1, t2, t3 = q[:, 0], q[:, 1], q[:, 2]
+    x = a1 * np.cos(t1) + a2 * np.cos(t1 + t2) + a3 * np.cos(t1 + t2 + t3)
+    y = a1 * np.sin(t1) + a2 * np.sin(t1 + t2) + a3 * np.sin(t1 + t2 + t3)
+    return np.column_stack([x, y, np.zeros_like(x)])
+
+
+def eq4_scara(q):
+    """Translation column of the paper's eq. (4) and its rotation block.
+
+    As printed, eq. (4)'s rotation block [[C, -S, 0], [S, C, 0], [0, 0, -1]] has determinant -1:
+    no rotation has it. Table 2's D-H product (alpha2 = pi) gives [[C, S, 0], [S, -C, 0], [0, 0, -1]],
+    which agrees with the print in its first and third columns; the test checks those.
+    """
+    a1, a2 = 20.0, 20.0
+    t1, t2, t3, d4 = q.T
+    p = np.column_stack([a1 * np.cos(t1) + a2 * np.cos(t1 + t2), a1 * np.sin(t1) + a2 * np.sin(t1 + t2), -d4])
+    c, s = np.cos(t1 + t2 - t3), np.sin(t1 + t2 - t3)
+    R = np.zeros((len(q), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, -1.0
+    return p, R
+
+
+def test_planar_equals_eq3():
+    arm = robots.load("planar")
+    q = np.concatenate([arm.sample_q(500, seed=0), np.random.default_rng(1).uniform(-7, 7, (200, 3))])
+    np.testing.assert_allclose(arm.fk(q), eq3_planar(q), rtol=0, atol=1e-9)
+    # eq. (3)'s rotation block is a rotation of theta1 + theta2 + theta3 about z
+    _, rot = pinocchio_fk(arm, q[:50])
+    ang = q[:50].sum(axis=1)
+    np.testing.assert_allclose(rot[:, 0, 0], np.cos(ang), atol=1e-9)
+    np.testing.assert_allclose(rot[:, 1, 0], np.sin(ang), atol=1e-9)
+
+
+def test_scara_equals_eq4():
+    arm = robots.load("scara")
+    q = np.concatenate([arm.sample_q(500, seed=0), np.random.default_rng(1).uniform(-7, 12, (200, 4))])
+    p, R = eq4_scara(q)
+    np.testing.assert_allclose(arm.fk(q), p, rtol=0, atol=1e-9)
+    _, rot = pinocchio_fk(arm, q)
+    np.testing.assert_allclose(rot[:, :, [0, 2]], R[:, :, [0, 2]], atol=1e-9)
+    np.testing.assert_allclose(np.linalg.det(rot), 1.0, atol=1e-9)
+
+
+def test_paper_arms_protocol_limits_and_axes():
+    planar, scara = robots.load("planar"), robots.load("scara")
+    pi = np.pi
+    np.testing.assert_allclose(planar.lower, [-pi / 2, 0, 0])
+    np.testing.assert_allclose(planar.upper, [pi / 2, pi / 2, pi / 2])
+    np.testing.assert_allclose(scara.lower, [-pi / 2, 0, -pi, 0])
+    np.testing.assert_allclose(scara.upper, [pi / 2, 3 * pi / 4, pi, 10])
+    assert planar.task_axes == (0, 1) and scara.task_axes == (0, 1, 2)
+    assert planar.joint_names == ("theta1", "theta2", "theta3")
+    assert scara.joint_names == ("theta1", "theta2", "theta3", "d4")
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_sample_goals_are_reached_positions_and_reproducible(name):
+    arm = robots.load(name)
+    g = arm.sample_goals(70, seed=5)
+    assert g.shape == (70, len(arm.task_axes))
+    np.testing.assert_array_equal(g, arm.sample_goals(70, seed=5))
+    assert not np.array_equal(g, arm.sample_goals(70, seed=6))
+    q = arm.sample_q(70, seed=5)
+    assert np.all((q >= arm.lower) & (q <= arm.upper))
+    np.testing.assert_array_equal(g, arm.fk(q)[:, list(arm.task_axes)])
+    lo, hi = arm.workspace_bounds
+    # the bounds come from a larger sample of the same distribution: they contain nearly all goals
+    assert np.mean(np.all((g >= lo) & (g <= hi), axis=1)) > 0.9
+
+
+def test_batch_shapes_are_kept():
+    arm = robots.load("ur5")
+    q = arm.sample_q(24, seed=0).reshape(2, 3, 4, 6)
+    p = arm.fk(q)
+    assert p.shape == (2, 3, 4, 3)
+    np.testing.assert_array_equal(p.reshape(-1, 3), arm.fk(q.reshape(-1, 6)))
+    assert arm.fk(q[0, 0, 0]).shape == (3,)
+
+
+def test_continuous_joints_are_single_angles():
+    arm = robots.load("kinova")
+    assert arm.nq == 6 and arm.model.nq == 9
+    q = arm.sample_q(50, seed=2)
+    np.testing.assert_allclose(arm.from_pinocchio(arm.to_pinocchio(q)), q, atol=1e-12)
+    np.testing.assert_allclose(arm.fk(q), arm.fk(q + 2 * np.pi * arm.chain.continuous), atol=1e-9)
+
+
+def test_unknown_name_lists_the_known_ones():
+    with pytest.raises(ValueError) as e:
+        robots.load("iiwa")
+    assert "iiwa" in str(e.value)
+    for name in ALL:
+        assert name in str(e.value)
+
+
+@pytest.mark.parametrize("shape", [(5, 2), (4,), (), (3, 7)])
+def test_q_of_wrong_shape_names_the_expected_shape(shape):
+    arm = robots.load("planar")
+    with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
+        arm.fk(np.zeros(shape))
+
+
+def test_nan_in_q_gives_nan_out():
+    arm = robots.load("scara")
+    q = arm.sample_q(4, seed=0)
+    q[1, 2] = np.nan
+    q[3, 3] = np.inf
+    p = arm.fk(q)
+    assert np.all(np.isfinite(p[[0, 2]]))
+    assert np.isnan(p[1, :2]).all()  # theta3 turns the wrist only; x, y of the tool follow it
+    assert not np.all(np.isfinite(p[3]))
+
+
+def test_missing_end_effector_frame_is_a_clear_error(tmp_path):
+    with pytest.raises(ValueError, match=r"end-effector frame 'tool9' not found"):
+        robots.from_urdf(os.path.join(os.path.dirname(robots.__file__), "urdf", "planar.urdf"), "tool9")
+
+
+def test_unreadable_or_invalid_urdf_is_a_clear_error(tmp_path):
+    with pytest.raises(OSError, match="cannot read URDF"):
+        robots.from_urdf(tmp_path / "missing.urdf", "ee")
+    bad = tmp_path / "bad.urdf"
+    bad.write_text("<robot name='x'><link name='a'></robot>")
+    with pytest.raises(ValueError, match="not a valid URDF"):
+        robots.from_urdf(bad, "a")
