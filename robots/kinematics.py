@@ -101,6 +101,11 @@ class ChainKinematics:
     def n(self) -> int:
         return len(self.joint_ids)
 
+    @property
+    def arrays(self) -> tuple:
+        """(rot, pos, kind, identity, ee_pos): the arguments `chain_point` takes after q and i."""
+        return self.rot, self.pos, self.kind, self.identity, self.ee_pos
+
     def positions(self, q: np.ndarray) -> np.ndarray:
         """End-effector positions, (N, n) -> (N, 3)."""
         out = np.empty((q.shape[0], 3))
@@ -129,51 +134,57 @@ class ChainKinematics:
 _NO_JOINTS = np.empty((0, 0, 3))
 
 
-@numba.njit(cache=True, nogil=True)
-def _chain_kernel(q, rot, pos, kind, identity, ee_pos, out, joints):
-    """Compose the chain for every row of q; end effector into out (N, 3).
+@numba.njit(cache=True, nogil=True, inline="always")
+def chain_point(q, i, rot, pos, kind, identity, ee_pos, joints):
+    """End-effector position (x, y, z) of configuration q[i] (compiled; for use in other kernels).
 
     The running rotation R = [r00 .. r22] and position p = (px, py, pz) live in scalars:
     per joint k,  p += R pos[k];  R = R rot[k];  then a revolute joint mixes columns 0 and 1
     of R by (cos q, sin q), a prismatic one adds q R[:, 2] to p. If joints has rows, the
     origin of each joint (before its own motion) is written to joints[i, k + 1].
     """
-    n = rot.shape[0]
-    with_joints = joints.shape[0] > 0
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+    px, py, pz = 0.0, 0.0, 0.0
+    for k in range(rot.shape[0]):
+        px += r00 * pos[k, 0] + r01 * pos[k, 1] + r02 * pos[k, 2]
+        py += r10 * pos[k, 0] + r11 * pos[k, 1] + r12 * pos[k, 2]
+        pz += r20 * pos[k, 0] + r21 * pos[k, 1] + r22 * pos[k, 2]
+        if joints.shape[0] > 0:
+            joints[i, k + 1, 0] = px
+            joints[i, k + 1, 1] = py
+            joints[i, k + 1, 2] = pz
+        if not identity[k]:
+            m = rot[k]
+            a00 = r00 * m[0, 0] + r01 * m[1, 0] + r02 * m[2, 0]
+            a01 = r00 * m[0, 1] + r01 * m[1, 1] + r02 * m[2, 1]
+            a02 = r00 * m[0, 2] + r01 * m[1, 2] + r02 * m[2, 2]
+            a10 = r10 * m[0, 0] + r11 * m[1, 0] + r12 * m[2, 0]
+            a11 = r10 * m[0, 1] + r11 * m[1, 1] + r12 * m[2, 1]
+            a12 = r10 * m[0, 2] + r11 * m[1, 2] + r12 * m[2, 2]
+            a20 = r20 * m[0, 0] + r21 * m[1, 0] + r22 * m[2, 0]
+            a21 = r20 * m[0, 1] + r21 * m[1, 1] + r22 * m[2, 1]
+            a22 = r20 * m[0, 2] + r21 * m[1, 2] + r22 * m[2, 2]
+            r00, r01, r02, r10, r11, r12, r20, r21, r22 = a00, a01, a02, a10, a11, a12, a20, a21, a22
+        x = q[i, k]
+        if kind[k] == 0:  # revolute about local z
+            c = np.cos(x)
+            s = np.sin(x)
+            r00, r01 = c * r00 + s * r01, c * r01 - s * r00
+            r10, r11 = c * r10 + s * r11, c * r11 - s * r10
+            r20, r21 = c * r20 + s * r21, c * r21 - s * r20
+        else:  # prismatic along local z
+            px += x * r02
+            py += x * r12
+            pz += x * r22
+    return (
+        px + r00 * ee_pos[0] + r01 * ee_pos[1] + r02 * ee_pos[2],
+        py + r10 * ee_pos[0] + r11 * ee_pos[1] + r12 * ee_pos[2],
+        pz + r20 * ee_pos[0] + r21 * ee_pos[1] + r22 * ee_pos[2],
+    )
+
+
+@numba.njit(cache=True, nogil=True)
+def _chain_kernel(q, rot, pos, kind, identity, ee_pos, out, joints):
+    """chain_point for every row of q, into out (N, 3); joint origins into joints if it has rows."""
     for i in range(q.shape[0]):
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
-        px, py, pz = 0.0, 0.0, 0.0
-        for k in range(n):
-            px += r00 * pos[k, 0] + r01 * pos[k, 1] + r02 * pos[k, 2]
-            py += r10 * pos[k, 0] + r11 * pos[k, 1] + r12 * pos[k, 2]
-            pz += r20 * pos[k, 0] + r21 * pos[k, 1] + r22 * pos[k, 2]
-            if with_joints:
-                joints[i, k + 1, 0] = px
-                joints[i, k + 1, 1] = py
-                joints[i, k + 1, 2] = pz
-            if not identity[k]:
-                m = rot[k]
-                a00 = r00 * m[0, 0] + r01 * m[1, 0] + r02 * m[2, 0]
-                a01 = r00 * m[0, 1] + r01 * m[1, 1] + r02 * m[2, 1]
-                a02 = r00 * m[0, 2] + r01 * m[1, 2] + r02 * m[2, 2]
-                a10 = r10 * m[0, 0] + r11 * m[1, 0] + r12 * m[2, 0]
-                a11 = r10 * m[0, 1] + r11 * m[1, 1] + r12 * m[2, 1]
-                a12 = r10 * m[0, 2] + r11 * m[1, 2] + r12 * m[2, 2]
-                a20 = r20 * m[0, 0] + r21 * m[1, 0] + r22 * m[2, 0]
-                a21 = r20 * m[0, 1] + r21 * m[1, 1] + r22 * m[2, 1]
-                a22 = r20 * m[0, 2] + r21 * m[1, 2] + r22 * m[2, 2]
-                r00, r01, r02, r10, r11, r12, r20, r21, r22 = a00, a01, a02, a10, a11, a12, a20, a21, a22
-            x = q[i, k]
-            if kind[k] == 0:  # revolute about local z
-                c = np.cos(x)
-                s = np.sin(x)
-                r00, r01 = c * r00 + s * r01, c * r01 - s * r00
-                r10, r11 = c * r10 + s * r11, c * r11 - s * r10
-                r20, r21 = c * r20 + s * r21, c * r21 - s * r20
-            else:  # prismatic along local z
-                px += x * r02
-                py += x * r12
-                pz += x * r22
-        out[i, 0] = px + r00 * ee_pos[0] + r01 * ee_pos[1] + r02 * ee_pos[2]
-        out[i, 1] = py + r10 * ee_pos[0] + r11 * ee_pos[1] + r12 * ee_pos[2]
-        out[i, 2] = pz + r20 * ee_pos[0] + r21 * ee_pos[1] + r22 * ee_pos[2]
+        out[i, 0], out[i, 1], out[i, 2] = chain_point(q, i, rot, pos, kind, identity, ee_pos, joints)
