@@ -1,0 +1,19 @@
+"""Lab: neuro-controllers evolved by CMA-ES and NEAT to solve inverse kinematics.
+
+    import lab
+    run = lab.evolve(robot="planar", method="cmaes", generations=1000, population=50, targets=70, seed=0)
+    run.controller(goals)        # (n, len(task_axes)) -> (n, nq) within the joint limits
+    run.train_mse, run.test_mse  # final best on the training and held-out goals
+
+Nothing here knows about the GUI.
+"""
+
+from .config import TrainConfig
+from .controllers import Controller, GraphController, MLPController, controller_from_dict
+from .evolve import Run, evolve
+from .runner import GenerationEvent, Runner, RunSummary
+
+__all__ = [
+    "Controller", "GenerationEvent", "GraphController", "MLPController", "Run", "RunSummary", "Runner",
+    "TrainConfig", "controller_from_dict", "evolve",
+]

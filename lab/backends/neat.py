@@ -1,0 +1,233 @@
+"""NEAT (neat-python 2.0) evolving topology and weights (paper, sections 3 and 4.3).
+
+The paper's parameters map onto neat-python as follows:
+    connected input nodes = all          initial_connection = full_direct
+    P(add node) = 0.002                  node_add_prob = 0.002
+    P(add connection) = 0.002            conn_add_prob = 0.002
+    P(mutate weight) = 0.5               weight_mutate_rate = 0.5 (bias likewise)
+    weight cap 1000                      weight_min/max_value = -/+1000 (bias likewise)
+    mutation weight range 1              weight_mutate_power = 1.0
+    P(re-enable) = 0.25                  enabled_rate_to_true_add = 0.5: a disabled gene is
+                                         redrawn with p = 0.5, and comes back True half the time
+    activation tanh                      "tanh_": the textbook tanh (neat's own "tanh" is tanh(2.5 z))
+
+neat-python 2.0 traps handled here (shared/notes/dependencies.md): a fresh Config per run (its
+innovation tracker keeps state); single_structural_mutation set explicitly (an omitted value
+is the truthy string 'false'); fitness_criterion = max with fitness = -MSE (min is broken
+before 2.1). neat-python draws from the global `random` module: each backend keeps its own
+random state and swaps it in under a lock for every generation, so runs are reproducible by
+seed even when several run in threads of one process.
+
+Generations are advanced one at a time (the body of Population.run), so the runner can
+pause and stop between any two; all genomes of a generation are compiled to one program and
+evaluated in one compiled call.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import random
+import tempfile
+import threading
+
+import neat
+import numpy as np
+
+from ..controllers import GraphController
+from .base import Backend, StepResult
+
+_RANDOM_LOCK = threading.Lock()
+BAD_FITNESS = -1e30  # neat-python needs a finite float; NaN/inf outputs get this
+TARGET_SPECIES = 5
+
+PAPER_NEAT = dict(node_add_prob=0.002, conn_add_prob=0.002, weight_mutate_rate=0.5, weight_cap=1000.0,
+                  weight_mutate_power=1.0, enabled_rate_to_true_add=0.5)
+
+
+def neat_config_text(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int) -> str:
+    p = PAPER_NEAT
+    cap = p["weight_cap"]
+    return f"""
+[NEAT]
+fitness_criterion     = max
+fitness_threshold     = 1e30
+pop_size              = {pop_size}
+reset_on_extinction   = True
+no_fitness_termination = True
+seed                  = {seed}
+
+[DefaultGenome]
+num_inputs              = {n_inputs}
+num_outputs             = {n_outputs}
+num_hidden              = {hidden}
+feed_forward            = True
+initial_connection      = full_direct
+activation_default      = tanh_
+activation_mutate_rate  = 0.0
+activation_options      = tanh_
+aggregation_default     = sum
+aggregation_mutate_rate = 0.0
+aggregation_options     = sum
+bias_init_mean          = 0.0
+bias_init_stdev         = 1.0
+bias_max_value          = {cap}
+bias_min_value          = {-cap}
+bias_mutate_power       = {p["weight_mutate_power"]}
+bias_mutate_rate        = {p["weight_mutate_rate"]}
+bias_replace_rate       = 0.0
+response_init_mean      = 1.0
+response_init_stdev     = 0.0
+response_max_value      = 1.0
+response_min_value      = 1.0
+response_mutate_power   = 0.0
+response_mutate_rate    = 0.0
+response_replace_rate   = 0.0
+weight_init_mean        = 0.0
+weight_init_stdev       = 1.0
+weight_max_value        = {cap}
+weight_min_value        = {-cap}
+weight_mutate_power     = {p["weight_mutate_power"]}
+weight_mutate_rate      = {p["weight_mutate_rate"]}
+weight_replace_rate     = 0.0
+enabled_default         = True
+enabled_mutate_rate     = 0.0
+enabled_rate_to_true_add = {p["enabled_rate_to_true_add"]}
+enabled_rate_to_false_add = 0.0
+compatibility_disjoint_coefficient = 1.0
+compatibility_weight_coefficient   = 0.5
+conn_add_prob           = {p["conn_add_prob"]}
+conn_delete_prob        = 0.0
+node_add_prob           = {p["node_add_prob"]}
+node_delete_prob        = 0.0
+single_structural_mutation = False
+structural_mutation_surer  = default
+
+[DefaultSpeciesSet]
+compatibility_threshold = 3.0
+
+[DefaultStagnation]
+species_fitness_func = max
+max_stagnation       = 20
+species_elitism      = 2
+
+[DefaultReproduction]
+elitism            = 2
+survival_threshold = 0.2
+min_species_size   = 2
+"""
+
+
+def textbook_tanh(z: float) -> float:
+    """tanh(z); neat-python's own "tanh" is tanh(2.5 z)."""
+    return math.tanh(z)
+
+
+def make_neat_config(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int) -> neat.Config:
+    """A fresh neat.Config (never reuse one between runs) with the textbook tanh registered."""
+    fd, path = tempfile.mkstemp(suffix=".ini", prefix="neat-")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(neat_config_text(n_inputs, n_outputs, pop_size, hidden, seed))
+        config = neat.Config(neat.DefaultGenome, neat.DefaultReproduction, neat.DefaultSpeciesSet,
+                             neat.DefaultStagnation, path)
+    finally:
+        os.unlink(path)
+    config.genome_config.add_activation("tanh_", textbook_tanh)
+    return config
+
+
+def genome_to_controller(genome, config: neat.Config, encoding, record: bool = True) -> GraphController:
+    """Compile a genome the way neat.nn.FeedForwardNetwork.create does, into a GraphController.
+
+    record: also keep all the genome's nodes and connections (for logs and display).
+    """
+    gc = config.genome_config
+    enabled = [cg.key for cg in genome.connections.values() if cg.enabled]
+    layers, required = neat.graphs.feed_forward_layers(gc.input_keys, gc.output_keys, enabled)
+    sources = required | set(gc.input_keys)
+    nodes = []
+    for layer in layers:
+        for key in sorted(layer):  # neat iterates a set; the order within a layer does not matter
+            links = tuple((i, genome.connections[(i, o)].weight) for i, o in enabled if o == key and i in sources)
+            ng = genome.nodes[key]
+            nodes.append((int(key), float(ng.bias), float(ng.response), tuple((int(i), float(w)) for i, w in links)))
+    record = {
+        "nodes": [[int(k), float(n.bias)] for k, n in sorted(genome.nodes.items())],
+        "connections": [[int(i), int(o), float(c.weight), bool(c.enabled)] for (i, o), c in sorted(genome.connections.items())],
+    } if record else {}
+    return GraphController(encoding, tuple(nodes), tuple(gc.input_keys), tuple(gc.output_keys), record)
+
+
+class NEATBackend(Backend):
+    method = "neat"
+
+    def __init__(self, problem, config):
+        super().__init__(problem, config)
+        enc = problem.encoding
+        self.neat_config = make_neat_config(enc.n_inputs, enc.n_outputs, config.population, config.hidden, config.seed)
+        with _RANDOM_LOCK:
+            saved = random.getstate()
+            self.population = neat.Population(self.neat_config, seed=config.seed)
+            self._fit_species()
+            self._random_state = random.getstate()
+            random.setstate(saved)
+
+    def hyperparameters(self) -> dict:
+        return {**PAPER_NEAT, "initial_hidden": self.config.hidden, "pop_size": self.config.population,
+                "activation": "tanh", "neat-python": getattr(neat, "__version__", "2.0")}
+
+    def _step(self) -> StepResult:
+        with _RANDOM_LOCK:
+            saved = random.getstate()
+            random.setstate(self._random_state)
+            try:
+                result = self._generation()
+            finally:
+                self._random_state = random.getstate()
+                random.setstate(saved)
+        return result
+
+    def _generation(self) -> StepResult:
+        """One pass of neat.Population.run's loop, with a batched fitness evaluation."""
+        pop = self.population
+        genomes = list(pop.population.values())
+        enc = self.problem.encoding
+        graphs = [genome_to_controller(g, self.neat_config, enc, record=False) for g in genomes]
+        mse = self.problem.graphs_mse(graphs)
+        for g, m in zip(genomes, mse):
+            g.fitness = -float(m) if np.isfinite(m) else BAD_FITNESS
+        i = int(np.argmin(mse))
+        self._offer(mse[i], lambda: genome_to_controller(genomes[i], self.neat_config, enc))
+        best = genomes[i]
+        pop.reporters.post_evaluate(pop.config, pop.population, pop.species, best)
+        if pop.best_genome is None or best.fitness > pop.best_genome.fitness:
+            pop.best_genome = best
+        extras = {
+            "species": len(pop.species.species),
+            "nodes": len(best.nodes), "connections": sum(c.enabled for c in best.connections.values()),
+            "hidden": graphs[i].n_hidden,
+        }
+        pop.population = pop.reproduction.reproduce(pop.config, pop.species, pop.config.pop_size, pop.generation)
+        if not pop.species.species:  # complete extinction: start afresh (reset_on_extinction)
+            pop.population = pop.reproduction.create_new(pop.config.genome_type, pop.config.genome_config,
+                                                         pop.config.pop_size)
+        pop.species.speciate(pop.config, pop.population, pop.generation)
+        self._fit_species()
+        pop.generation += 1
+        return StepResult(mse, extras)
+
+    def _fit_species(self) -> None:
+        """Steer the compatibility threshold toward TARGET_SPECIES species (Stanley's dynamic
+        threshold), and re-speciate at once when there are too many species for neat-python's
+        per-species minimum (pop_size >= species x min_species_size), which it would refuse."""
+        pop = self.population
+        ss = pop.config.species_set_config
+        n = len(pop.species.species)
+        ss.compatibility_threshold *= 1.1 if n > TARGET_SPECIES else (0.97 if n < TARGET_SPECIES else 1.0)
+        ss.compatibility_threshold = max(ss.compatibility_threshold, 0.3)
+        limit = pop.config.pop_size // pop.config.reproduction_config.min_species_size
+        while len(pop.species.species) > limit:  # every old species keeps a member: start afresh
+            ss.compatibility_threshold *= 1.5
+            pop.species.species = {}
+            pop.species.speciate(pop.config, pop.population, pop.generation)

@@ -1,0 +1,81 @@
+"""Training configuration: one frozen dataclass, validated before any work starts.
+
+`TrainConfig.preset(paper=...)` gives the two settings the project compares:
+- paper=True: the paper's method literally (goals scaled to [-1, 1] as inputs, one MLP
+  trained by plain CMA-ES from one start; NEAT with the paper's parameters);
+- paper=False (the default): this project's choices, each backed by a measured comparison
+  in benchmarks/bench_quality.py (README, "Quality").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import robots
+
+from .encoding import FEATURES
+
+METHODS = ("cmaes", "neat")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    robot: str = "planar"
+    method: str = "cmaes"
+    generations: int = 1000
+    population: int = 50
+    targets: int = 70
+    seed: int = 0
+    test_goals: int = 1000
+    goal_seed: int = 0  # the training and held-out goals; fixed across runs, as in the paper
+    features: str = "polar"  # network inputs (lab/encoding.py)
+    hidden: int | None = None  # MLP hidden units (CMA-ES); NEAT: hidden nodes of the first genomes
+                               # (None: DEFAULT_HIDDEN of the method)
+    sigma0: float = 0.5  # CMA-ES initial step size
+    restarts: bool = True  # CMA-ES: restart from a new point when a run stagnates (same budget)
+    paper: bool = False  # record that this is the paper's literal method (see preset)
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"unknown method {self.method!r}; known methods: {', '.join(METHODS)}")
+        if self.robot not in robots.names():
+            raise ValueError(f"unknown robot {self.robot!r}; known robots: {', '.join(robots.names())}")
+        for name in ("generations", "population", "targets", "test_goals"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        if self.population < 4 and self.method == "cmaes":
+            raise ValueError(f"population must be >= 4 for CMA-ES, got {self.population}")
+        if self.population < 2:
+            raise ValueError(f"population must be >= 2, got {self.population}")
+        if self.hidden is None:
+            object.__setattr__(self, "hidden", DEFAULT_HIDDEN[self.method])
+        if self.features not in FEATURES:
+            raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
+        if not isinstance(self.hidden, int) or self.hidden < (1 if self.method == "cmaes" else 0):
+            raise ValueError(f"hidden must be an integer >= {1 if self.method == 'cmaes' else 0}, got {self.hidden!r}")
+        if not (self.sigma0 > 0 and self.sigma0 < 1e6):
+            raise ValueError(f"sigma0 must be a positive number, got {self.sigma0!r}")
+
+    @classmethod
+    def preset(cls, paper: bool = False, **overrides) -> "TrainConfig":
+        """The paper's literal method (paper=True) or this project's tuned defaults, then overrides."""
+        base = dict(PAPER_PRESET if paper else {}, paper=paper)
+        if paper:
+            base.update(hidden=PAPER_HIDDEN[overrides.get("method", "cmaes")])
+        base.update({k: v for k, v in overrides.items() if v is not None})
+        return cls(**base)
+
+    def replace(self, **changes) -> "TrainConfig":
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+# The paper fixes no hidden-layer size or step size; these are the values a reader of the
+# paper would pick (bench_quality.py measures them against the tuned defaults).
+PAPER_PRESET = dict(features="cartesian", sigma0=0.5, restarts=False)
+PAPER_HIDDEN = {"cmaes": 8, "neat": 0}  # NEAT starts with inputs wired to outputs (paper, 4.3)
+DEFAULT_HIDDEN = {"cmaes": 12, "neat": 0}

@@ -1,0 +1,175 @@
+"""Neuro-controllers: goal positions in, joint values out.
+
+Two kinds, one contract (`Controller`): called on goals (n, len(task_axes)) they return joint
+values (n, nq) within the joint limits; `to_dict()` is complete enough to rebuild them
+(`controller_from_dict`), which is how the Rerun logger stores them.
+
+- `MLPController`: the paper's fixed-topology MLP (section 4.3), a weight vector.
+- `GraphController`: a NEAT genome compiled to a feed-forward program (nodes in evaluation
+  order, each tanh(bias + response * sum w v)), evaluated in one compiled call for all goals.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from . import kernels
+from .encoding import Encoding
+
+
+class Controller(Protocol):
+    kind: str
+    encoding: Encoding
+
+    @property
+    def n_params(self) -> int: ...
+
+    def outputs(self, goals: np.ndarray) -> np.ndarray: ...
+
+    def __call__(self, goals: np.ndarray) -> np.ndarray: ...
+
+    def to_dict(self) -> dict: ...
+
+
+def mlp_size(n_inputs: int, hidden: int, n_outputs: int) -> int:
+    """Genome length N = (ni + 1) nh + nh no (paper, section 4.3)."""
+    return (n_inputs + 1) * hidden + hidden * n_outputs
+
+
+@dataclass(frozen=True, eq=False)
+class MLPController:
+    """The paper's MLP: w_i (ni+1, nh) with the bias as last input, then w_o (nh, no)."""
+
+    encoding: Encoding
+    hidden: int
+    weights: np.ndarray  # (N,)
+    kind: str = "mlp"
+
+    def __post_init__(self):
+        n = mlp_size(self.encoding.n_inputs, self.hidden, self.encoding.n_outputs)
+        w = np.ascontiguousarray(self.weights, dtype=np.float64)
+        if w.shape != (n,):
+            raise ValueError(f"MLP with {self.hidden} hidden units needs {n} weights, got shape {w.shape}")
+        object.__setattr__(self, "weights", w)
+
+    @property
+    def n_params(self) -> int:
+        return self.weights.size
+
+    @property
+    def w_i(self) -> np.ndarray:
+        ni = self.encoding.n_inputs
+        return self.weights[: (ni + 1) * self.hidden].reshape(ni + 1, self.hidden)
+
+    @property
+    def w_o(self) -> np.ndarray:
+        ni = self.encoding.n_inputs
+        return self.weights[(ni + 1) * self.hidden :].reshape(self.hidden, self.encoding.n_outputs)
+
+    def outputs(self, goals: np.ndarray) -> np.ndarray:
+        """Network outputs a_o in [-1, 1], (n, nq)."""
+        X = self.encoding.inputs(goals)
+        out = np.empty((len(X), self.encoding.n_outputs))
+        kernels.mlp_forward(X, self.weights, self.hidden, self.encoding.n_outputs, out)
+        return out
+
+    def __call__(self, goals: np.ndarray) -> np.ndarray:
+        return self.encoding.joints(self.outputs(goals))
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "encoding": self.encoding.to_dict(), "hidden": self.hidden,
+                "weights": self.weights.tolist()}
+
+
+@dataclass(frozen=True, eq=False)
+class GraphController:
+    """A feed-forward graph with tanh nodes: the phenotype of a NEAT genome.
+
+    nodes:       [(key, bias, response, [(source key, weight), ...]), ...] in evaluation order
+    input_keys:  keys of the inputs (NEAT: -1, -2, ...), one per encoded input
+    output_keys: keys of the outputs, one per joint (an output absent from nodes gives 0)
+    genome:      the genome's nodes and connections (all, with enabled flags), for display and logs
+    """
+
+    encoding: Encoding
+    nodes: tuple
+    input_keys: tuple[int, ...]
+    output_keys: tuple[int, ...]
+    genome: dict
+    kind: str = "graph"
+
+    @property
+    def n_params(self) -> int:
+        """Evolved parameters of the expressed network: enabled weights + node biases."""
+        return sum(len(links) for _, _, _, links in self.nodes) + len(self.nodes)
+
+    @property
+    def n_hidden(self) -> int:
+        return sum(1 for key, *_ in self.nodes if key not in self.output_keys)
+
+    def program(self):
+        return compile_programs([self])
+
+    def outputs(self, goals: np.ndarray) -> np.ndarray:
+        X = self.encoding.inputs(goals)
+        return run_programs(self.program(), X)[0]
+
+    def __call__(self, goals: np.ndarray) -> np.ndarray:
+        return self.encoding.joints(self.outputs(goals))
+
+    def to_dict(self) -> dict:
+        return {
+            "kind": self.kind, "encoding": self.encoding.to_dict(),
+            "nodes": [[k, b, r, [[s, w] for s, w in links]] for k, b, r, links in self.nodes],
+            "input_keys": list(self.input_keys), "output_keys": list(self.output_keys),
+            "genome": self.genome,
+        }
+
+
+def compile_programs(graphs) -> tuple:
+    """Flatten graphs into the arrays `kernels.graph_forward` walks (see its docstring)."""
+    ni = len(graphs[0].input_keys)
+    no = len(graphs[0].output_keys)
+    starts, n_nodes, bias, response, link_start, link_src, link_w = [], [], [], [], [0], [], []
+    out_slot = np.full((len(graphs), no), -1, dtype=np.int64)
+    for p, g in enumerate(graphs):
+        slot = {k: i for i, k in enumerate(g.input_keys)}
+        starts.append(len(bias))
+        n_nodes.append(len(g.nodes))
+        for k, (key, b, r, links) in enumerate(g.nodes):
+            bias.append(b)
+            response.append(r)
+            for src, w in links:
+                link_src.append(slot[src])
+                link_w.append(w)
+            link_start.append(len(link_src))
+            slot[key] = ni + k
+        for o, key in enumerate(g.output_keys):
+            out_slot[p, o] = slot.get(key, -1)
+    as_i = lambda x: np.asarray(x, dtype=np.int64)  # noqa: E731
+    as_f = lambda x: np.asarray(x, dtype=np.float64)  # noqa: E731
+    return (as_i(starts), as_i(n_nodes), as_f(bias), as_f(response), as_i(link_start),
+            as_i(link_src), as_f(link_w), out_slot, no)
+
+
+def run_programs(program: tuple, X: np.ndarray) -> np.ndarray:
+    """Outputs (P, n, no) of every compiled graph on inputs X (n, ni)."""
+    P = len(program[0])
+    out = np.empty((P, len(X), program[-1]))
+    kernels.graph_forward(X, *program, out, 0, P)
+    return out
+
+
+def controller_from_dict(d: dict) -> Controller:
+    """Rebuild a controller from its `to_dict()`."""
+    enc = Encoding.from_dict(d["encoding"])
+    if d["kind"] == "mlp":
+        return MLPController(enc, int(d["hidden"]), np.asarray(d["weights"], dtype=np.float64))
+    if d["kind"] == "graph":
+        nodes = tuple((int(k), float(b), float(r), tuple((int(s), float(w)) for s, w in links))
+                      for k, b, r, links in d["nodes"])
+        return GraphController(enc, nodes, tuple(d["input_keys"]), tuple(d["output_keys"]), d["genome"])
+    raise ValueError(f"unknown controller kind {d['kind']!r}")

@@ -1,0 +1,86 @@
+"""How goals enter a network and how its outputs become joint values.
+
+Inputs (features):
+    "cartesian"  the goal's task coordinates, each scaled to [-1, 1] by the workspace bounds
+                 (the paper's encoding);
+    "polar"      the same, plus the goal's distance from the base axis r = hypot(x, y) and its
+                 bearing phi = atan2(y, x), both scaled to [-1, 1] by their ranges over the workspace.
+Outputs: a network output a in [-1, 1] maps linearly onto the joint range,
+    q = lower + (a + 1) / 2 * (upper - lower).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+import robots
+
+FEATURES = ("cartesian", "polar")
+
+
+@dataclass(frozen=True, eq=False)
+class Encoding:
+    """Input scaling and output mapping of one arm (all arrays float64)."""
+
+    features: str
+    task_axes: tuple[int, ...]
+    in_lo: np.ndarray  # (ni,) raw feature value that maps to -1
+    in_hi: np.ndarray  # (ni,) raw feature value that maps to +1
+    q_lo: np.ndarray  # (nq,) joint lower limits
+    q_hi: np.ndarray  # (nq,) joint upper limits
+
+    def __post_init__(self):
+        if self.features not in FEATURES:
+            raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
+
+    @classmethod
+    def for_arm(cls, arm: robots.Arm, features: str = "cartesian") -> "Encoding":
+        goals = arm.sample_goals(20_000, seed=12345)
+        raw = _raw_features(goals, features, len(arm.task_axes))
+        lo, hi = raw.min(axis=0), raw.max(axis=0)
+        flat = hi - lo < 1e-9
+        lo, hi = np.where(flat, lo - 0.5, lo), np.where(flat, hi + 0.5, hi)
+        return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy())
+
+    @property
+    def n_inputs(self) -> int:
+        return len(self.in_lo)
+
+    @property
+    def n_outputs(self) -> int:
+        return len(self.q_lo)
+
+    def inputs(self, goals: np.ndarray) -> np.ndarray:
+        """Goals (n, len(task_axes)) -> network inputs (n, n_inputs) in about [-1, 1]."""
+        goals = np.asarray(goals, dtype=np.float64)
+        if goals.ndim != 2 or goals.shape[1] != len(self.task_axes):
+            raise ValueError(f"goals must have shape (n, {len(self.task_axes)}), got {goals.shape}")
+        raw = _raw_features(goals, self.features, len(self.task_axes))
+        return 2.0 * (raw - self.in_lo) / (self.in_hi - self.in_lo) - 1.0
+
+    def joints(self, a: np.ndarray) -> np.ndarray:
+        """Network outputs in [-1, 1] (..., nq) -> joint values (..., nq) within the limits."""
+        return self.q_lo + (np.asarray(a) + 1.0) * (0.5 * (self.q_hi - self.q_lo))
+
+    def to_dict(self) -> dict:
+        return {
+            "features": self.features, "task_axes": list(self.task_axes),
+            "in_lo": self.in_lo.tolist(), "in_hi": self.in_hi.tolist(),
+            "q_lo": self.q_lo.tolist(), "q_hi": self.q_hi.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Encoding":
+        return cls(d["features"], tuple(d["task_axes"]), *(np.asarray(d[k], float) for k in ("in_lo", "in_hi", "q_lo", "q_hi")))
+
+
+def _raw_features(goals: np.ndarray, features: str, k: int) -> np.ndarray:
+    if features == "cartesian":
+        return goals
+    if k < 2:
+        raise ValueError("polar features need at least two task axes")
+    r = np.hypot(goals[:, 0], goals[:, 1])
+    phi = np.arctan2(goals[:, 1], goals[:, 0])
+    return np.column_stack([goals, r, phi])

@@ -1,0 +1,60 @@
+"""`lab.evolve`: train one controller, blocking, and return what it learned."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterable
+
+import numpy as np
+
+from .config import TrainConfig
+from .controllers import Controller
+from .runner import Runner, RunSummary
+
+
+@dataclass(frozen=True)
+class Run:
+    """The result of one training run.
+
+    controller(goals) maps goals (n, len(task_axes)) to joint values (n, nq) within the limits;
+    train_mse / test_mse: the final best controller's MSE on the training and held-out goals;
+    history: best training MSE so far, per generation.
+    """
+
+    config: TrainConfig
+    controller: Controller
+    train_mse: float
+    test_mse: float
+    history: np.ndarray
+    median_history: np.ndarray
+    n_params: int
+    seconds: float
+    evaluations: int
+    state: str
+    run_id: str
+
+    @classmethod
+    def from_summary(cls, s: RunSummary) -> "Run":
+        return cls(s.config, s.controller, s.train_mse, s.test_mse, s.history, s.median_history,
+                   s.controller.n_params if s.controller is not None else 0, s.seconds, s.evaluations,
+                   s.state, s.run_id)
+
+
+def evolve(robot: str = "planar", method: str = "cmaes", generations: int = 1000, population: int = 50,
+           targets: int = 70, seed: int = 0, *, paper: bool = False,
+           subscribers: Iterable[Callable] = (), **options) -> Run:
+    """Evolve a neuro-controller for `robot` with `method` ("cmaes" or "neat"); blocks until done.
+
+    paper=True uses the paper's literal method (lab.config.PAPER_PRESET); options override
+    single settings of TrainConfig (hidden, sigma0, features, restarts, test_goals, goal_seed).
+    subscribers get every GenerationEvent (see lab.runner).
+    """
+    config = TrainConfig.preset(paper=paper, robot=robot, method=method, generations=generations,
+                                population=population, targets=targets, seed=seed, **options)
+    runner = Runner(config)
+    for s in subscribers:
+        runner.subscribe(s)
+    summary = runner.run()
+    if summary.state == "failed":
+        raise RuntimeError(f"training failed: {summary.error}")
+    return Run.from_summary(summary)

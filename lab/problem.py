@@ -1,0 +1,72 @@
+"""The learning problem: an arm, its fixed training goals, held-out goals, and the fitness.
+
+Fitness (paper, section 4.3): the mean over the training goals of ||p - p'||^2, p' the
+end-effector position the controller's joint values reach (task coordinates only).
+Lower is better; NaN or infinite becomes +inf.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+import robots
+from robots.kinematics import _NO_JOINTS
+
+from . import kernels
+from .controllers import Controller, compile_programs, run_programs
+from .encoding import Encoding
+
+TEST_SEED_OFFSET = 1_000_003  # held-out goals come from another stream than the training goals
+
+
+class Problem:
+    """Training and held-out goals of one arm, with batched fitness evaluation."""
+
+    def __init__(self, arm: robots.Arm, encoding: Encoding, targets: int = 70, test_goals: int = 1000,
+                 goal_seed: int = 0):
+        self.arm = arm
+        self.encoding = encoding
+        self.goal_seed = int(goal_seed)
+        self.train_goals = arm.sample_goals(targets, seed=self.goal_seed)
+        self.test_goals = arm.sample_goals(test_goals, seed=self.goal_seed + TEST_SEED_OFFSET)
+        self.train_inputs = encoding.inputs(self.train_goals)
+        self.test_inputs = encoding.inputs(self.test_goals)
+        self._axes = np.asarray(arm.task_axes, dtype=np.int64)
+        self._q_half = 0.5 * (encoding.q_hi - encoding.q_lo)
+        self._chain = (*arm.chain.arrays, _NO_JOINTS)
+
+    def _split(self, test: bool):
+        return (self.test_inputs, self.test_goals) if test else (self.train_inputs, self.train_goals)
+
+    def mlp_mse(self, W: np.ndarray, hidden: int, test: bool = False) -> np.ndarray:
+        """MSE of every MLP weight vector in W (P, D): (P,)."""
+        X, goals = self._split(test)
+        W = np.ascontiguousarray(W, dtype=np.float64)
+        out = np.empty(len(W))
+        kernels.mlp_mse(X, goals, self._axes, W, int(hidden), self.encoding.q_lo, self._q_half, self._chain, out)
+        return out
+
+    def outputs_mse(self, A: np.ndarray, test: bool = False) -> np.ndarray:
+        """MSE of network outputs A (P, n, nq) in [-1, 1] on the goals: (P,)."""
+        _, goals = self._split(test)
+        out = np.empty(len(A))
+        kernels.joints_mse(np.ascontiguousarray(A), goals, self._axes, self.encoding.q_lo, self._q_half,
+                           self._chain, out)
+        return out
+
+    def graphs_mse(self, graphs, test: bool = False) -> np.ndarray:
+        """MSE of every GraphController in graphs: (P,)."""
+        X, _ = self._split(test)
+        return self.outputs_mse(run_programs(compile_programs(graphs), X), test)
+
+    def controller_mse(self, controller: Controller, goals: np.ndarray | None = None) -> float:
+        """MSE of one controller on goals (the training goals by default), through `arm.fk`."""
+        goals = self.train_goals if goals is None else goals
+        return float(goal_errors(self.arm, controller, goals).mean())
+
+
+def goal_errors(arm: robots.Arm, controller: Controller, goals: np.ndarray) -> np.ndarray:
+    """Squared end-effector error ||p - p'||^2 of a controller on each goal: (n,). NaN -> inf."""
+    reached = arm.reach(controller(goals))
+    err = np.sum((np.asarray(goals) - reached) ** 2, axis=-1)
+    return np.where(np.isfinite(err), err, np.inf)

@@ -1,0 +1,247 @@
+"""The background runner: drives a backend in a thread, one generation at a time.
+
+    runner = Runner(TrainConfig(robot="planar", method="cmaes"))
+    runner.subscribe(callback)       # callback(event: GenerationEvent), once per generation
+    runner.start()                   # returns at once; runner.pause() / resume() / stop()
+    runner.snapshot()                # a consistent view of the current best, from any thread
+    summary = runner.join()          # blocks until the run ends
+
+Subscribers run in the runner's thread, in subscription order, after each generation: keep
+them fast or hand work to a thread of their own (the Rerun logger does). A subscriber that
+raises is reported and unsubscribed; the run goes on. A subscriber may also have an
+`on_end(summary)` method, called once when the run ends (finished, stopped or failed).
+stop() returns within one generation. NumPy's BLAS is limited to one thread while a run goes
+(pycma slows threefold when threaded BLAS meets another busy process on two cores).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+import uuid
+from dataclasses import dataclass, field
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+import robots
+
+from .backends import Backend, make_backend
+from .config import TrainConfig
+from .controllers import Controller
+from .encoding import Encoding
+from .problem import Problem
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class GenerationEvent:
+    """One generation: index from 0; best = best training MSE so far (of `controller`);
+    gen_best/median/worst over this generation's population; evaluations so far; seconds of
+    run time so far (pauses excluded)."""
+
+    run_id: str
+    index: int
+    best: float
+    gen_best: float
+    median: float
+    worst: float
+    evaluations: int
+    seconds: float
+    controller: Controller
+    improved: bool
+    extras: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    state: str
+    generation: int  # generations completed
+    best: float
+    controller: Controller | None
+    history: np.ndarray  # best MSE so far, per generation
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    run_id: str
+    config: TrainConfig
+    state: str  # "finished", "stopped" or "failed"
+    generations: int
+    evaluations: int
+    seconds: float
+    controller: Controller | None
+    train_mse: float
+    test_mse: float
+    history: np.ndarray
+    median_history: np.ndarray
+    error: str | None = None
+
+
+def build_problem(config: TrainConfig) -> Problem:
+    arm = robots.load(config.robot)
+    enc = Encoding.for_arm(arm, config.features)
+    return Problem(arm, enc, targets=config.targets, test_goals=config.test_goals, goal_seed=config.goal_seed)
+
+
+class Runner:
+    def __init__(self, config: TrainConfig, problem: Problem | None = None, blas_threads: int | None = 1):
+        self.config = config
+        self.problem = problem or build_problem(config)
+        self.backend: Backend = make_backend(self.problem, config)
+        self.run_id = uuid.uuid4().hex[:12]
+        self.blas_threads = blas_threads
+        self._subscribers: list = []
+        self._lock = threading.Lock()
+        self._resume = threading.Event()
+        self._resume.set()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._state = "idle"
+        self._history: list[float] = []
+        self._median: list[float] = []
+        self._seconds = 0.0
+        self._summary: RunSummary | None = None
+        self._done = threading.Event()
+
+    # ------------------------------------------------------------------ subscribers
+    def subscribe(self, callback):
+        """Call callback(event) after every generation; returns a function that unsubscribes."""
+        with self._lock:
+            self._subscribers.append(callback)
+        return lambda: self.unsubscribe(callback)
+
+    def unsubscribe(self, callback) -> None:
+        with self._lock:
+            if callback in self._subscribers:
+                self._subscribers.remove(callback)
+
+    # ------------------------------------------------------------------ control
+    @property
+    def state(self) -> str:
+        return self._state
+
+    def start(self) -> "Runner":
+        """Run in a background thread; returns at once."""
+        with self._lock:
+            if self._state != "idle":
+                raise RuntimeError(f"this run was already started (state: {self._state})")
+            self._state = "running"
+        self._thread = threading.Thread(target=self._run, name=f"lab-runner-{self.run_id}", daemon=True)
+        self._thread.start()
+        return self
+
+    def run(self) -> RunSummary:
+        """Run in the calling thread until done; returns the summary."""
+        with self._lock:
+            if self._state != "idle":
+                raise RuntimeError(f"this run was already started (state: {self._state})")
+            self._state = "running"
+        self._run()
+        return self._summary
+
+    def pause(self) -> None:
+        with self._lock:
+            if self._state == "running":
+                self._state = "paused"
+                self._resume.clear()
+
+    def resume(self) -> None:
+        with self._lock:
+            if self._state == "paused":
+                self._state = "running"
+                self._resume.set()
+
+    def stop(self, wait: bool = True, timeout: float | None = None) -> None:
+        """Ask the run to end after the generation in flight; with wait, block until it has."""
+        self._stop.set()
+        self._resume.set()
+        if wait and self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout)
+
+    def join(self, timeout: float | None = None) -> RunSummary | None:
+        self._done.wait(timeout)
+        return self._summary
+
+    @property
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    def snapshot(self) -> Snapshot:
+        with self._lock:
+            return Snapshot(self._state, len(self._history), self.backend.best_mse, self.backend.best,
+                            np.array(self._history))
+
+    # ------------------------------------------------------------------ the loop
+    def _run(self) -> None:
+        error = None
+        try:
+            limits = threadpool_limits(self.blas_threads, user_api="blas") if self.blas_threads else None
+            try:
+                self._loop()
+            finally:
+                if limits is not None:
+                    limits.restore_original_limits()
+        except Exception as e:  # a failed run reports, it never takes the process down
+            log.exception("run %s failed", self.run_id)
+            error = f"{type(e).__name__}: {e}"
+        final = "failed" if error else ("stopped" if self._stop.is_set() else "finished")
+        self._finish(final, error)
+
+    def _loop(self) -> None:
+        backend = self.backend
+        t_run = 0.0
+        for index in range(self.config.generations):
+            if not self._resume.is_set():
+                self._resume.wait()
+            if self._stop.is_set():
+                return
+            t0 = time.perf_counter()
+            before = backend.best_mse
+            result = backend.step()
+            t_run += time.perf_counter() - t0
+            f = result.fitness
+            event = GenerationEvent(
+                run_id=self.run_id, index=index, best=backend.best_mse, gen_best=float(np.min(f)),
+                median=float(np.median(f)), worst=float(np.max(f)), evaluations=backend.evaluations,
+                seconds=t_run, controller=backend.best, improved=backend.best_mse < before, extras=result.extras,
+            )
+            with self._lock:
+                self._history.append(backend.best_mse)
+                self._median.append(event.median)
+                self._seconds = t_run
+                subscribers = list(self._subscribers)
+            for callback in subscribers:
+                self._notify(callback, event)
+
+    def _notify(self, callback, event) -> None:
+        try:
+            callback(event)
+        except Exception:
+            log.exception("subscriber %r failed; unsubscribed", callback)
+            self.unsubscribe(callback)
+
+    def _finish(self, state: str, error: str | None) -> None:
+        b = self.backend
+        test = b.best is not None
+        summary = RunSummary(
+            run_id=self.run_id, config=self.config, state=state, generations=len(self._history),
+            evaluations=b.evaluations, seconds=self._seconds, controller=b.best,
+            train_mse=self.problem.controller_mse(b.best) if test else float("inf"),
+            test_mse=self.problem.controller_mse(b.best, self.problem.test_goals) if test else float("inf"),
+            history=np.array(self._history), median_history=np.array(self._median), error=error,
+        )
+        with self._lock:
+            self._summary = summary
+            self._state = state
+            subscribers = list(self._subscribers)
+        for callback in subscribers:
+            on_end = getattr(callback, "on_end", None)
+            if on_end is not None:
+                try:
+                    on_end(summary)
+                except Exception:
+                    log.exception("subscriber %r failed at the end of the run", callback)
+        self._done.set()
