@@ -30,10 +30,14 @@ class TrainConfig:
     test_goals: int = 1000
     goal_seed: int = 0  # the training and held-out goals; fixed across runs, as in the paper
     features: str = "polar"  # network inputs (lab/encoding.py)
+    margin: float = 0.0  # output range widening before clipping to the limits (lab/encoding.py)
     hidden: int | None = None  # MLP hidden units (CMA-ES); NEAT: hidden nodes of the first genomes
                                # (None: DEFAULT_HIDDEN of the method)
     sigma0: float = 0.5  # CMA-ES initial step size
     restarts: bool = True  # CMA-ES: restart from a new point when a run stagnates (same budget)
+    mutation_power: float = 1.0  # NEAT: std of a weight or bias perturbation (paper: 1)
+    add_node: float = 0.002  # NEAT: probability of an add-node mutation (paper: 0.002)
+    add_connection: float = 0.002  # NEAT: probability of an add-connection mutation (paper: 0.002)
     paper: bool = False  # record that this is the paper's literal method (see preset)
 
     def __post_init__(self):
@@ -41,6 +45,8 @@ class TrainConfig:
             raise ValueError(f"unknown method {self.method!r}; known methods: {', '.join(METHODS)}")
         if self.robot not in robots.names():
             raise ValueError(f"unknown robot {self.robot!r}; known robots: {', '.join(robots.names())}")
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
+            raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
         for name in ("generations", "population", "targets", "test_goals"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
@@ -57,14 +63,21 @@ class TrainConfig:
             raise ValueError(f"hidden must be an integer >= {1 if self.method == 'cmaes' else 0}, got {self.hidden!r}")
         if not (self.sigma0 > 0 and self.sigma0 < 1e6):
             raise ValueError(f"sigma0 must be a positive number, got {self.sigma0!r}")
+        if not (self.mutation_power > 0 and self.mutation_power < 1e6):
+            raise ValueError(f"mutation_power must be a positive number, got {self.mutation_power!r}")
+        for name in ("add_node", "add_connection"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name} must be a probability in [0, 1], got {getattr(self, name)!r}")
 
     @classmethod
     def preset(cls, paper: bool = False, **overrides) -> "TrainConfig":
         """The paper's literal method (paper=True) or this project's tuned defaults, then overrides."""
         base = dict(PAPER_PRESET if paper else {}, paper=paper)
-        if paper:
-            base.update(hidden=PAPER_HIDDEN[overrides.get("method", "cmaes")])
-        base.update({k: v for k, v in overrides.items() if v is not None})
+        method = overrides.get("method", "cmaes")
+        if paper and method in PAPER_HIDDEN:
+            base.update(hidden=PAPER_HIDDEN[method])
+        # None leaves a tuning option at its preset value (the CLI passes None for unset flags)
+        base.update({k: v for k, v in overrides.items() if v is not None or k not in _OPTIONAL})
         return cls(**base)
 
     def replace(self, **changes) -> "TrainConfig":
@@ -76,6 +89,9 @@ class TrainConfig:
 
 # The paper fixes no hidden-layer size or step size; these are the values a reader of the
 # paper would pick (bench_quality.py measures them against the tuned defaults).
-PAPER_PRESET = dict(features="cartesian", sigma0=0.5, restarts=False)
+PAPER_PRESET = dict(features="cartesian", margin=0.0, sigma0=0.5, restarts=False, mutation_power=1.0, add_node=0.002,
+                    add_connection=0.002)
+_OPTIONAL = {"hidden", "sigma0", "features", "margin", "test_goals", "goal_seed", "restarts", "mutation_power",
+             "add_node", "add_connection"}
 PAPER_HIDDEN = {"cmaes": 8, "neat": 0}  # NEAT starts with inputs wired to outputs (paper, 4.3)
 DEFAULT_HIDDEN = {"cmaes": 12, "neat": 0}

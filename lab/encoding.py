@@ -5,8 +5,12 @@ Inputs (features):
                  (the paper's encoding);
     "polar"      the same, plus the goal's distance from the base axis r = hypot(x, y) and its
                  bearing phi = atan2(y, x), both scaled to [-1, 1] by their ranges over the workspace.
-Outputs: a network output a in [-1, 1] maps linearly onto the joint range,
-    q = lower + (a + 1) / 2 * (upper - lower).
+Outputs: a network output a in [-1, 1] maps linearly onto the joint range widened by a
+margin m on each side, then clipped to the limits:
+    q = clip(lower - m h + (a + 1) (1 + m) h, lower, upper),   h = (upper - lower) / 2.
+m = 0 is the paper's mapping (q = lower + (a + 1) h). With m > 0 a tanh output reaches a joint
+limit at a finite pre-activation: the paper's goals are drawn uniformly in joint space, so many
+sit at a limit, where m = 0 asks the output tanh to saturate.
 """
 
 from __future__ import annotations
@@ -30,19 +34,22 @@ class Encoding:
     in_hi: np.ndarray  # (ni,) raw feature value that maps to +1
     q_lo: np.ndarray  # (nq,) joint lower limits
     q_hi: np.ndarray  # (nq,) joint upper limits
+    margin: float = 0.0  # output range widening (fraction of the half range), then clipped
 
     def __post_init__(self):
         if self.features not in FEATURES:
             raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
+        if not 0 <= self.margin < 10:
+            raise ValueError(f"margin must be in [0, 10), got {self.margin!r}")
 
     @classmethod
-    def for_arm(cls, arm: robots.Arm, features: str = "cartesian") -> "Encoding":
+    def for_arm(cls, arm: robots.Arm, features: str = "cartesian", margin: float = 0.0) -> "Encoding":
         goals = arm.sample_goals(20_000, seed=12345)
         raw = _raw_features(goals, features, len(arm.task_axes))
         lo, hi = raw.min(axis=0), raw.max(axis=0)
         flat = hi - lo < 1e-9
         lo, hi = np.where(flat, lo - 0.5, lo), np.where(flat, hi + 0.5, hi)
-        return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy())
+        return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy(), float(margin))
 
     @property
     def n_inputs(self) -> int:
@@ -60,20 +67,32 @@ class Encoding:
         raw = _raw_features(goals, self.features, len(self.task_axes))
         return 2.0 * (raw - self.in_lo) / (self.in_hi - self.in_lo) - 1.0
 
+    @property
+    def q_offset(self) -> np.ndarray:
+        """lower - m h: the joint value an output of -1 maps to before clipping."""
+        return self.q_lo - self.margin * 0.5 * (self.q_hi - self.q_lo)
+
+    @property
+    def q_scale(self) -> np.ndarray:
+        """(1 + m) h: the change of joint value per unit of output above -1."""
+        return (1.0 + self.margin) * 0.5 * (self.q_hi - self.q_lo)
+
     def joints(self, a: np.ndarray) -> np.ndarray:
-        """Network outputs in [-1, 1] (..., nq) -> joint values (..., nq) within the limits."""
-        return self.q_lo + (np.asarray(a) + 1.0) * (0.5 * (self.q_hi - self.q_lo))
+        """Network outputs in [-1, 1] (..., nq) -> joint values (..., nq) within the limits (NaN stays NaN)."""
+        q = self.q_offset + (np.asarray(a) + 1.0) * self.q_scale
+        return q if self.margin == 0 else np.clip(q, self.q_lo, self.q_hi)
 
     def to_dict(self) -> dict:
         return {
             "features": self.features, "task_axes": list(self.task_axes),
             "in_lo": self.in_lo.tolist(), "in_hi": self.in_hi.tolist(),
-            "q_lo": self.q_lo.tolist(), "q_hi": self.q_hi.tolist(),
+            "q_lo": self.q_lo.tolist(), "q_hi": self.q_hi.tolist(), "margin": self.margin,
         }
 
     @classmethod
     def from_dict(cls, d: dict) -> "Encoding":
-        return cls(d["features"], tuple(d["task_axes"]), *(np.asarray(d[k], float) for k in ("in_lo", "in_hi", "q_lo", "q_hi")))
+        return cls(d["features"], tuple(d["task_axes"]), *(np.asarray(d[k], float) for k in ("in_lo", "in_hi", "q_lo", "q_hi")),
+                   float(d.get("margin", 0.0)))
 
 
 def _raw_features(goals: np.ndarray, features: str, k: int) -> np.ndarray:

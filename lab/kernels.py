@@ -2,7 +2,9 @@
 
 One call evaluates a whole population on all goals, without intermediate arrays:
 
-    mse[p] = mean_g || goal_g - fk(q_lo + (net_p(x_g) + 1) / 2 (q_hi - q_lo))[task_axes] ||^2
+    mse[p] = mean_g || goal_g - fk(joints(net_p(x_g)))[task_axes] ||^2
+
+joints() is lab.encoding.Encoding.joints; its arrays travel as qmap = (offset, scale, lo, hi).
 
 A controller whose output or error is NaN or infinite gets +inf.
 tanh is computed as (e - 1) / (e + 1), e = exp(2 z) with |z| clipped at 20 (where tanh is 1 to
@@ -31,6 +33,18 @@ def tanh(z):
 
 
 @numba.njit(inline="always", **_JIT)
+def to_joint(a, o, qmap):
+    """Output a of joint o -> joint value: offset + (a + 1) scale, clipped (NaN stays NaN)."""
+    q_off, q_scale, q_lo, q_hi = qmap
+    q = q_off[o] + (a + 1.0) * q_scale[o]
+    if q < q_lo[o]:
+        return q_lo[o]
+    if q > q_hi[o]:
+        return q_hi[o]
+    return q
+
+
+@numba.njit(inline="always", **_JIT)
 def _sq_error(q, i, goal, axes, chain):
     rot, pos, kind, identity, ee_pos, joints = chain
     x, y, z = chain_point(q, i, rot, pos, kind, identity, ee_pos, joints)
@@ -43,14 +57,14 @@ def _sq_error(q, i, goal, axes, chain):
 
 
 @numba.njit(**_JIT)
-def mlp_mse(X, goals, axes, W, nh, q_lo, q_half, chain, out):
+def mlp_mse(X, goals, axes, W, nh, qmap, chain, out):
     """The paper's MLP for every row of W (P, D) on inputs X (n, ni): out (P,) <- MSE.
 
     Genome layout (paper, section 4.3): w_i = W[:(ni+1)*nh] as (ni+1, nh), bias the last input
     row; w_o = W[(ni+1)*nh:] as (nh, no). a_o = tanh(tanh([x, 1] w_i) w_o).
     """
     n, ni = X.shape
-    no = q_lo.shape[0]
+    no = qmap[0].shape[0]
     off = (ni + 1) * nh
     h = np.empty(nh)
     q = np.empty((1, no))
@@ -67,7 +81,7 @@ def mlp_mse(X, goals, axes, W, nh, q_lo, q_half, chain, out):
                 s = 0.0
                 for j in range(nh):
                     s += h[j] * w[off + j * no + o]
-                q[0, o] = q_lo[o] + (tanh(s) + 1.0) * q_half[o]
+                q[0, o] = to_joint(tanh(s), o, qmap)
             total += _sq_error(q, 0, goals[g], axes, chain)
         mse = total / n
         out[p] = mse if math.isfinite(mse) else np.inf
@@ -124,7 +138,7 @@ def graph_forward(X, starts, n_nodes, bias, response, link_start, link_src, link
 
 
 @numba.njit(**_JIT)
-def joints_mse(A, goals, axes, q_lo, q_half, chain, out):
+def joints_mse(A, goals, axes, qmap, chain, out):
     """Network outputs A (P, n, nq) in [-1, 1] -> out (P,) <- MSE over the goals."""
     P, n, no = A.shape
     q = np.empty((1, no))
@@ -132,7 +146,7 @@ def joints_mse(A, goals, axes, q_lo, q_half, chain, out):
         total = 0.0
         for g in range(n):
             for o in range(no):
-                q[0, o] = q_lo[o] + (A[p, g, o] + 1.0) * q_half[o]
+                q[0, o] = to_joint(A[p, g, o], o, qmap)
             total += _sq_error(q, 0, goals[g], axes, chain)
         mse = total / n
         out[p] = mse if math.isfinite(mse) else np.inf

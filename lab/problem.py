@@ -32,7 +32,7 @@ class Problem:
         self.train_inputs = encoding.inputs(self.train_goals)
         self.test_inputs = encoding.inputs(self.test_goals)
         self._axes = np.asarray(arm.task_axes, dtype=np.int64)
-        self._q_half = 0.5 * (encoding.q_hi - encoding.q_lo)
+        self._qmap = (encoding.q_offset, encoding.q_scale, encoding.q_lo, encoding.q_hi)
         self._chain = (*arm.chain.arrays, _NO_JOINTS)
 
     def _split(self, test: bool):
@@ -43,15 +43,14 @@ class Problem:
         X, goals = self._split(test)
         W = np.ascontiguousarray(W, dtype=np.float64)
         out = np.empty(len(W))
-        kernels.mlp_mse(X, goals, self._axes, W, int(hidden), self.encoding.q_lo, self._q_half, self._chain, out)
+        kernels.mlp_mse(X, goals, self._axes, W, int(hidden), self._qmap, self._chain, out)
         return out
 
     def outputs_mse(self, A: np.ndarray, test: bool = False) -> np.ndarray:
         """MSE of network outputs A (P, n, nq) in [-1, 1] on the goals: (P,)."""
         _, goals = self._split(test)
         out = np.empty(len(A))
-        kernels.joints_mse(np.ascontiguousarray(A), goals, self._axes, self.encoding.q_lo, self._q_half,
-                           self._chain, out)
+        kernels.joints_mse(np.ascontiguousarray(A), goals, self._axes, self._qmap, self._chain, out)
         return out
 
     def graphs_mse(self, graphs, test: bool = False) -> np.ndarray:

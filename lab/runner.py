@@ -82,7 +82,7 @@ class RunSummary:
 
 def build_problem(config: TrainConfig) -> Problem:
     arm = robots.load(config.robot)
-    enc = Encoding.for_arm(arm, config.features)
+    enc = Encoding.for_arm(arm, config.features, config.margin)
     return Problem(arm, enc, targets=config.targets, test_goals=config.test_goals, goal_seed=config.goal_seed)
 
 
@@ -101,6 +101,7 @@ class Runner:
         self._thread: threading.Thread | None = None
         self._state = "idle"
         self._history: list[float] = []
+        self._best: tuple[float, Controller | None] = (float("inf"), None)  # updated with the history
         self._median: list[float] = []
         self._seconds = 0.0
         self._summary: RunSummary | None = None
@@ -171,8 +172,7 @@ class Runner:
 
     def snapshot(self) -> Snapshot:
         with self._lock:
-            return Snapshot(self._state, len(self._history), self.backend.best_mse, self.backend.best,
-                            np.array(self._history))
+            return Snapshot(self._state, len(self._history), *self._best, np.array(self._history))
 
     # ------------------------------------------------------------------ the loop
     def _run(self) -> None:
@@ -209,6 +209,7 @@ class Runner:
                 seconds=t_run, controller=backend.best, improved=backend.best_mse < before, extras=result.extras,
             )
             with self._lock:
+                self._best = (backend.best_mse, backend.best)
                 self._history.append(backend.best_mse)
                 self._median.append(event.median)
                 self._seconds = t_run

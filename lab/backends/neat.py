@@ -45,8 +45,15 @@ PAPER_NEAT = dict(node_add_prob=0.002, conn_add_prob=0.002, weight_mutate_rate=0
                   weight_mutate_power=1.0, enabled_rate_to_true_add=0.5)
 
 
-def neat_config_text(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int) -> str:
-    p = PAPER_NEAT
+def neat_parameters(config) -> dict:
+    """The paper's NEAT parameters with this run's mutation power and structural rates."""
+    return dict(PAPER_NEAT, weight_mutate_power=config.mutation_power, node_add_prob=config.add_node,
+                conn_add_prob=config.add_connection)
+
+
+def neat_config_text(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int,
+                     params: dict = PAPER_NEAT) -> str:
+    p = params
     cap = p["weight_cap"]
     return f"""
 [NEAT]
@@ -123,12 +130,13 @@ def textbook_tanh(z: float) -> float:
     return math.tanh(z)
 
 
-def make_neat_config(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int) -> neat.Config:
+def make_neat_config(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int,
+                     params: dict = PAPER_NEAT) -> neat.Config:
     """A fresh neat.Config (never reuse one between runs) with the textbook tanh registered."""
     fd, path = tempfile.mkstemp(suffix=".ini", prefix="neat-")
     try:
         with os.fdopen(fd, "w") as f:
-            f.write(neat_config_text(n_inputs, n_outputs, pop_size, hidden, seed))
+            f.write(neat_config_text(n_inputs, n_outputs, pop_size, hidden, seed, params))
         config = neat.Config(neat.DefaultGenome, neat.DefaultReproduction, neat.DefaultSpeciesSet,
                              neat.DefaultStagnation, path)
     finally:
@@ -165,7 +173,9 @@ class NEATBackend(Backend):
     def __init__(self, problem, config):
         super().__init__(problem, config)
         enc = problem.encoding
-        self.neat_config = make_neat_config(enc.n_inputs, enc.n_outputs, config.population, config.hidden, config.seed)
+        self.params = neat_parameters(config)
+        self.neat_config = make_neat_config(enc.n_inputs, enc.n_outputs, config.population, config.hidden,
+                                            config.seed, self.params)
         with _RANDOM_LOCK:
             saved = random.getstate()
             self.population = neat.Population(self.neat_config, seed=config.seed)
@@ -174,7 +184,7 @@ class NEATBackend(Backend):
             random.setstate(saved)
 
     def hyperparameters(self) -> dict:
-        return {**PAPER_NEAT, "initial_hidden": self.config.hidden, "pop_size": self.config.population,
+        return {**self.params, "initial_hidden": self.config.hidden, "pop_size": self.config.population,
                 "activation": "tanh", "neat-python": getattr(neat, "__version__", "2.0")}
 
     def _step(self) -> StepResult:
@@ -208,7 +218,7 @@ class NEATBackend(Backend):
             "nodes": len(best.nodes), "connections": sum(c.enabled for c in best.connections.values()),
             "hidden": graphs[i].n_hidden,
         }
-        pop.population = pop.reproduction.reproduce(pop.config, pop.species, pop.config.pop_size, pop.generation)
+        pop.population = self._reproduce()
         if not pop.species.species:  # complete extinction: start afresh (reset_on_extinction)
             pop.population = pop.reproduction.create_new(pop.config.genome_type, pop.config.genome_config,
                                                          pop.config.pop_size)
@@ -216,6 +226,20 @@ class NEATBackend(Backend):
         self._fit_species()
         pop.generation += 1
         return StepResult(mse, extras)
+
+    def _reproduce(self) -> dict:
+        """neat-python's reproduce; it can fail to fit spawn counts to a small population
+        ("Internal error adjusting spawn counts"): then re-speciate coarser and try again."""
+        pop = self.population
+        for attempt in range(4):
+            try:
+                return pop.reproduction.reproduce(pop.config, pop.species, pop.config.pop_size, pop.generation)
+            except RuntimeError:
+                if attempt == 3:
+                    raise
+                pop.config.species_set_config.compatibility_threshold *= 1.5
+                pop.species.species = {}
+                pop.species.speciate(pop.config, pop.population, pop.generation)
 
     def _fit_species(self) -> None:
         """Steer the compatibility threshold toward TARGET_SPECIES species (Stanley's dynamic

@@ -1,0 +1,609 @@
+"""lab: the paper's MLP and fitness, NEAT phenotypes equal neat-python's, runs are reproducible,
+the runner obeys its controls, and bad input is refused before any work."""
+
+import copy
+import json
+import logging
+import random
+import subprocess
+import sys
+import threading
+import time
+
+import neat
+import numpy as np
+import pytest
+
+import lab
+import robots
+from lab.backends.cmaes import CMAESBackend
+from lab.backends.neat import NEATBackend, genome_to_controller
+from lab.controllers import GraphController, MLPController, controller_from_dict, mlp_size
+from lab.encoding import Encoding
+from lab.problem import Problem, goal_errors
+from lab.runner import build_problem
+
+SMALL = dict(test_goals=200)
+
+
+# ---------------------------------------------------------------- independent references
+def np_mlp(x, weights, ni, nh, no):
+    """The paper's MLP (section 4.3), written out with numpy: tanh(tanh([x, 1] w_i) w_o)."""
+    w_i = weights[: (ni + 1) * nh].reshape(ni + 1, nh)
+    w_o = weights[(ni + 1) * nh :].reshape(nh, no)
+    xb = np.hstack([x, np.ones((len(x), 1))])
+    return np.tanh(np.tanh(xb @ w_i) @ w_o)
+
+
+def np_joints(arm, a):
+    return arm.lower + (a + 1.0) / 2.0 * (arm.upper - arm.lower)
+
+
+def np_mse(arm, goals, q):
+    reached = arm.fk(q)[:, list(arm.task_axes)]
+    return float(np.mean(np.sum((goals - reached) ** 2, axis=1)))
+
+
+def np_encode(arm, goals):
+    """Cartesian encoding: each task coordinate scaled to [-1, 1] by the workspace bounds."""
+    lo, hi = arm.workspace_bounds
+    return 2.0 * (goals - lo) / (hi - lo) - 1.0
+
+
+def far_goals(arm, n, seed):
+    """Goals in and well outside the workspace (networks saturate there)."""
+    lo, hi = arm.workspace_bounds
+    rng = np.random.default_rng(seed)
+    return lo + (hi - lo) * rng.uniform(-1.0, 2.0, (n, len(lo)))
+
+
+# ---------------------------------------------------------------- 1. the MLP layout
+@pytest.mark.parametrize("nh", [1, 5, 12])
+def test_mlp_equals_the_papers_layout(nh):
+    arm = robots.load("planar")
+    enc = Encoding.for_arm(arm, "cartesian")
+    ni, no = enc.n_inputs, enc.n_outputs
+    assert (ni, no) == (2, 3)
+    assert mlp_size(ni, nh, no) == (ni + 1) * nh + nh * no
+    rng = np.random.default_rng(nh)
+    goals = np.concatenate([arm.sample_goals(100, seed=5), far_goals(arm, 50, seed=6)])
+    x = np_encode(arm, goals)
+    np.testing.assert_allclose(enc.inputs(goals), x, rtol=0, atol=1e-12)
+    for scale in (0.3, 1.0, 20.0):  # 20: saturated units
+        w = rng.normal(0, scale, (ni + 1) * nh + nh * no)
+        c = MLPController(enc, nh, w)
+        np.testing.assert_allclose(c.w_i, w[: (ni + 1) * nh].reshape(ni + 1, nh), rtol=0, atol=0)
+        np.testing.assert_allclose(c.w_o, w[(ni + 1) * nh :].reshape(nh, no), rtol=0, atol=0)
+        a = np_mlp(x, w, ni, nh, no)
+        np.testing.assert_allclose(c.outputs(goals), a, rtol=0, atol=1e-12)
+        q = c(goals)
+        assert q.shape == (len(goals), arm.nq)
+        np.testing.assert_allclose(q, np_joints(arm, a), rtol=0, atol=1e-12)
+        assert np.all((q >= arm.lower) & (q <= arm.upper))
+
+
+def test_mlp_rejects_a_wrong_weight_count():
+    enc = Encoding.for_arm(robots.load("planar"), "cartesian")
+    with pytest.raises(ValueError, match="weights"):
+        MLPController(enc, 4, np.zeros(mlp_size(2, 4, 3) + 1))
+
+
+def test_polar_features_are_cartesian_plus_radius_and_bearing():
+    arm = robots.load("scara")
+    enc = Encoding.for_arm(arm, "polar")
+    goals = arm.sample_goals(200, seed=2)
+    x = enc.inputs(goals)
+    assert x.shape == (200, 5)
+    raw = np.column_stack([goals, np.hypot(goals[:, 0], goals[:, 1]), np.arctan2(goals[:, 1], goals[:, 0])])
+    np.testing.assert_allclose(x, 2 * (raw - enc.in_lo) / (enc.in_hi - enc.in_lo) - 1, atol=1e-12)
+    assert np.all(np.abs(x) <= 1.0 + 0.05)  # the workspace maps into about [-1, 1]
+
+
+# ---------------------------------------------------------------- 2. the fitness
+@pytest.mark.parametrize("robot,features", [("planar", "cartesian"), ("scara", "cartesian"), ("scara", "polar")])
+def test_mlp_mse_equals_numpy_fitness(robot, features):
+    arm = robots.load(robot)
+    enc = Encoding.for_arm(arm, features)
+    prob = Problem(arm, enc, targets=40, test_goals=60, goal_seed=3)
+    nh = 6
+    D = mlp_size(enc.n_inputs, nh, enc.n_outputs)
+    W = np.random.default_rng(0).normal(0, 1.0, (7, D))
+    for test, goals in ((False, prob.train_goals), (True, prob.test_goals)):
+        got = prob.mlp_mse(W, nh, test=test)
+        assert got.shape == (7,)
+        x = np_encode(arm, goals) if features == "cartesian" else enc.inputs(goals)
+        for p, w in enumerate(W):
+            q = np_joints(arm, np_mlp(x, w, enc.n_inputs, nh, enc.n_outputs))
+            expected = np_mse(arm, goals, q)
+            assert got[p] == pytest.approx(expected, rel=0, abs=1e-9)
+            c = MLPController(enc, nh, w)
+            assert prob.controller_mse(c, goals) == pytest.approx(expected, rel=0, abs=1e-9)
+
+
+def test_nan_and_overflowing_weights_get_inf_and_never_crash():
+    arm = robots.load("scara")
+    enc = Encoding.for_arm(arm, "cartesian")
+    prob = Problem(arm, enc, targets=30, test_goals=30)
+    nh = 4
+    D = mlp_size(enc.n_inputs, nh, enc.n_outputs)
+    W = np.random.default_rng(1).normal(0, 1, (6, D))
+    W[0, 3] = np.nan
+    W[1, :] = np.nan
+    W[2, -1] = np.nan  # an output weight only
+    W[3, 0] = np.inf  # tanh(inf) = 1: finite
+    W[4, :] = np.where(np.arange(D) % 2, 1e308, -1e308)  # inf - inf inside the sums: NaN
+    mse = prob.mlp_mse(W, nh)
+    assert not np.any(np.isnan(mse))
+    assert np.all(np.isinf(mse[[0, 1, 2]]))
+    assert np.all((mse >= 0) & ((mse == np.inf) | np.isfinite(mse)))
+    assert np.isfinite(mse[5])
+    for w, m in zip(W, mse):  # the controller path agrees, inf included
+        assert prob.controller_mse(MLPController(enc, nh, w)) == pytest.approx(m, rel=0, abs=1e-9) or m == np.inf
+    # NaN network outputs and NaN goals: +inf, no exception
+    A = np.zeros((2, len(prob.train_goals), arm.nq))
+    A[0, 5, 1] = np.nan
+    out = prob.outputs_mse(A)
+    assert out[0] == np.inf and np.isfinite(out[1])
+    bad_goals = prob.train_goals.copy()
+    bad_goals[0, 0] = np.nan
+    errs = goal_errors(arm, MLPController(enc, nh, W[5]), bad_goals)
+    assert errs[0] == np.inf and np.all(np.isfinite(errs[1:]))
+
+
+def test_a_nan_weight_vector_never_becomes_the_cmaes_best():
+    cfg = lab.TrainConfig(population=10, generations=10, targets=20, test_goals=20)
+    prob = build_problem(cfg)
+    b = CMAESBackend(prob, cfg)
+    real = prob.mlp_mse
+    seen = []
+
+    def poisoned(W, hidden, test=False):  # row 0 is evaluated as if its weights were NaN
+        W = np.array(W)
+        W[0, 0] = np.nan
+        seen.append(W[0].copy())
+        return real(W, hidden, test)
+
+    prob.mlp_mse = poisoned
+    for _ in range(10):
+        f = b.step().fitness
+        assert f[0] == np.inf
+    assert b.best is not None and np.all(np.isfinite(b.best.weights))
+    assert np.isfinite(b.best_mse)
+    assert prob.controller_mse(b.best) == pytest.approx(b.best_mse, rel=0, abs=1e-9)
+
+    # all rows NaN: no best at all, and the run goes on
+    prob.mlp_mse = lambda W, hidden, test=False: real(np.full_like(np.asarray(W), np.nan), hidden, test)
+    b2 = CMAESBackend(prob, cfg)
+    for _ in range(3):
+        assert np.all(b2.step().fitness == np.inf)
+    assert b2.best is None and b2.best_mse == np.inf
+
+
+def test_a_nan_genome_never_becomes_the_neat_best():
+    cfg = lab.TrainConfig(method="neat", population=20, generations=5, targets=20, test_goals=20)
+    b = NEATBackend(build_problem(cfg), cfg)
+    for g in b.population.population.values():
+        for c in g.connections.values():
+            c.weight = np.nan
+        break
+    f = b.step().fitness
+    assert f[0] == np.inf and np.isfinite(f[1:]).all()
+    for _ in range(4):
+        b.step()
+    assert b.best is not None and np.isfinite(b.best_mse)
+    assert all(np.isfinite(w) for _, _, _, links in b.best.nodes for _, w in links)
+    assert b.problem.controller_mse(b.best) == pytest.approx(b.best_mse, rel=0, abs=1e-9)
+
+
+# ---------------------------------------------------------------- 3. NEAT phenotypes
+def structured_genomes(backend):
+    """The backend's population, plus mutated copies with hidden nodes and added connections,
+    an output cut off from the inputs, and a hidden node fed by nothing (neat-python 2.0
+    evaluates such nodes as tanh(bias))."""
+    gc = backend.neat_config.genome_config
+    genomes = [copy.deepcopy(g) for g in backend.population.population.values()]
+    state = random.getstate()
+    random.seed(42)
+    try:
+        extra = []
+        for k, g in enumerate(genomes[:12]):
+            g = copy.deepcopy(g)
+            for _ in range(1 + k % 3):
+                g.mutate_add_node(gc)
+            for _ in range(k % 4):
+                g.mutate_add_connection(gc)
+            extra.append(g)
+        cut = copy.deepcopy(extra[0])
+        out0 = gc.output_keys[0]
+        for (i, o), c in cut.connections.items():
+            if o == out0:
+                c.enabled = False
+        extra.append(cut)
+        orphan = copy.deepcopy(extra[1])
+        hidden = [k for k in orphan.nodes if k not in gc.output_keys]
+        for (i, o), c in orphan.connections.items():
+            if o == hidden[0]:
+                c.enabled = False
+        extra.append(orphan)
+    finally:
+        random.setstate(state)
+    return genomes + extra
+
+
+@pytest.mark.parametrize("robot", ["planar", "scara"])
+def test_genome_to_controller_equals_neat_feed_forward_network(robot):
+    cfg = lab.TrainConfig(robot=robot, method="neat", population=30, generations=15, targets=25, **SMALL)
+    prob = build_problem(cfg)
+    b = NEATBackend(prob, cfg)
+    for _ in range(15):
+        b.step()
+    genomes = structured_genomes(b)
+    enc, arm = prob.encoding, prob.arm
+    goals = np.concatenate([prob.train_goals, far_goals(arm, 20, seed=9)])
+    X = enc.inputs(goals)
+    graphs = []
+    for g in genomes:
+        ctrl = genome_to_controller(g, b.neat_config, enc)
+        net = neat.nn.FeedForwardNetwork.create(g, b.neat_config)
+        expected = np.array([net.activate(list(x)) for x in X])
+        np.testing.assert_allclose(ctrl.outputs(goals), expected, rtol=0, atol=1e-9)
+        q = ctrl(goals)
+        np.testing.assert_allclose(q, np_joints(arm, expected), rtol=0, atol=1e-9)
+        assert np.all((q >= arm.lower) & (q <= arm.upper))
+        graphs.append(ctrl)
+    assert sum(c.n_hidden > 0 for c in graphs) >= 10  # the structure was exercised
+    cut = graphs[-2].outputs(goals)[:, 0]  # an output cut off from the inputs: constant, as in neat
+    assert np.all(cut == cut[0])
+
+    for test, goals in ((False, prob.train_goals), (True, prob.test_goals)):
+        got = prob.graphs_mse(graphs, test=test)
+        for g, m in zip(genomes, got):
+            net = neat.nn.FeedForwardNetwork.create(g, b.neat_config)
+            a = np.array([net.activate(list(x)) for x in enc.inputs(goals)])
+            assert m == pytest.approx(np_mse(arm, goals, np_joints(arm, a)), rel=0, abs=1e-9)
+
+
+# ---------------------------------------------------------------- 4. determinism
+RUN = {"cmaes": dict(generations=30, population=12, targets=30, **SMALL),
+       "neat": dict(generations=30, population=30, targets=30, **SMALL)}
+
+
+def _scramble_global_random(k):
+    np.random.seed(k)
+    random.seed(k)
+
+
+@pytest.mark.parametrize("method", ["cmaes", "neat"])
+def test_same_seed_same_run_different_seed_different_run(method):
+    _scramble_global_random(1)
+    a = lab.evolve("planar", method, seed=3, **RUN[method])
+    _scramble_global_random(2)  # runs depend on their seed alone, not on global random state
+    b = lab.evolve("planar", method, seed=3, **RUN[method])
+    c = lab.evolve("planar", method, seed=4, **RUN[method])
+    assert len(a.history) == RUN[method]["generations"]
+    assert np.array_equal(a.history, b.history)
+    assert np.array_equal(a.median_history, b.median_history)
+    assert a.train_mse == b.train_mse and a.test_mse == b.test_mse
+    goals = robots.load("planar").sample_goals(50, seed=8)
+    assert np.array_equal(a.controller(goals), b.controller(goals))
+    assert not np.array_equal(a.history, c.history)
+    assert np.all(np.diff(a.history) <= 0)
+    assert a.train_mse == pytest.approx(a.history[-1], rel=0, abs=1e-9)
+
+
+def test_same_seed_same_history_in_another_process():
+    code = (
+        "import json, lab\n"
+        f"runs = {RUN!r}\n"
+        "print(json.dumps({m: [float(x) for x in lab.evolve('planar', m, seed=5, **kw).history]"
+        " for m, kw in runs.items()}))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    other = json.loads(proc.stdout.strip().splitlines()[-1])
+    for method, kw in RUN.items():
+        here = [float(x) for x in lab.evolve("planar", method, seed=5, **kw).history]
+        assert other[method] == here, method
+
+
+@pytest.mark.parametrize("method", ["neat", "cmaes"])
+def test_runners_in_threads_equal_sequential_runs(method):
+    cfgs = [lab.TrainConfig(method=method, seed=s, **RUN[method]) for s in (0, 1)]
+    sequential = [lab.Runner(c).run().history for c in cfgs]
+    runners = [lab.Runner(c) for c in cfgs]
+    for r in runners:
+        r.start()
+    concurrent = [r.join(60).history for r in runners]
+    for s, c in zip(sequential, concurrent):
+        assert np.array_equal(s, c)
+    assert not np.array_equal(*sequential)
+
+
+# ---------------------------------------------------------------- 5. the runner
+def long_runner(method="cmaes"):
+    return lab.Runner(lab.TrainConfig(method=method, generations=100_000, population=20, targets=20, test_goals=20))
+
+
+def wait_for(pred, timeout=5.0):
+    t = time.monotonic()
+    while not pred():
+        if time.monotonic() - t > timeout:
+            return False
+        time.sleep(0.005)
+    return True
+
+
+def test_pause_resume_stop():
+    r = long_runner()
+    events = []
+
+    def pause_at_3(e):  # pause between two generations, from the runner's own thread
+        events.append(e.index)
+        if e.index == 3:
+            r.pause()
+
+    r.subscribe(pause_at_3)
+    r.start()
+    try:
+        assert wait_for(lambda: r.state == "paused")
+        time.sleep(0.3)
+        s = r.snapshot()
+        assert s.state == "paused" and s.generation == 4 and events == [0, 1, 2, 3]
+        r.resume()
+        assert r.state == "running"
+        assert wait_for(lambda: r.snapshot().generation > 8, timeout=2.0)
+        # paused from another thread: at most the generation in flight completes
+        r.pause()
+        assert r.state == "paused"
+        g0 = r.snapshot().generation
+        t = time.monotonic()
+        while time.monotonic() - t < 0.4:
+            assert r.snapshot().generation <= g0 + 1
+            time.sleep(0.01)
+        r.resume()
+        assert wait_for(lambda: r.snapshot().generation > g0 + 3, timeout=2.0)
+        t0 = time.monotonic()
+        r.stop()
+        assert time.monotonic() - t0 < 2.0
+    finally:
+        r.stop(timeout=5)
+    summary = r.join(2.0)
+    assert summary is not None and r.done
+    assert summary.state == "stopped" and r.state == "stopped"
+    assert g0 + 3 < summary.generations < 100_000
+    assert events == list(range(summary.generations))
+    assert len(summary.history) == summary.generations
+    assert summary.evaluations == summary.generations * 20
+    assert summary.train_mse == pytest.approx(summary.history[-1], rel=0, abs=1e-9)
+
+
+def test_stop_while_paused_returns_at_once():
+    r = long_runner("neat").start()
+    assert wait_for(lambda: r.snapshot().generation >= 2)
+    r.pause()
+    time.sleep(0.05)
+    t0 = time.monotonic()
+    r.stop()
+    assert time.monotonic() - t0 < 2.0
+    assert r.join(2.0).state == "stopped"
+    with pytest.raises(RuntimeError):
+        r.start()
+
+
+class Recorder:
+    def __init__(self):
+        self.events, self.ends = [], []
+
+    def __call__(self, event):
+        self.events.append(event)
+
+    def on_end(self, summary):
+        self.ends.append(summary)
+
+
+@pytest.mark.parametrize("method", ["cmaes", "neat"])
+def test_subscribers_get_every_generation_in_order(method, caplog):
+    G, P = 15, 12
+    cfg = lab.TrainConfig(method=method, generations=G, population=P, targets=25, test_goals=20)
+    r = lab.Runner(cfg)
+    a, b = Recorder(), Recorder()
+    calls = []
+
+    def broken(event):
+        calls.append(event.index)
+        raise RuntimeError("subscriber bug")
+
+    r.subscribe(a)
+    r.subscribe(broken)
+    r.subscribe(b)
+    with caplog.at_level(logging.CRITICAL, logger="lab.runner"):
+        summary = r.run()
+    assert summary.state == "finished" and summary.generations == G
+    assert calls == [0]  # called once, then unsubscribed; the run went on
+    for rec in (a, b):
+        assert [e.index for e in rec.events] == list(range(G))
+        assert rec.ends == [summary]
+    best = [e.best for e in a.events]
+    assert all(x >= y for x, y in zip(best, best[1:]))
+    assert np.array_equal(summary.history, best)
+    for i, e in enumerate(a.events):
+        assert e is b.events[i]
+        assert e.evaluations == (e.index + 1) * P
+        assert r.problem.controller_mse(e.controller) == pytest.approx(e.best, rel=0, abs=1e-9)
+        assert e.best <= e.gen_best <= e.median <= e.worst
+        assert e.improved == (i == 0 or e.best < a.events[i - 1].best)
+        assert e.run_id == summary.run_id
+    assert summary.train_mse == pytest.approx(best[-1], rel=0, abs=1e-9)
+
+
+def test_on_end_once_for_a_stopped_run():
+    r = long_runner()
+    rec = Recorder()
+    unsubscribe_other = r.subscribe(lambda e: None)
+    r.subscribe(rec)
+    unsubscribe_other()
+    r.start()
+    assert wait_for(lambda: len(rec.events) >= 2)
+    r.stop()
+    summary = r.join(2.0)
+    assert rec.ends == [summary] and summary.state == "stopped"
+    assert [e.index for e in rec.events] == list(range(summary.generations))
+
+
+def test_snapshot_after_the_run_is_consistent():
+    r = lab.Runner(lab.TrainConfig(method="neat", generations=10, population=20, targets=20, test_goals=20))
+    summary = r.run()
+    s = r.snapshot()
+    assert s.state == "finished" and s.generation == 10
+    assert s.best == summary.history[-1] == s.history[-1]
+    assert r.problem.controller_mse(s.controller) == pytest.approx(s.best, rel=0, abs=1e-9)
+
+
+
+
+@pytest.mark.parametrize("method", ["cmaes", "neat"])
+def test_snapshot_during_an_improvement_is_consistent(method, monkeypatch):
+    """Deterministic: take the snapshot at the instant another thread could, while _offer
+    builds the new best controller."""
+    r = lab.Runner(lab.TrainConfig(method=method, generations=3, population=10, targets=20, test_goals=20))
+    snaps = []
+    if method == "cmaes":
+        import lab.backends.cmaes as mod
+
+        real, name = mod.MLPController, "MLPController"
+    else:
+        import lab.backends.neat as mod
+
+        real, name = mod.genome_to_controller, "genome_to_controller"
+
+    def spy(*args, **kwargs):
+        if threading.current_thread() is r._thread or r.state == "running":
+            snaps.append(r.snapshot())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(mod, name, spy)
+    r.run()
+    snaps = [s for s in snaps if s.controller is not None]
+    assert snaps
+    for s in snaps:
+        assert r.problem.controller_mse(s.controller) == pytest.approx(s.best, rel=0, abs=1e-9)
+
+
+def test_snapshot_from_another_thread_while_running():
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # switch threads often, as a busy GUI would
+    r = long_runner("neat").start()
+    bad = []
+    try:
+        t = time.monotonic()
+        n = 0
+        while time.monotonic() - t < 1.5:
+            s = r.snapshot()
+            if s.controller is None:
+                continue
+            n += 1
+            m = r.problem.controller_mse(s.controller)
+            if abs(m - s.best) > 1e-9:
+                bad.append((s.generation, s.best, m))
+    finally:
+        sys.setswitchinterval(old)
+        r.stop()
+    assert n > 100
+    assert not bad, f"{len(bad)} of {n} snapshots: controller MSE != snapshot.best, e.g. {bad[:2]}"
+
+
+# neat-python 2.0's DefaultReproduction._adjust_spawn_exact gives up when it must remove more than
+# one genome (spawn [2, 2, 2, 2, 4] for pop_size 10): NEATBackend re-speciates and retries.
+def test_a_small_population_neat_run_finishes(caplog):
+    cfg = lab.TrainConfig(method="neat", population=10, generations=200, seed=0, targets=20, test_goals=20)
+    with caplog.at_level(logging.CRITICAL, logger="lab.runner"):
+        summary = lab.Runner(cfg).run()
+    assert summary.state == "finished", summary.error
+    assert summary.generations == 200
+
+
+# ---------------------------------------------------------------- 6. a 6-DoF arm learns
+def test_ur5_error_falls_and_joints_stay_within_limits():
+    run = lab.evolve("ur5", "cmaes", generations=60, seed=0, test_goals=200)
+    arm = robots.load("ur5")
+    assert run.history[-1] < run.history[0]
+    assert np.all(np.diff(run.history) <= 0)
+    assert run.train_mse == pytest.approx(run.history[-1], rel=0, abs=1e-9)
+    assert np.isfinite(run.test_mse)
+    assert run.evaluations == 60 * 50
+    goals = np.concatenate([arm.sample_goals(300, seed=1), far_goals(arm, 100, seed=2)])
+    q = run.controller(goals)
+    assert q.shape == (400, 6)
+    assert np.all((q >= arm.lower) & (q <= arm.upper))
+
+
+# ---------------------------------------------------------------- 7. bad input
+@pytest.fixture
+def no_work(monkeypatch):
+    """Fail if a run, a problem or an arm is built."""
+    def boom(*a, **k):
+        raise AssertionError("work started before the input was validated")
+
+    monkeypatch.setattr(sys.modules["lab.evolve"], "Runner", boom)
+    monkeypatch.setattr(sys.modules["lab.runner"], "build_problem", boom)
+    monkeypatch.setattr(robots, "load", boom)
+
+
+@pytest.mark.parametrize("field", ["generations", "population", "targets", "test_goals"])
+@pytest.mark.parametrize("value", [0, -1, 2.5, True])
+@pytest.mark.parametrize("method", ["cmaes", "neat"])
+def test_bad_counts_are_refused_before_any_work(field, value, method, no_work):
+    t = time.monotonic()
+    with pytest.raises(ValueError, match=field):
+        lab.evolve("planar", method, **{field: value})
+    with pytest.raises(ValueError, match=field):
+        lab.TrainConfig(method=method, **{field: value})
+    assert time.monotonic() - t < 0.5
+
+
+@pytest.mark.parametrize("paper", [False, True])
+def test_unknown_robot_is_refused_before_any_work(paper, no_work):
+    with pytest.raises(ValueError, match="robot.*'nope'.*planar"):
+        lab.evolve("nope", "cmaes", paper=paper)
+
+
+def test_unknown_method_is_refused_before_any_work(no_work):
+    with pytest.raises(ValueError, match="method.*'ga'.*cmaes"):
+        lab.evolve("planar", "ga")
+    with pytest.raises(ValueError, match="method"):
+        lab.TrainConfig(method="ga")
+
+
+def test_unknown_method_with_the_paper_preset_is_a_value_error(no_work):
+    with pytest.raises(ValueError, match="method"):
+        lab.evolve("planar", "ga", paper=True)
+
+
+def test_population_too_small_for_the_method(no_work):
+    with pytest.raises(ValueError, match="population"):
+        lab.evolve("planar", "cmaes", population=3)
+    with pytest.raises(ValueError, match="population"):
+        lab.evolve("planar", "neat", population=1)
+
+
+# ---------------------------------------------------------------- 8. serialisation
+def test_controllers_rebuild_from_dict_with_identical_outputs():
+    mlp = lab.evolve("scara", "cmaes", generations=5, population=8, targets=20, seed=1, **SMALL).controller
+    cfg = lab.TrainConfig(robot="scara", method="neat", population=20, generations=5, targets=20, **SMALL)
+    b = NEATBackend(build_problem(cfg), cfg)
+    for _ in range(5):
+        b.step()
+    genome = structured_genomes(b)[-3]
+    graph = genome_to_controller(genome, b.neat_config, b.problem.encoding)
+    assert isinstance(mlp, MLPController) and isinstance(graph, GraphController) and graph.n_hidden > 0
+    arm = robots.load("scara")
+    goals = np.concatenate([arm.sample_goals(100, seed=3), far_goals(arm, 20, seed=4)])
+    for c in (mlp, graph):
+        d = c.to_dict()
+        again = controller_from_dict(json.loads(json.dumps(d)))  # as stored in a recording
+        assert type(again) is type(c) and again.kind == c.kind and again.n_params == c.n_params
+        assert np.array_equal(again(goals), c(goals))
+        assert np.array_equal(again.outputs(goals), c.outputs(goals))
+        assert again.to_dict() == d
+    with pytest.raises(ValueError, match="kind"):
+        controller_from_dict({**mlp.to_dict(), "kind": "svm"})
