@@ -71,10 +71,10 @@ class MLPController:
 
     def outputs(self, goals: np.ndarray) -> np.ndarray:
         """Network outputs a_o in [-1, 1], (n, nq)."""
-        X = self.encoding.inputs(goals)
-        out = np.empty((len(X), self.encoding.n_outputs))
-        kernels.mlp_forward(X, self.weights, self.hidden, self.encoding.n_outputs, out)
-        return out
+        XT = np.ascontiguousarray(self.encoding.inputs(goals).T)
+        out = np.empty((self.encoding.n_outputs, XT.shape[1]))
+        kernels.mlp_outputs(XT, self.weights[None, :], self.hidden, out)
+        return out.T
 
     def __call__(self, goals: np.ndarray) -> np.ndarray:
         return self.encoding.joints(self.outputs(goals))
@@ -157,10 +157,10 @@ def compile_programs(graphs) -> tuple:
 
 def run_programs(program: tuple, X: np.ndarray) -> np.ndarray:
     """Outputs (P, n, no) of every compiled graph on inputs X (n, ni)."""
-    P = len(program[0])
-    out = np.empty((P, len(X), program[-1]))
-    kernels.graph_forward(X, *program, out, 0, P)
-    return out
+    XT = np.ascontiguousarray(np.asarray(X, dtype=np.float64).T)
+    out = np.empty((len(program[0]), program[-1], XT.shape[1]))
+    kernels.graph_forward(XT, *program, out)
+    return out.transpose(0, 2, 1)
 
 
 def controller_from_dict(d: dict) -> Controller:

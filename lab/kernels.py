@@ -1,14 +1,21 @@
 """Compiled fitness kernels: network forward pass + forward kinematics + squared error, fused.
 
-One call evaluates a whole population on all goals, without intermediate arrays:
+One call evaluates a whole population on all goals:
 
     mse[p] = mean_g || goal_g - fk(joints(net_p(x_g)))[task_axes] ||^2
 
 joints() is lab.encoding.Encoding.joints; its arrays travel as qmap = (offset, scale, lo, hi).
-
 A controller whose output or error is NaN or infinite gets +inf.
-tanh is computed as (e - 1) / (e + 1), e = exp(2 z) with |z| clipped at 20 (where tanh is 1 to
-double precision): it agrees with math.tanh to a few ulp and costs less than half.
+
+Layout: goals run along the innermost, contiguous axis ("structure of arrays": inputs (ni, n),
+hidden activations (nh, n), joint values (nq, n), the chain's rotation (3, 3, n)), so every
+loop over goals is a straight run of arithmetic that LLVM turns into SIMD code. The
+transcendental functions are written for that too, from a table and a short polynomial, to
+about 1 ulp (tested against numpy):
+    tanh(z) = sign(z) (1 - e) / (1 + e),  e = exp(-2|z|) = E[j] exp(-r),  2|z| = j/16 + r;
+    sin/cos(x) from S[j], C[j] at x_j = -8 + j/16 and the Taylor series of the rest r < 1/16
+    (outside [-8, 8], and for NaN, the library functions).
+Fast-math flags exclude nnan/ninf, so NaN and infinity keep their meaning.
 """
 
 from __future__ import annotations
@@ -18,135 +25,262 @@ import math
 import numba
 import numpy as np
 
-from robots.kinematics import chain_point
+FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
+_JIT = dict(cache=True, nogil=True, fastmath=FASTMATH, error_model="numpy")  # numpy: no ZeroDivisionError checks, which block SIMD
 
-_JIT = dict(cache=True, nogil=True, fastmath=False)
-
-
-@numba.njit(inline="always", **_JIT)
-def tanh(z):
-    if not (z > -20.0):  # also NaN, which must stay NaN
-        return -1.0 if z <= -20.0 else z
-    z = min(z, 20.0)
-    e = math.exp(2.0 * z)
-    return (e - 1.0) / (e + 1.0)
-
-
-@numba.njit(inline="always", **_JIT)
-def to_joint(a, o, qmap):
-    """Output a of joint o -> joint value: offset + (a + 1) scale, clipped (NaN stays NaN)."""
-    q_off, q_scale, q_lo, q_hi = qmap
-    q = q_off[o] + (a + 1.0) * q_scale[o]
-    if q < q_lo[o]:
-        return q_lo[o]
-    if q > q_hi[o]:
-        return q_hi[o]
-    return q
-
-
-@numba.njit(inline="always", **_JIT)
-def _sq_error(q, i, goal, axes, chain):
-    rot, pos, kind, identity, ee_pos, joints = chain
-    x, y, z = chain_point(q, i, rot, pos, kind, identity, ee_pos, joints)
-    p = (x, y, z)
-    err = 0.0
-    for a in range(axes.shape[0]):
-        d = goal[a] - p[axes[a]]
-        err += d * d
-    return err
+_EXP_STEP = 16.0
+EXP_TABLE = np.exp(-np.arange(0, 641 + 1) / _EXP_STEP)  # exp(-j/16), 2|z| up to 40
+_SC_LO, _SC_STEP = -8.0, 16.0
+SIN_TABLE = np.sin(_SC_LO + np.arange(257) / _SC_STEP)
+COS_TABLE = np.cos(_SC_LO + np.arange(257) / _SC_STEP)
 
 
 @numba.njit(**_JIT)
-def mlp_mse(X, goals, axes, W, nh, qmap, chain, out):
-    """The paper's MLP for every row of W (P, D) on inputs X (n, ni): out (P,) <- MSE.
+def tanh_row(x):
+    """x <- tanh(x), in place, for a 1-D contiguous array."""
+    T = EXP_TABLE
+    for i in range(x.shape[0]):
+        v = x[i]
+        a = min(abs(v), 20.0) * 2.0  # tanh(20) is 1 to double precision
+        j = min(max(int(a * _EXP_STEP), 0), 640)  # clamped: NaN gives a garbage but safe index
+        r = j * (1.0 / _EXP_STEP) - a  # in (-1/16, 0]
+        p = 1.0 + r * (1.0 + r * (1 / 2 + r * (1 / 6 + r * (1 / 24 + r * (1 / 120 + r * (
+            1 / 720 + r * (1 / 5040 + r * (1 / 40320 + r * (1 / 362880)))))))))
+        e = T[j] * p
+        t = (1.0 - e) / (1.0 + e)
+        t = t if v >= 0.0 else -t
+        x[i] = t if v == v else v
 
-    Genome layout (paper, section 4.3): w_i = W[:(ni+1)*nh] as (ni+1, nh), bias the last input
-    row; w_o = W[(ni+1)*nh:] as (nh, no). a_o = tanh(tanh([x, 1] w_i) w_o).
+
+@numba.njit(**_JIT)
+def sincos_row(x, s, c):
+    """s, c <- sin(x), cos(x) for 1-D contiguous arrays."""
+    S, C = SIN_TABLE, COS_TABLE
+    n = x.shape[0]
+    for i in range(n):
+        v = x[i]
+        j = min(max(int((v - _SC_LO) * _SC_STEP), 0), 255)
+        r = v - (_SC_LO + j * (1.0 / _SC_STEP))  # in [0, 1/16) inside the table
+        r2 = r * r
+        sr = r * (1.0 - r2 * (1 / 6 - r2 * (1 / 120 - r2 * (1 / 5040 - r2 * (1 / 362880)))))
+        cr = 1.0 - r2 * (1 / 2 - r2 * (1 / 24 - r2 * (1 / 720 - r2 * (1 / 40320 - r2 * (1 / 3628800)))))
+        s[i] = S[j] * cr + C[j] * sr
+        c[i] = C[j] * cr - S[j] * sr
+    for i in range(n):
+        v = x[i]
+        if not (v >= -7.99 and v <= 7.99):  # outside the table, or NaN
+            s[i] = math.sin(v)
+            c[i] = math.cos(v)
+
+
+@numba.njit(**_JIT)
+def _to_joints_row(a, o, qmap):
+    """a <- joint values of output row o: offset + (a + 1) scale, clipped (NaN stays NaN)."""
+    q_off, q_scale, q_lo, q_hi = qmap
+    off, scale, lo, hi = q_off[o], q_scale[o], q_lo[o], q_hi[o]
+    for g in range(a.shape[0]):
+        q = off + (a[g] + 1.0) * scale
+        q = lo if q < lo else q
+        a[g] = hi if q > hi else q
+
+
+@numba.njit(**_JIT)
+def fk_sq_errors(Q, goalsT, axes, chain, E):
+    """E (N,) <- squared task-space error of joint values Q (nq, N) against goals (k, N).
+
+    chain = (rot, pos, kind, identity, ee_pos) as robots.kinematics.ChainKinematics.arrays.
+    Mirrors robots.kinematics.chain_point:
+    per joint k, p += R pos[k]; R = R rot[k]; revolute: mix columns 0 and 1 by (cos, sin);
+    prismatic: p += q R[:, 2].
     """
-    n, ni = X.shape
-    no = qmap[0].shape[0]
-    off = (ni + 1) * nh
-    h = np.empty(nh)
-    q = np.empty((1, no))
-    for p in range(W.shape[0]):
-        w = W[p]
-        total = 0.0
+    rot, pos, kind, identity, ee_pos = chain
+    n = Q.shape[1]
+    R, T, P, S, C = np.empty((3, 3, n)), np.empty((3, 3, n)), np.empty((3, n)), np.empty(n), np.empty(n)
+    for a in range(3):
+        for b in range(3):
+            v = 1.0 if a == b else 0.0
+            for g in range(n):
+                R[a, b, g] = v
         for g in range(n):
-            for j in range(nh):
-                s = w[ni * nh + j]
-                for i in range(ni):
-                    s += X[g, i] * w[i * nh + j]
-                h[j] = tanh(s)
-            for o in range(no):
-                s = 0.0
-                for j in range(nh):
-                    s += h[j] * w[off + j * no + o]
-                q[0, o] = to_joint(tanh(s), o, qmap)
-            total += _sq_error(q, 0, goals[g], axes, chain)
+            P[a, g] = 0.0
+    for k in range(rot.shape[0]):
+        for a in range(3):
+            p0, p1, p2 = pos[k, 0], pos[k, 1], pos[k, 2]
+            for g in range(n):
+                P[a, g] += R[a, 0, g] * p0 + R[a, 1, g] * p1 + R[a, 2, g] * p2
+        if not identity[k]:
+            m = rot[k]
+            for a in range(3):
+                for b in range(3):
+                    m0, m1, m2 = m[0, b], m[1, b], m[2, b]
+                    for g in range(n):
+                        T[a, b, g] = R[a, 0, g] * m0 + R[a, 1, g] * m1 + R[a, 2, g] * m2
+            R[:, :, :] = T
+        if kind[k] == 0:
+            sincos_row(Q[k], S, C)
+            for a in range(3):
+                for g in range(n):
+                    r0 = R[a, 0, g]
+                    r1 = R[a, 1, g]
+                    R[a, 0, g] = C[g] * r0 + S[g] * r1
+                    R[a, 1, g] = C[g] * r1 - S[g] * r0
+        else:
+            for a in range(3):
+                for g in range(n):
+                    P[a, g] += Q[k, g] * R[a, 2, g]
+    e0, e1, e2 = ee_pos[0], ee_pos[1], ee_pos[2]
+    for g in range(n):
+        E[g] = 0.0
+    for t in range(axes.shape[0]):
+        a = axes[t]
+        for g in range(n):
+            d = goalsT[t, g] - (P[a, g] + R[a, 0, g] * e0 + R[a, 1, g] * e1 + R[a, 2, g] * e2)
+            E[g] += d * d
+
+
+@numba.njit(**_JIT)
+def _segment_means(E, n, out):
+    """out[p] <- mean of E[p n : (p + 1) n], +inf where it is not finite."""
+    for p in range(out.shape[0]):
+        total = 0.0
+        for g in range(p * n, (p + 1) * n):
+            total += E[g]
         mse = total / n
         out[p] = mse if math.isfinite(mse) else np.inf
 
 
 @numba.njit(**_JIT)
-def mlp_forward(X, w, nh, no, out):
-    """One MLP (weights w) on inputs X (n, ni): out (n, no) <- outputs in [-1, 1]."""
-    n, ni = X.shape
-    off = (ni + 1) * nh
-    h = np.empty(nh)
-    for g in range(n):
-        for j in range(nh):
-            s = w[ni * nh + j]
-            for i in range(ni):
-                s += X[g, i] * w[i * nh + j]
-            h[j] = tanh(s)
-        for o in range(no):
-            s = 0.0
-            for j in range(nh):
-                s += h[j] * w[off + j * no + o]
-            out[g, o] = tanh(s)
+def _population_mse(A, goalsT, axes, qmap, chain, out):
+    """A (nq, P n): outputs of P controllers side by side -> out (P,) <- MSE of each."""
+    n = goalsT.shape[1]
+    P = out.shape[0]
+    for o in range(A.shape[0]):
+        _to_joints_row(A[o], o, qmap)
+    tiled = np.empty((goalsT.shape[0], P * n))
+    for p in range(P):
+        tiled[:, p * n:(p + 1) * n] = goalsT
+    E = np.empty(P * n)
+    fk_sq_errors(A, tiled, axes, chain, E)
+    _segment_means(E, n, out)
 
 
 @numba.njit(**_JIT)
-def graph_forward(X, starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot, no, out, p0, p1):
-    """Feed-forward graphs (NEAT phenotypes) of programs p0..p1-1 on inputs X: out (P, n, no).
+def mlp_outputs(XT, W, nh, A):
+    """The paper's MLP (section 4.3) of every row of W (P, D) on inputs XT (ni, n):
+    A (no, P n) <- outputs, controller p in columns p n .. (p + 1) n - 1.
+
+    Genome layout: w_i = w[:(ni+1)*nh] as (ni+1, nh), bias the last input row; w_o = w[(ni+1)*nh:]
+    as (nh, no). a_o = tanh(tanh([x, 1] w_i) w_o).
+    """
+    ni, n = XT.shape
+    no = A.shape[0]
+    off = (ni + 1) * nh
+    H = np.empty((nh, W.shape[0] * n))
+    for p in range(W.shape[0]):
+        w = W[p]
+        c0 = p * n
+        for j in range(nh):
+            b = w[ni * nh + j]
+            for g in range(n):
+                H[j, c0 + g] = b
+            for i in range(ni):
+                wij = w[i * nh + j]
+                for g in range(n):
+                    H[j, c0 + g] += wij * XT[i, g]
+    for j in range(nh):
+        tanh_row(H[j])
+    for p in range(W.shape[0]):
+        w = W[p]
+        c0 = p * n
+        for o in range(no):
+            for g in range(n):
+                A[o, c0 + g] = 0.0
+            for j in range(nh):
+                wjo = w[off + j * no + o]
+                for g in range(n):
+                    A[o, c0 + g] += wjo * H[j, c0 + g]
+    for o in range(no):
+        tanh_row(A[o])
+
+
+@numba.njit(**_JIT)
+def mlp_mse(XT, goalsT, axes, W, nh, qmap, chain, out):
+    """MSE of the MLP of every row of W (P, D) on inputs XT (ni, n) and goals (k, n): out (P,)."""
+    A = np.empty((qmap[0].shape[0], W.shape[0] * XT.shape[1]))
+    mlp_outputs(XT, W, nh, A)
+    _population_mse(A, goalsT, axes, qmap, chain, out)
+
+
+@numba.njit(**_JIT)
+def _graph_rows(XT, p, starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot, V, A):
+    """Program p on inputs XT (ni, n): V (ni + nodes, n) node values, A (no, n) <- outputs.
 
     Program p evaluates nodes starts[p] .. starts[p] + n_nodes[p] - 1 in order; node m computes
     tanh(bias[m] + response[m] * sum_l link_w[l] * v[link_src[l]]) over l in link_start[m] ..
     link_start[m + 1] - 1. Slots: 0 .. ni-1 hold the inputs, ni + k the k-th node of the
-    program, and slot -1 a constant 0 (an output with no path from the inputs).
-    out_slot (P, no) names the slot of each output.
+    program; out_slot[p, o] is the slot of output o, -1 for a constant 0 (no path from the inputs).
     """
-    n, ni = X.shape
-    maxm = 0
-    for p in range(p0, p1):
-        maxm = max(maxm, n_nodes[p])
-    v = np.zeros(ni + maxm)
-    for p in range(p0, p1):
-        s0 = starts[p]
+    ni, n = XT.shape
+    s0 = starts[p]
+    for k in range(n_nodes[p]):
+        m = s0 + k
+        row = V[ni + k]
         for g in range(n):
-            for i in range(ni):
-                v[i] = X[g, i]
-            for k in range(n_nodes[p]):
-                m = s0 + k
-                s = 0.0
-                for l in range(link_start[m], link_start[m + 1]):
-                    s += link_w[l] * v[link_src[l]]
-                v[ni + k] = tanh(bias[m] + response[m] * s)
-            for o in range(no):
-                slot = out_slot[p, o]
-                out[p - p0, g, o] = 0.0 if slot < 0 else v[slot]
+            row[g] = 0.0
+        for l in range(link_start[m], link_start[m + 1]):
+            w = link_w[l]
+            src = V[link_src[l]]
+            for g in range(n):
+                row[g] += w * src[g]
+        b, r = bias[m], response[m]
+        for g in range(n):
+            row[g] = b + r * row[g]
+        tanh_row(row)
+    for o in range(A.shape[0]):
+        slot = out_slot[p, o]
+        for g in range(n):
+            A[o, g] = 0.0 if slot < 0 else V[slot, g]
 
 
 @numba.njit(**_JIT)
-def joints_mse(A, goals, axes, qmap, chain, out):
-    """Network outputs A (P, n, nq) in [-1, 1] -> out (P,) <- MSE over the goals."""
-    P, n, no = A.shape
-    q = np.empty((1, no))
+def _graph_scratch(XT, n_nodes):
+    ni, n = XT.shape
+    V = np.empty((ni + max(1, n_nodes.max()), n))
+    V[:ni] = XT
+    return V
+
+
+@numba.njit(**_JIT)
+def graph_forward(XT, starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot, no, out):
+    """Outputs of every program on inputs XT (ni, n): out (P, no, n) in [-1, 1]."""
+    V = _graph_scratch(XT, n_nodes)
+    for p in range(starts.shape[0]):
+        _graph_rows(XT, p, starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot, V, out[p])
+
+
+@numba.njit(**_JIT)
+def graph_mse(XT, goalsT, axes, program, qmap, chain, out):
+    """MSE of every compiled graph (lab.controllers.compile_programs) on the goals: out (P,)."""
+    starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot, no = program
+    n = XT.shape[1]
+    V = _graph_scratch(XT, n_nodes)
+    A = np.empty((no, starts.shape[0] * n))
+    for p in range(starts.shape[0]):
+        _graph_rows(XT, p, starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot, V,
+                    A[:, p * n:(p + 1) * n])
+    _population_mse(A, goalsT, axes, qmap, chain, out)
+
+
+@numba.njit(**_JIT)
+def joints_mse(QT, goalsT, axes, chain, out):
+    """MSE of joint values QT (P, nq, n) on the goals: out (P,)."""
+    P, nq, n = QT.shape
+    Q = np.empty((nq, P * n))
     for p in range(P):
-        total = 0.0
-        for g in range(n):
-            for o in range(no):
-                q[0, o] = to_joint(A[p, g, o], o, qmap)
-            total += _sq_error(q, 0, goals[g], axes, chain)
-        mse = total / n
-        out[p] = mse if math.isfinite(mse) else np.inf
+        Q[:, p * n:(p + 1) * n] = QT[p]
+    tiled = np.empty((goalsT.shape[0], P * n))
+    for p in range(P):
+        tiled[:, p * n:(p + 1) * n] = goalsT
+    E = np.empty(P * n)
+    fk_sq_errors(Q, tiled, axes, chain, E)
+    _segment_means(E, n, out)

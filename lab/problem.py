@@ -10,10 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 import robots
-from robots.kinematics import _NO_JOINTS
-
 from . import kernels
-from .controllers import Controller, compile_programs, run_programs
+from .controllers import Controller, compile_programs
 from .encoding import Encoding
 
 TEST_SEED_OFFSET = 1_000_003  # held-out goals come from another stream than the training goals
@@ -29,39 +27,47 @@ class Problem:
         self.goal_seed = int(goal_seed)
         self.train_goals = arm.sample_goals(targets, seed=self.goal_seed)
         self.test_goals = arm.sample_goals(test_goals, seed=self.goal_seed + TEST_SEED_OFFSET)
-        self.train_inputs = encoding.inputs(self.train_goals)
-        self.test_inputs = encoding.inputs(self.test_goals)
+        # the kernels take goals along the last, contiguous axis
+        self._train = (_t(encoding.inputs(self.train_goals)), _t(self.train_goals))
+        self._test = (_t(encoding.inputs(self.test_goals)), _t(self.test_goals))
         self._axes = np.asarray(arm.task_axes, dtype=np.int64)
         self._qmap = (encoding.q_offset, encoding.q_scale, encoding.q_lo, encoding.q_hi)
-        self._chain = (*arm.chain.arrays, _NO_JOINTS)
+        self._chain = arm.chain.arrays
 
     def _split(self, test: bool):
-        return (self.test_inputs, self.test_goals) if test else (self.train_inputs, self.train_goals)
+        return self._test if test else self._train
 
     def mlp_mse(self, W: np.ndarray, hidden: int, test: bool = False) -> np.ndarray:
         """MSE of every MLP weight vector in W (P, D): (P,)."""
-        X, goals = self._split(test)
+        XT, goalsT = self._split(test)
         W = np.ascontiguousarray(W, dtype=np.float64)
         out = np.empty(len(W))
-        kernels.mlp_mse(X, goals, self._axes, W, int(hidden), self._qmap, self._chain, out)
+        kernels.mlp_mse(XT, goalsT, self._axes, W, int(hidden), self._qmap, self._chain, out)
         return out
 
     def outputs_mse(self, A: np.ndarray, test: bool = False) -> np.ndarray:
         """MSE of network outputs A (P, n, nq) in [-1, 1] on the goals: (P,)."""
-        _, goals = self._split(test)
-        out = np.empty(len(A))
-        kernels.joints_mse(np.ascontiguousarray(A), goals, self._axes, self._qmap, self._chain, out)
+        _, goalsT = self._split(test)
+        QT = np.ascontiguousarray(self.encoding.joints(np.asarray(A, dtype=np.float64)).transpose(0, 2, 1))
+        out = np.empty(len(QT))
+        kernels.joints_mse(QT, goalsT, self._axes, self._chain, out)
         return out
 
     def graphs_mse(self, graphs, test: bool = False) -> np.ndarray:
         """MSE of every GraphController in graphs: (P,)."""
-        X, _ = self._split(test)
-        return self.outputs_mse(run_programs(compile_programs(graphs), X), test)
+        XT, goalsT = self._split(test)
+        out = np.empty(len(graphs))
+        kernels.graph_mse(XT, goalsT, self._axes, compile_programs(graphs), self._qmap, self._chain, out)
+        return out
 
     def controller_mse(self, controller: Controller, goals: np.ndarray | None = None) -> float:
         """MSE of one controller on goals (the training goals by default), through `arm.fk`."""
         goals = self.train_goals if goals is None else goals
         return float(goal_errors(self.arm, controller, goals).mean())
+
+
+def _t(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(a, dtype=np.float64).T)
 
 
 def goal_errors(arm: robots.Arm, controller: Controller, goals: np.ndarray) -> np.ndarray:
