@@ -30,12 +30,12 @@ class TrainConfig:
     test_goals: int = 1000
     goal_seed: int = 0  # the training and held-out goals; fixed across runs, as in the paper
     features: str = "polar"  # network inputs (lab/encoding.py)
-    margin: float = 0.0  # output range widening before clipping to the limits (lab/encoding.py)
+    margin: float = 0.5  # output range widening before clipping to the limits (lab/encoding.py)
     hidden: int | None = None  # MLP hidden units (CMA-ES); NEAT: hidden nodes of the first genomes
                                # (None: DEFAULT_HIDDEN of the method)
-    sigma0: float = 0.5  # CMA-ES initial step size
+    sigma0: float = 0.25  # CMA-ES initial step size
     restarts: bool = True  # CMA-ES: restart from a new point when a run stagnates (same budget)
-    mutation_power: float = 1.0  # NEAT: std of a weight or bias perturbation (paper: 1)
+    mutation_power: float = 0.1  # NEAT: std of a weight or bias perturbation (paper: 1)
     add_node: float = 0.002  # NEAT: probability of an add-node mutation (paper: 0.002)
     add_connection: float = 0.002  # NEAT: probability of an add-connection mutation (paper: 0.002)
     paper: bool = False  # record that this is the paper's literal method (see preset)
@@ -94,4 +94,4 @@ PAPER_PRESET = dict(features="cartesian", margin=0.0, sigma0=0.5, restarts=False
 _OPTIONAL = {"hidden", "sigma0", "features", "margin", "test_goals", "goal_seed", "restarts", "mutation_power",
              "add_node", "add_connection"}
 PAPER_HIDDEN = {"cmaes": 8, "neat": 0}  # NEAT starts with inputs wired to outputs (paper, 4.3)
-DEFAULT_HIDDEN = {"cmaes": 12, "neat": 0}
+DEFAULT_HIDDEN = {"cmaes": 6, "neat": 0}

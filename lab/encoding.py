@@ -4,7 +4,9 @@ Inputs (features):
     "cartesian"  the goal's task coordinates, each scaled to [-1, 1] by the workspace bounds
                  (the paper's encoding);
     "polar"      the same, plus the goal's distance from the base axis r = hypot(x, y) and its
-                 bearing phi = atan2(y, x), both scaled to [-1, 1] by their ranges over the workspace.
+                 bearing phi = atan2(y, x), both scaled to [-1, 1] by their ranges over the workspace;
+    "cylindrical"  r and phi in place of x and y (then z, for 3D goals): as many inputs as
+                 "cartesian", in the coordinates of an arm whose first joint turns about z.
 Outputs: a network output a in [-1, 1] maps linearly onto the joint range widened by a
 margin m on each side, then clipped to the limits:
     q = clip(lower - m h + (a + 1) (1 + m) h, lower, upper),   h = (upper - lower) / 2.
@@ -21,7 +23,7 @@ import numpy as np
 
 import robots
 
-FEATURES = ("cartesian", "polar")
+FEATURES = ("cartesian", "polar", "cylindrical")
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,4 +104,6 @@ def _raw_features(goals: np.ndarray, features: str, k: int) -> np.ndarray:
         raise ValueError("polar features need at least two task axes")
     r = np.hypot(goals[:, 0], goals[:, 1])
     phi = np.arctan2(goals[:, 1], goals[:, 0])
+    if features == "cylindrical":
+        return np.column_stack([r, phi, goals[:, 2:]])
     return np.column_stack([goals, r, phi])
