@@ -35,8 +35,11 @@ def np_mlp(x, weights, ni, nh, no):
     return np.tanh(np.tanh(xb @ w_i) @ w_o)
 
 
-def np_joints(arm, a):
-    return arm.lower + (a + 1.0) / 2.0 * (arm.upper - arm.lower)
+def np_joints(arm, a, margin=0.0):
+    """Outputs in [-1, 1] onto the joint range widened by margin (a fraction of the half range), clipped."""
+    half = (arm.upper - arm.lower) / 2.0
+    lo, hi = arm.lower - margin * half, arm.upper + margin * half
+    return np.clip(lo + (a + 1.0) / 2.0 * (hi - lo), arm.lower, arm.upper)
 
 
 def np_mse(arm, goals, q):
@@ -100,10 +103,11 @@ def test_polar_features_are_cartesian_plus_radius_and_bearing():
 
 
 # ---------------------------------------------------------------- 2. the fitness
-@pytest.mark.parametrize("robot,features", [("planar", "cartesian"), ("scara", "cartesian"), ("scara", "polar")])
-def test_mlp_mse_equals_numpy_fitness(robot, features):
+@pytest.mark.parametrize("robot,features,margin", [("planar", "cartesian", 0.0), ("scara", "cartesian", 0.0),
+                                                    ("scara", "polar", 0.5), ("planar", "cylindrical", 1.0)])
+def test_mlp_mse_equals_numpy_fitness(robot, features, margin):
     arm = robots.load(robot)
-    enc = Encoding.for_arm(arm, features)
+    enc = Encoding.for_arm(arm, features, margin)
     prob = Problem(arm, enc, targets=40, test_goals=60, goal_seed=3)
     nh = 6
     D = mlp_size(enc.n_inputs, nh, enc.n_outputs)
@@ -113,7 +117,7 @@ def test_mlp_mse_equals_numpy_fitness(robot, features):
         assert got.shape == (7,)
         x = np_encode(arm, goals) if features == "cartesian" else enc.inputs(goals)
         for p, w in enumerate(W):
-            q = np_joints(arm, np_mlp(x, w, enc.n_inputs, nh, enc.n_outputs))
+            q = np_joints(arm, np_mlp(x, w, enc.n_inputs, nh, enc.n_outputs), margin)
             expected = np_mse(arm, goals, q)
             assert got[p] == pytest.approx(expected, rel=0, abs=1e-9)
             c = MLPController(enc, nh, w)
@@ -248,7 +252,7 @@ def test_genome_to_controller_equals_neat_feed_forward_network(robot):
         expected = np.array([net.activate(list(x)) for x in X])
         np.testing.assert_allclose(ctrl.outputs(goals), expected, rtol=0, atol=1e-9)
         q = ctrl(goals)
-        np.testing.assert_allclose(q, np_joints(arm, expected), rtol=0, atol=1e-9)
+        np.testing.assert_allclose(q, np_joints(arm, expected, ctrl.encoding.margin), rtol=0, atol=1e-9)
         assert np.all((q >= arm.lower) & (q <= arm.upper))
         graphs.append(ctrl)
     assert sum(c.n_hidden > 0 for c in graphs) >= 10  # the structure was exercised
@@ -260,7 +264,7 @@ def test_genome_to_controller_equals_neat_feed_forward_network(robot):
         for g, m in zip(genomes, got):
             net = neat.nn.FeedForwardNetwork.create(g, b.neat_config)
             a = np.array([net.activate(list(x)) for x in enc.inputs(goals)])
-            assert m == pytest.approx(np_mse(arm, goals, np_joints(arm, a)), rel=0, abs=1e-9)
+            assert m == pytest.approx(np_mse(arm, goals, np_joints(arm, a, enc.margin)), rel=0, abs=1e-9)
 
 
 # ---------------------------------------------------------------- 4. determinism
@@ -465,7 +469,7 @@ def test_snapshot_after_the_run_is_consistent():
 def test_snapshot_during_an_improvement_is_consistent(method, monkeypatch):
     """Deterministic: take the snapshot at the instant another thread could, while _offer
     builds the new best controller."""
-    r = lab.Runner(lab.TrainConfig(method=method, generations=3, population=10, targets=20, test_goals=20))
+    r = lab.Runner(lab.TrainConfig(method=method, generations=15, population=10, targets=20, test_goals=20))
     snaps = []
     if method == "cmaes":
         import lab.backends.cmaes as mod
