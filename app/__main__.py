@@ -1,0 +1,65 @@
+"""`python -m app` (`make app`): start the lab in the browser and print the URL it serves.
+
+    python -m app                         # http://127.0.0.1:8080 (the next free port if taken)
+    python -m app --host 0.0.0.0          # a classroom network: every machine that can reach this one
+    python -m app --port 9000 --robot ur5
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # before numpy: training shares the cores with the server
+
+import argparse  # noqa: E402
+import logging  # noqa: E402
+import socket  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+
+def parse(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m app", description="Neuro-IK Lab in the browser (viser).")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
+    p.add_argument("--port", type=int, default=8080, help="port; viser takes the next free one when taken")
+    p.add_argument("--robot", default="planar", help="the arm shown first")
+    p.add_argument("--notebook", default=os.path.join("recordings", "notebook.json"),
+                   help="the runs list (JSON), kept across restarts")
+    p.add_argument("--recordings", default="recordings", help="folder of the runs' Rerun recordings")
+    p.add_argument("--no-record", action="store_true", help="do not write Rerun recordings")
+    return p.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    import robots
+
+    if args.robot not in robots.names():
+        print(f"error: unknown robot {args.robot!r}; known robots: {', '.join(robots.names())}", file=sys.stderr)
+        return 2
+    if not 0 <= args.port < 65536:
+        print(f"error: --port must be in 0..65535, got {args.port}", file=sys.stderr)
+        return 2
+    from .server import LabApp
+
+    t0 = time.perf_counter()
+    app = LabApp(args.host, args.port, robot=args.robot, notebook=args.notebook, recordings=args.recordings,
+                 record=not args.no_record)
+    print(f"\nNeuro-IK Lab ready in {time.perf_counter() - t0:.1f} s: {app.url}", flush=True)
+    if args.host in ("0.0.0.0", ""):
+        print(f"  on this network: http://{socket.gethostname()}:{app.port}", flush=True)
+    print(f"  startup controller: {app.startup_note}; runs list: {args.notebook}. Ctrl-C stops.", flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        print("stopping", flush=True)
+    finally:
+        app.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,206 @@
+"""One browser tab: its own goal markers, the arms at the controller's pose, the IK ghost.
+
+Each goal is a transform gizmo constrained to the task axes (the plane z = 0 for the planar
+arm), an arm drawn at q = controller(goal) (the first solid, the others translucent) and a
+label with the end-effector error ||goal - reach(q)||. The first goal also has a ghost arm at
+the damped least-squares IK solution (robots.ik) with its error, iterations and time.
+
+A marker update moves its arm at once, in the callback (one network forward pass, one
+forward kinematics, nq pose messages, then a flush); `refresh` redraws all goals when the
+controller changes (the render loop calls it). A lock per tab keeps the two apart.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+
+import numpy as np
+
+import robots
+from robots.ik import dls_ik
+
+from .scene import ArmView, frame_workspace, to_world
+
+MAX_GOALS = 8
+GHOST = (120, 200, 255)
+
+
+def fmt_len(arm: robots.Arm, d: float) -> str:
+    """A length in the arm's units: metres as mm, the paper's units as they are."""
+    if not np.isfinite(d):
+        return "∞"
+    return f"{1000 * d:.1f} mm" if arm.name not in ("planar", "scara") else f"{d:.3f}"
+
+
+class GoalView:
+    def __init__(self, tab: "TabSession", index: int, position: np.ndarray):
+        self.tab, self.index = tab, index
+        arm, scene, ws = tab.arm, tab.client.scene, tab.ws
+        base = f"/tab/goal{index}"
+        self.marker = scene.add_transform_controls(
+            f"{base}/marker", scale=0.2 * ws["size"], position=position, disable_rotations=True,
+            active_axes=tuple(k in arm.task_axes for k in range(3)), translation_limits=ws["limits"],
+            depth_test=False)
+        self.arm_view = ArmView(scene, arm, f"{base}/arm", opacity=None if index == 0 else 0.35)
+        self.label = scene.add_label(f"{base}/label", "", position=position, anchor="bottom-left")
+        self.ghost = ArmView(scene, arm, f"{base}/ik", opacity=0.3, tint=GHOST) if index == 0 else None
+        self.error, self.net_s = np.nan, np.nan
+        self.ik = None
+        self.marker.on_update(self._on_update)
+
+    @property
+    def goal(self) -> np.ndarray:
+        return np.asarray(self.marker.position, float)[list(self.tab.arm.task_axes)]
+
+    def _on_update(self, _event) -> None:
+        t0 = time.perf_counter()
+        with self.tab.lock:
+            if self.tab.closed or self.marker not in self.tab.markers():
+                return
+            self.update(self.tab.controller())
+            self.tab.client.flush()
+            self.tab.latency.append(time.perf_counter() - t0)
+            if self.ghost is not None and self.tab.show_ik.value:
+                self.update_ik()
+                self.tab.client.flush()
+            self.tab.write_table()
+
+    def update(self, controller) -> None:
+        """Arm at controller(goal) and its error; the rest pose when there is no controller."""
+        arm, goal = self.tab.arm, self.goal
+        if controller is None:
+            q, self.error, self.net_s = arm.rest, np.nan, np.nan
+        else:
+            t = time.perf_counter()
+            q = controller(goal[None])[0]
+            self.net_s = time.perf_counter() - t
+            self.error = float(np.linalg.norm(arm.reach(q) - goal))
+        self.arm_view.set_q(q)
+        self.label.position = np.asarray(self.marker.position) + self.tab.ws["label_offset"]
+        self.label.text = f"net {fmt_len(arm, self.error)}" if controller is not None else "no controller"
+
+    def update_ik(self) -> None:
+        self.ik = dls_ik(self.tab.arm, self.goal)
+        self.ghost.set_q(self.ik.q)
+        self.ghost.visible = True
+
+    def remove(self) -> None:
+        for view in (self.arm_view, self.ghost):
+            if view is not None:
+                view.remove()
+        self.marker.remove()
+        self.label.remove()
+
+
+class TabSession:
+    """Goals and arms of one client (tab); `app` gives the shared state and the shown controller."""
+
+    def __init__(self, client, state):
+        self.client, self.state = client, state
+        self.lock = threading.RLock()
+        self.closed = False
+        self.latency: deque = deque(maxlen=10_000)  # seconds from marker update to the pose flushed
+        self.goals: list[GoalView] = []
+        gui = client.gui
+        self.folder = gui.add_folder("Goals (this tab)", order=0)
+        with self.folder:
+            self.add_button = gui.add_button("Add goal", icon="plus")
+            self.remove_button = gui.add_button("Remove goal", icon="minus")
+            self.show_ik = gui.add_checkbox("IK ghost (damped least squares)", True)
+            self.table = gui.add_markdown("")
+        self.add_button.on_click(lambda e: self.add_goal())
+        self.remove_button.on_click(lambda e: self.remove_goal())
+        self.show_ik.on_update(lambda e: self._toggle_ik())
+        self.version = -1
+        self.build()
+
+    def controller(self):
+        shown = self.state.shown
+        return shown.controller if shown.arm is self.arm else None
+
+    def markers(self):
+        return [g.marker for g in self.goals]
+
+    def build(self) -> None:
+        """(Re)build the goals for the state's current arm; camera framed on its workspace."""
+        with self.lock:
+            for g in self.goals:
+                g.remove()
+            self.goals = []
+            self.arm = self.state.arm
+            self.ws = frame_workspace(self.arm)
+            self.client.camera.position = self.ws["camera"]
+            self.client.camera.look_at = self.ws["center"]
+            self.add_goal(self._default_goal(0))
+
+    def _default_goal(self, k: int) -> np.ndarray:
+        goals = self.arm.sample_goals(k + 1, seed=7)
+        return to_world(self.arm, goals[k])
+
+    def add_goal(self, position=None) -> str | None:
+        with self.lock:
+            if len(self.goals) >= MAX_GOALS:
+                msg = f"refused: at most {MAX_GOALS} goals per tab"
+                self.client.add_notification("Refused", msg, auto_close_seconds=5, color="red")
+                return msg
+            k = len(self.goals)
+            goal = GoalView(self, k, self._default_goal(k) if position is None else np.asarray(position, float))
+            self.goals.append(goal)
+            goal.update(self.controller())
+            if goal.ghost is not None:
+                goal.update_ik() if self.show_ik.value else setattr(goal.ghost, "visible", False)
+            self.write_table()
+        return None
+
+    def remove_goal(self) -> str | None:
+        with self.lock:
+            if len(self.goals) <= 1:
+                msg = "refused: the last goal stays (add another one first)"
+                self.client.add_notification("Refused", msg, auto_close_seconds=5, color="red")
+                return msg
+            self.goals.pop().remove()
+            self.write_table()
+        return None
+
+    def _toggle_ik(self) -> None:
+        with self.lock:
+            g = self.goals[0] if self.goals else None
+            if g is not None and g.ghost is not None:
+                g.update_ik() if self.show_ik.value else setattr(g.ghost, "visible", False)
+                self.write_table()
+
+    def refresh(self) -> None:
+        """Redraw every goal with the shown controller (when it changed)."""
+        shown = self.state.shown
+        if shown.version == self.version:
+            return
+        with self.lock:
+            if self.closed:
+                return
+            if shown.arm is not self.arm:
+                self.build()
+            self.version = shown.version
+            controller = self.controller()
+            for g in self.goals:
+                g.update(controller)
+            self.write_table()
+
+    def write_table(self) -> None:
+        shown, arm = self.state.shown, self.arm
+        rows = ["| goal | network error | IK error |", "|---|---|---|"]
+        for g in self.goals:
+            ik = fmt_len(arm, g.ik.error) if g.index == 0 and g.ik is not None and self.show_ik.value else ""
+            rows.append(f"| {g.index + 1} | {fmt_len(arm, g.error)} | {ik} |")
+        g0 = self.goals[0] if self.goals else None
+        lines = [f"Controller: {shown.source}", "", *rows]
+        if g0 is not None and g0.ik is not None and self.show_ik.value and np.isfinite(g0.net_s):
+            lines += ["", f"Goal 1: network one forward pass {1e6 * g0.net_s:.0f} µs; "
+                          f"IK {g0.ik.iterations} iterations, {1e3 * g0.ik.seconds:.2f} ms"
+                          f"{'' if g0.ik.converged else ' (not converged)'}"]
+        self.table.content = "\n".join(lines)
+
+    def close(self) -> None:
+        with self.lock:
+            self.closed = True

@@ -1,0 +1,92 @@
+"""The lab notebook: one entry per run started in the app, kept across restarts.
+
+Stored as JSON at recordings/notebook.json by default (beside the runs' Rerun recordings;
+`python -m app --notebook PATH` changes it). Each entry:
+
+    run_id, started (ISO 8601, local time), robot, method, seed, settings (the TrainConfig),
+    state (finished / stopped / failed), generations, evaluations, seconds,
+    train_mse, test_mse (held-out), recording (path of the .rrd or null),
+    controller (the final best controller's to_dict(), so an entry replays without its recording)
+
+Writes go to a temporary file then replace the old one, so a crash never leaves half a file;
+a notebook that cannot be read is set aside as notebook.json.bad and a new one started.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import threading
+import time
+
+log = logging.getLogger(__name__)
+
+DEFAULT_PATH = os.path.join("recordings", "notebook.json")
+
+
+class Notebook:
+    def __init__(self, path: str = DEFAULT_PATH):
+        self.path = path
+        self._lock = threading.Lock()
+        self._entries: list[dict] = self._read()
+
+    def _read(self) -> list[dict]:
+        if not os.path.exists(self.path):
+            return []
+        try:
+            with open(self.path, encoding="utf-8") as f:
+                data = json.load(f)
+            entries = data["runs"] if isinstance(data, dict) else data
+            if not isinstance(entries, list):
+                raise ValueError("no list of runs")
+            return [e for e in entries if isinstance(e, dict) and "run_id" in e]
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            log.warning("notebook %s unreadable (%s); set aside as .bad", self.path, e)
+            os.replace(self.path, self.path + ".bad")
+            return []
+
+    def entries(self) -> list[dict]:
+        with self._lock:
+            return list(self._entries)
+
+    def get(self, run_id: str) -> dict | None:
+        return next((e for e in self.entries() if e["run_id"] == run_id), None)
+
+    def add(self, entry: dict) -> None:
+        with self._lock:
+            self._entries = [e for e in self._entries if e["run_id"] != entry["run_id"]] + [entry]
+            self._write()
+
+    def _write(self) -> None:
+        folder = os.path.dirname(self.path) or "."
+        os.makedirs(folder, exist_ok=True)
+        tmp = f"{self.path}.{os.getpid()}.tmp"
+        with open(tmp, "w", encoding="utf-8") as f:
+            json.dump({"version": 1, "runs": self._entries}, f, indent=1)
+        os.replace(tmp, self.path)
+
+
+def entry_from_summary(summary, started: float, recording: str | None) -> dict:
+    """A notebook entry from a lab.RunSummary."""
+    cfg = summary.config
+    finite = lambda x: float(x) if x is not None and math.isfinite(x) else None  # noqa: E731
+    return {
+        "run_id": summary.run_id,
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(started)),
+        "robot": cfg.robot, "method": cfg.method, "seed": cfg.seed, "settings": cfg.to_dict(),
+        "state": summary.state, "generations": summary.generations, "evaluations": summary.evaluations,
+        "seconds": round(float(summary.seconds), 3),
+        "train_mse": finite(summary.train_mse), "test_mse": finite(summary.test_mse),
+        "recording": str(recording) if recording else None, "error": summary.error,
+        "controller": summary.controller.to_dict() if summary.controller is not None else None,
+    }
+
+
+def label(entry: dict) -> str:
+    """One line for the runs list."""
+    mse = entry.get("test_mse")
+    mse_s = f"{mse:.3g}" if isinstance(mse, (int, float)) else "-"
+    return (f"{entry.get('started', '?')[5:16].replace('T', ' ')} {entry['robot']} {entry['method']} "
+            f"s{entry['seed']} {entry['generations']}g held-out {mse_s} [{entry['run_id'][:6]}]")

@@ -1,0 +1,165 @@
+"""The training panel, shared by every tab (server.gui): settings, run controls, progress.
+
+Settings are validated by lab.TrainConfig as they change: an invalid value is put back to
+the last valid one and the reason is shown (in the panel and as a notification in the tab
+that typed it). Start while a run is going is refused the same way. Buttons only call
+LabState; the render loop calls `refresh` to show progress.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import viser
+import viser.uplot
+
+import lab
+import robots
+from lab.config import DEFAULT_HIDDEN, METHODS
+
+PLOT_POINTS = 400  # the convergence plot is decimated to this many generations
+METHOD_LABELS = {"cmaes": "CMA-ES", "neat": "NEAT"}
+# uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
+EMPTY_PLOT = (np.array([0.0, 1.0]), np.full(2, np.nan), np.full(2, np.nan))
+
+
+def notify(client, title: str, body: str, error: bool = True) -> None:
+    if client is not None:
+        client.add_notification(title, body, auto_close_seconds=6.0, color="red" if error else "green")
+
+
+class TrainingPanel:
+    def __init__(self, gui, state, on_robot=None):
+        """gui: a viser GuiApi (inside the Train tab); state: LabState; on_robot(name): switch the scene."""
+        self.state, self.on_robot = state, on_robot
+        d = lab.TrainConfig.preset(robot=state.arm.name)
+        self.robot = gui.add_dropdown("Robot", robots.names(), initial_value=state.arm.name)
+        self.method = gui.add_dropdown("Method", tuple(METHOD_LABELS[m] for m in METHODS), initial_value="CMA-ES")
+        self.population = gui.add_number("Population", d.population, step=1)
+        self.generations = gui.add_number("Generations", d.generations, step=1)
+        self.hidden = gui.add_number("Hidden units", d.hidden, step=1)
+        self.seed = gui.add_number("Seed", d.seed, step=1)
+        actions = {"Start": self.start, "Pause": self.pause, "Resume": self.resume, "Stop": self.stop,
+                   "Reset": self.reset}
+        icons = {"Start": viser.Icon.PLAYER_PLAY, "Pause": viser.Icon.PLAYER_PAUSE, "Resume": viser.Icon.PLAYER_PLAY,
+                 "Stop": viser.Icon.PLAYER_STOP, "Reset": viser.Icon.REFRESH}
+        self.buttons = {}
+        for name, action in actions.items():
+            button = self.buttons[name] = gui.add_button(name, icon=icons[name])
+            button.on_click(lambda event, action=action: action(event.client))
+        self.progress_bar = gui.add_progress_bar(0.0, animated=False)
+        self.plot = gui.add_uplot(
+            data=EMPTY_PLOT,
+            series=(viser.uplot.Series(label="generation"),
+                    viser.uplot.Series(label="best MSE", stroke="#d62728", width=2),
+                    viser.uplot.Series(label="median MSE", stroke="#1f77b4", width=1)),
+            scales={"x": viser.uplot.Scale(time=False), "y": viser.uplot.Scale(distr=3, log=10)},
+            title="Convergence (training MSE, log scale)", aspect=1.5)
+        self.status = gui.add_markdown("Idle.")
+        self.message = gui.add_markdown("")
+        self._valid = {id(h): h.value for h in self._fields()}
+        for h in self._fields():
+            h.on_update(self._on_field)
+        self._shown_gen = -1
+
+    def _fields(self):
+        return (self.robot, self.method, self.population, self.generations, self.hidden, self.seed)
+
+    # ------------------------------------------------------------------ settings
+    def config(self) -> lab.TrainConfig:
+        """The TrainConfig of the fields; ValueError (with the reason) when they are invalid."""
+        values = {}
+        for name, handle in (("population", self.population), ("generations", self.generations),
+                             ("hidden", self.hidden), ("seed", self.seed)):
+            v = handle.value
+            if not isinstance(v, (int, float)) or not float(v).is_integer():
+                raise ValueError(f"{handle.label.lower()} must be a whole number, got {v!r}")
+            values[name] = int(v)
+        method = {v: k for k, v in METHOD_LABELS.items()}[self.method.value]
+        return lab.TrainConfig.preset(robot=self.robot.value, method=method, **values)
+
+    def _on_field(self, event) -> None:
+        handle = event.target
+        if handle is self.method and self.method.value != self._valid[id(self.method)]:
+            method = {v: k for k, v in METHOD_LABELS.items()}[self.method.value]
+            self._valid[id(self.hidden)] = DEFAULT_HIDDEN[method]
+            self.hidden.value = DEFAULT_HIDDEN[method]  # each method's own default size
+        try:
+            self.config()
+        except (ValueError, TypeError) as e:
+            self.refuse(event.client, f"{handle.label}: {e}")
+            self.hidden.value = self._valid[id(self.hidden)] if handle is self.method else self.hidden.value
+            handle.value = self._valid[id(handle)]
+            return
+        if handle is self.robot and self.robot.value != self.state.arm.name:
+            msg = self.on_robot(self.robot.value) if self.on_robot else self.state.set_robot(self.robot.value)
+            if msg:
+                self.refuse(event.client, msg)
+                handle.value = self._valid[id(handle)]
+                return
+        self._valid[id(handle)] = handle.value
+        self.message.content = ""
+
+    def refuse(self, client, message: str) -> None:
+        text = message if message.startswith("refused") else f"refused: {message}"
+        self.message.content = f"**{text[0].upper() + text[1:]}**"
+        notify(client, "Refused", text)
+
+    # ------------------------------------------------------------------ buttons
+    def start(self, client=None) -> str | None:
+        try:
+            config = self.config()
+        except (ValueError, TypeError) as e:
+            msg = f"refused: {e}"
+        else:
+            if config.robot != self.state.arm.name and self.on_robot and not self.state.running:
+                msg = self.on_robot(config.robot)
+                if msg:
+                    self.refuse(client, msg)
+                    return msg
+            msg = self.state.start(config)
+        if msg:
+            self.refuse(client, msg)
+        else:
+            self.message.content = ""
+        return msg
+
+    def _simple(self, action, client) -> str | None:
+        msg = action()
+        if msg:
+            self.refuse(client, msg)
+        else:
+            self.message.content = ""
+        return msg
+
+    def pause(self, client=None):
+        return self._simple(self.state.pause, client)
+
+    def resume(self, client=None):
+        return self._simple(self.state.resume, client)
+
+    def stop(self, client=None):
+        return self._simple(self.state.stop, client)
+
+    def reset(self, client=None):
+        self.state.reset()
+        self.message.content = ""
+        self._shown_gen = -1
+        self.refresh(force=True)
+
+    # ------------------------------------------------------------------ progress
+    def refresh(self, force: bool = False) -> None:
+        """Show the run's progress (called by the render loop, a few times a second)."""
+        p = self.state.progress()
+        n = p["generation"]
+        if n == self._shown_gen and not force and p["state"] not in ("running",):
+            return
+        self._shown_gen = n
+        self.progress_bar.value = 100.0 * n / p["total"] if p["total"] else 0.0
+        idx = np.unique(np.linspace(0, n - 1, min(n, PLOT_POINTS)).astype(int)) if n else np.zeros(0, int)
+        best = np.maximum(p["best"][idx], 1e-12)
+        median = np.maximum(np.nan_to_num(p["median"][idx], posinf=1e12), 1e-12)
+        self.plot.data = (idx + 1.0, best, median) if n else EMPTY_PLOT
+        best_s = f"{p['best'][-1]:.4g}" if n else "-"
+        rec = f"  \nRecording: `{p['recording']}`" if p["recording"] else ""
+        self.status.content = (f"**{p['state'].capitalize()}**: generation {n} / {p['total']}, "
+                               f"best MSE {best_s}, {p['evals_per_s']:,.0f} evaluations/s{rec}")

@@ -1,0 +1,189 @@
+"""The runs list and replay panel (shared by all tabs).
+
+The list holds every notebook entry (runs started in the app, kept across restarts) and any
+other recording found in the recordings folder; an uploaded .rrd is saved under
+recordings/uploads/ and opened. Opening a run reads its Rerun recording (lab.replay); the
+generation slider then shows the controller logged at or before that generation, and every
+tab's arms follow their goal markers with it. An entry whose recording is gone replays its
+final controller only. "Back to live" returns to the training run (or the startup controller).
+A file that cannot be read is refused with a message and nothing else changes.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+import time
+
+import lab
+import robots
+
+from .notebook import label
+from .panels import notify
+
+MAX_UPLOAD = 200 * 2**20  # bytes
+
+
+class RunsPanel:
+    def __init__(self, gui, app):
+        self.app, self.state = app, app.state
+        self.choice = gui.add_dropdown("Run", ("(none)",), initial_value="(none)")
+        self.open_button = gui.add_button("Open", icon="folder-open")
+        self.upload = gui.add_upload_button("Upload a recording (.rrd)", icon="upload", mime_type="*/*")
+        self.slider = gui.add_slider("Generation", min=0, max=1, step=1, initial_value=0, disabled=True)
+        self.live_button = gui.add_button("Back to live", icon="player-play")
+        self.details = gui.add_markdown("")
+        self.message = gui.add_markdown("")
+        self.recording = None  # lab.replay.Recording being replayed
+        self._items: dict[str, tuple[str, object]] = {}  # label -> ("entry", dict) or ("file", path)
+        self._listed_at, self._listing = 0.0, None
+        self.open_button.on_click(lambda e: self.open(self.choice.value, e.client))
+        self.upload.on_upload(lambda e: self.open_upload(self.upload.value.name, self.upload.value.content, e.client))
+        self.slider.on_update(lambda e: self.scrub(int(self.slider.value), e.client))
+        self.live_button.on_click(lambda e: self.live())
+
+    # ------------------------------------------------------------------ the list
+    def refresh(self, force: bool = False) -> None:
+        """Re-list notebook entries and recordings (every 2 s at most, from the render loop)."""
+        now = time.monotonic()
+        if not force and now - self._listed_at < 2.0:
+            return
+        self._listed_at = now
+        entries = self.state.notebook.entries()
+        known = {os.path.realpath(e["recording"]) for e in entries if e.get("recording")}
+        files = sorted(glob.glob(os.path.join(self.app.recordings, "**", "*.rrd"), recursive=True))
+        listing = (tuple(e["run_id"] for e in entries), tuple(files))
+        if listing == self._listing:
+            return
+        self._listing = listing
+        items = {label(e): ("entry", e) for e in reversed(entries)}
+        for f in reversed(files):
+            if os.path.realpath(f) not in known:
+                items[f"file: {os.path.relpath(f, self.app.recordings)}"] = ("file", f)
+        self._items = items
+        options = tuple(items) or ("(none)",)
+        current = self.choice.value if self.choice.value in options else options[0]
+        self.choice.options = options
+        self.choice.value = current
+
+    # ------------------------------------------------------------------ opening
+    def refuse(self, client, text: str) -> str:
+        self.message.content = f"**{text}**"
+        notify(client, "Refused", text)
+        return text
+
+    def open(self, choice: str, client=None) -> str | None:
+        item = self._items.get(choice)
+        if item is None:
+            return self.refuse(client, "refused: pick a run first")
+        kind, value = item
+        if kind == "file":
+            return self.open_file(value, client)
+        entry = value
+        path = entry.get("recording")
+        if path and os.path.exists(path):
+            return self.open_file(path, client, entry)
+        if not entry.get("controller"):
+            return self.refuse(client, f"refused: run {entry['run_id'][:6]} has neither a recording nor a controller")
+        try:
+            controller = lab.controller_from_dict(entry["controller"])
+        except Exception as e:
+            return self.refuse(client, f"refused: the notebook's controller does not load: {e}")
+        msg = self._show(entry["robot"], controller, f"replay {entry['run_id'][:6]}, final controller", client)
+        if msg is None:
+            self.recording = None
+            self.slider.disabled = True
+            self.details.content = _details(entry) + "  \n(recording missing: final controller only)"
+        return msg
+
+    def open_file(self, path: str, client=None, entry: dict | None = None) -> str | None:
+        from lab.replay import read_recording
+
+        try:
+            rec = read_recording(path)
+            doc = rec.controller_doc()
+            controller = lab.controller_from_dict(doc["controller"])
+            robot = rec.protocol.get("robot") or rec.protocol["config"]["robot"]
+        except Exception as e:  # not a recording, not a lab run, damaged beyond salvage
+            return self.refuse(client, f"refused: {os.path.basename(path)} cannot be replayed: {e}")
+        gen = int(doc["generation"])
+        msg = self._show(robot, controller, f"replay {os.path.basename(path)}, generation {gen + 1}", client)
+        if msg is not None:
+            return msg
+        self.recording = rec
+        first, last = rec.controllers[0][0], max(gen, rec.controllers[-1][0])
+        self.slider.min, self.slider.max = first + 1, max(last + 1, first + 2)
+        self.slider.disabled = False
+        self._scrubbed = gen + 1
+        self.slider.value = gen + 1
+        self.details.content = _details(entry) if entry else _file_details(rec)
+        return None
+
+    def open_upload(self, name: str, content: bytes, client=None) -> str | None:
+        if not name.endswith(".rrd") or len(content) > MAX_UPLOAD or not content.startswith(b"RRF"):
+            return self.refuse(client, f"refused: {name or 'the upload'} is not a Rerun recording (.rrd)")
+        folder = os.path.join(self.app.recordings, "uploads")
+        os.makedirs(folder, exist_ok=True)
+        path = os.path.join(folder, re.sub(r"[^A-Za-z0-9._-]", "_", os.path.basename(name)))
+        tmp = path + ".part"
+        with open(tmp, "wb") as f:
+            f.write(content)
+        try:
+            from lab.replay import read_recording
+
+            read_recording(tmp)
+        except Exception as e:
+            os.remove(tmp)
+            return self.refuse(client, f"refused: {name} cannot be replayed: {e}")
+        os.replace(tmp, path)
+        self.refresh(force=True)
+        return self.open_file(path, client)
+
+    def _show(self, robot: str, controller, source: str, client) -> str | None:
+        if robot not in robots.names():
+            return self.refuse(client, f"refused: unknown robot {robot!r} in this run")
+        if robot != self.state.arm.name:
+            msg = self.app.switch_robot(robot)
+            if msg:
+                return self.refuse(client, msg)
+        self.state.show_replay(controller, source)
+        self.message.content = ""
+        return None
+
+    # ------------------------------------------------------------------ scrubbing
+    def scrub(self, generation: int, client=None) -> str | None:
+        """Show the controller in force at `generation` (1-based) of the open recording."""
+        rec = self.recording
+        if rec is None or generation == getattr(self, "_scrubbed", None):
+            return None
+        self._scrubbed = generation
+        try:
+            doc = rec.controller_doc(generation - 1)
+            controller = lab.controller_from_dict(doc["controller"])
+        except Exception as e:
+            return self.refuse(client, f"refused: {e}")
+        self.state.show_replay(controller, f"replay {rec.path.name}, generation {generation} "
+                                           f"(logged at {int(doc['generation']) + 1}, best MSE {doc['best_mse']:.4g})")
+        return None
+
+    def live(self) -> None:
+        self.recording = None
+        self.slider.disabled = True
+        self.state.live()
+
+
+def _details(e: dict) -> str:
+    s = e.get("settings", {})
+    f = lambda x: f"{x:.4g}" if isinstance(x, (int, float)) else "-"  # noqa: E731
+    return (f"**{e['robot']} {e['method']}** seed {e['seed']}, population {s.get('population')}, "
+            f"hidden {s.get('hidden')}, {e['generations']} generations ({e['state']}), {e['seconds']:.1f} s  \n"
+            f"training MSE {f(e.get('train_mse'))}, held-out MSE {f(e.get('test_mse'))}  \n"
+            f"recording `{e.get('recording') or '-'}`")
+
+
+def _file_details(rec) -> str:
+    p, s = rec.protocol, rec.summary or {}
+    f = lambda x: f"{x:.4g}" if isinstance(x, (int, float)) else "-"  # noqa: E731
+    return (f"**{p.get('robot')} {p.get('method')}** seed {p.get('seed')}, {len(rec.generations)} generations logged  \n"
+            f"training MSE {f(s.get('train_mse'))}, held-out MSE {f(s.get('test_mse'))}  \n`{rec.path}`")

@@ -1,0 +1,137 @@
+"""Arms and the shared scene, drawn in viser from the arm's Pinocchio model.
+
+An `ArmView` is one drawn arm: a frame node per joint, placed at the joint's world pose
+data.oMi[j], and under it one node per visual geometry at its placement in that joint
+(meshes as triangle meshes taken from the geometry's BVH, so .dae files need no extra
+loader; boxes, cylinders and spheres as viser primitives). Moving the arm to q sends nq
+poses, whatever the number of meshes.
+
+`frame_workspace` gives the camera, floor grid and marker limits of an arm; `colormap`
+maps errors to colours for the error map.
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+
+import numpy as np
+import pinocchio as pin
+
+import robots
+from robots.ik import workspace_size
+
+
+@functools.lru_cache(maxsize=32)
+def _geometry(arm: robots.Arm) -> tuple:
+    """(joint, placement (pos, wxyz), kind, params, rgba) for each visual geometry; meshes as (V, F)."""
+    out = []
+    for g in arm.visual_model().geometryObjects:
+        geo = g.geometry
+        kind = type(geo).__name__
+        pos, wxyz = se3_pose(g.placement)
+        rgba = np.clip(np.asarray(g.meshColor, float), 0, 1)
+        if kind == "Box":
+            params = (2 * np.asarray(geo.halfSide),)
+        elif kind == "Cylinder":
+            params = (float(geo.radius), 2 * float(geo.halfLength))
+        elif kind == "Sphere":
+            params = (float(geo.radius),)
+        elif hasattr(geo, "num_tris"):  # BVH mesh, already scaled by Pinocchio
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", DeprecationWarning)
+                V = np.asarray(geo.vertices(), dtype=np.float32)
+                F = np.array([list(geo.tri_indices(i)) for i in range(geo.num_tris)], dtype=np.uint32)
+            kind, params = "Mesh", (V, F.reshape(-1, 3))
+        else:
+            continue
+        out.append((int(g.parentJoint), pos, wxyz, kind, params, rgba))
+    return tuple(out)
+
+
+def se3_pose(M: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
+    """(position, wxyz) of an SE3 (Pinocchio quaternions are xyzw, viser's wxyz)."""
+    xyzw = pin.Quaternion(M.rotation).coeffs()
+    return np.array(M.translation, float), np.array([xyzw[3], xyzw[0], xyzw[1], xyzw[2]])
+
+
+class ArmView:
+    """One arm drawn under `name` in a viser scene (server.scene or client.scene)."""
+
+    def __init__(self, scene, arm: robots.Arm, name: str, *, opacity: float | None = None,
+                 tint: tuple[int, int, int] | None = None):
+        self.arm, self.name, self.scene = arm, name, scene
+        self.data = arm.model.createData()
+        joints = sorted({j for j, *_ in _geometry(arm)} | set(range(1, arm.model.njoints)))
+        self.frames = {j: scene.add_frame(f"{name}/j{j}", show_axes=False) for j in joints}
+        for i, (j, pos, wxyz, kind, params, rgba) in enumerate(_geometry(arm)):
+            color = tuple(int(255 * c) for c in rgba[:3]) if tint is None else tint
+            kw = dict(position=pos, wxyz=wxyz, opacity=opacity, cast_shadow=opacity is None)
+            node = f"{name}/j{j}/g{i}"
+            if kind == "Box":
+                scene.add_box(node, color=color, dimensions=params[0], **kw)
+            elif kind == "Cylinder":
+                scene.add_cylinder(node, radius=params[0], height=params[1], color=color, **kw)
+            elif kind == "Sphere":
+                scene.add_icosphere(node, radius=params[0], color=color, subdivisions=2, **kw)
+            else:
+                scene.add_mesh_simple(node, params[0], params[1], color=color, **kw)
+        self.q = None
+
+    def set_q(self, q) -> None:
+        """Move the drawn arm to joint values q (nq,): one pose message per joint."""
+        q = np.asarray(q, dtype=np.float64)
+        pin.forwardKinematics(self.arm.model, self.data, self.arm.to_pinocchio(q))
+        for j, frame in self.frames.items():
+            pos, wxyz = se3_pose(self.data.oMi[j])
+            frame.position, frame.wxyz = pos, wxyz
+        self.q = q
+
+    @property
+    def visible(self) -> bool:
+        return next(iter(self.frames.values())).visible
+
+    @visible.setter
+    def visible(self, value: bool) -> None:
+        for frame in self.frames.values():
+            frame.visible = bool(value)
+
+    def remove(self) -> None:
+        for frame in self.frames.values():
+            frame.remove()
+
+
+def to_world(arm: robots.Arm, goal) -> np.ndarray:
+    """Task coordinates (len(task_axes),) -> a 3D point (other coordinates 0)."""
+    p = np.zeros(3)
+    p[list(arm.task_axes)] = goal
+    return p
+
+
+def frame_workspace(arm: robots.Arm) -> dict:
+    """Camera, floor and goal-marker limits for an arm, from its workspace bounds."""
+    lo3, hi3 = np.zeros(3), np.zeros(3)
+    lo, hi = arm.workspace_bounds
+    lo3[list(arm.task_axes)], hi3[list(arm.task_axes)] = lo, hi
+    size = workspace_size(arm)
+    center = 0.5 * (lo3 + hi3)
+    span = hi3 - lo3
+    margin = 0.25 * span  # markers may leave the workspace: unreachable goals are allowed
+    limits = tuple((float(a - m), float(b + m)) if k in arm.task_axes else (0.0, 0.0)
+                   for k, (a, b, m) in enumerate(zip(lo3, hi3, margin)))
+    floor_z = float(lo3[2] - 0.08 * size) if 2 in arm.task_axes else -0.12 * size
+    return dict(
+        center=center, size=size, limits=limits, floor_z=floor_z, label_offset=np.array([0.03, 0.03, 0.0]) * size,
+        camera=center + size * np.array([-0.15, -0.75, 0.65]), cell=10 ** np.floor(np.log10(size / 4)),
+    )
+
+
+_VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
+
+
+def colormap(t: np.ndarray) -> np.ndarray:
+    """Values in [0, 1] -> (n, 3) uint8 colours along a viridis-like ramp."""
+    t = np.clip(np.nan_to_num(np.asarray(t, float), nan=1.0), 0, 1) * (len(_VIRIDIS) - 1)
+    i = np.minimum(t.astype(int), len(_VIRIDIS) - 2)
+    f = (t - i)[:, None]
+    return ((1 - f) * _VIRIDIS[i] + f * _VIRIDIS[i + 1]).astype(np.uint8)

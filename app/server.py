@@ -1,0 +1,191 @@
+"""`LabApp`: the viser server, the shared scene and panels, one `TabSession` per tab, the render loop.
+
+    app = LabApp(host="127.0.0.1", port=8080)   # viser takes the next port when one is taken
+    print(app.url)                             # the URL really served
+    app.stop()
+
+Shared by all tabs (server.scene / server.gui): the floor grid, the training goals, the error
+map, the training panel, the network drawing and the runs list; one training run at a time.
+Per tab (client.scene / client.gui): goal markers, arms and the IK ghost. Callbacks run in
+viser's thread pool, training in the lab Runner's thread; the render loop (30 Hz) redraws
+tabs when the shown controller changes and refreshes progress, plot, map and network.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import numpy as np
+import viser
+
+from .goals import TabSession, fmt_len
+from .notebook import DEFAULT_PATH, Notebook
+from .panels import TrainingPanel
+from .runs import RunsPanel
+from .scene import frame_workspace
+from .state import LabState
+from .views import error_map, map_grid, network_svg
+
+log = logging.getLogger(__name__)
+
+FPS = 30.0
+
+
+def rerun_recorder(folder: str):
+    """A recorder for LabState: a lab.recording.RerunLogger per run (None when the module is missing)."""
+    try:
+        from lab.recording import RerunLogger
+    except ImportError:
+        return None
+
+    def record(runner):
+        logger = RerunLogger(runner, path=folder.rstrip("/") + "/")
+        runner.subscribe(logger)
+        return logger
+
+    return record
+
+
+class LabApp:
+    def __init__(self, host: str = "127.0.0.1", port: int = 8080, *, robot: str = "planar",
+                 notebook: str = DEFAULT_PATH, recordings: str = "recordings", startup=True, record: bool = True):
+        """startup: True (the shipped or a quickly trained planar controller), a controller, or None."""
+        if startup is True:
+            from .startup import startup_controller
+
+            startup, self.startup_note = startup_controller()
+        else:
+            self.startup_note = "given" if startup is not None else "none"
+        self.state = LabState(robot, Notebook(notebook), startup=startup,
+                              recorder=rerun_recorder(recordings) if record else None)
+        self.recordings = recordings
+        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.host = host
+        self.sessions: dict[int, TabSession] = {}
+        self._sessions_lock = threading.Lock()
+        self._stop = threading.Event()
+        gui = self.server.gui
+        gui.configure_theme(control_width="large")
+        tabs = gui.add_tab_group(order=1)
+        with tabs.add_tab("Train", viser.Icon.BRAIN):
+            self.panel = TrainingPanel(gui, self.state, on_robot=self.switch_robot)
+        with tabs.add_tab("Views", viser.Icon.EYE):
+            self.network = gui.add_html(network_svg(None))
+            self.show_map = gui.add_checkbox("Error map", True)
+            self.map_legend = gui.add_markdown("")
+        with tabs.add_tab("Runs", viser.Icon.LIST):
+            self.runs = RunsPanel(gui, self)
+        self.show_map.on_update(lambda e: setattr(self._map, "visible", self.show_map.value))
+        self._drawn = (-1, None)  # (shown version, arm) of the map and the network
+        self._build_shared()
+        self.server.on_client_connect(self._connect)
+        self.server.on_client_disconnect(self._disconnect)
+        self._thread = threading.Thread(target=self._loop, name="app-render", daemon=True)
+        self._thread.start()
+
+    @property
+    def port(self) -> int:
+        return self.server.get_port()
+
+    @property
+    def url(self) -> str:
+        host = "127.0.0.1" if self.host in ("0.0.0.0", "") else self.host
+        return f"http://{host}:{self.port}"
+
+    # ------------------------------------------------------------------ tabs
+    def _connect(self, client: viser.ClientHandle) -> None:
+        session = TabSession(client, self.state)
+        with self._sessions_lock:
+            self.sessions[client.client_id] = session
+
+    def _disconnect(self, client: viser.ClientHandle) -> None:
+        with self._sessions_lock:
+            session = self.sessions.pop(client.client_id, None)
+        if session is not None:
+            session.close()
+
+    # ------------------------------------------------------------------ shared scene
+    def switch_robot(self, name: str) -> str | None:
+        """Show another arm in every tab (refused while a run is going)."""
+        msg = self.state.set_robot(name)
+        if msg is None:
+            self._build_shared()
+            self.panel.robot.value = name
+        return msg
+
+    def _build_shared(self) -> None:
+        arm = self.state.arm
+        ws = frame_workspace(arm)
+        scene = self.server.scene
+        self.server.initial_camera.position = ws["camera"]
+        self.server.initial_camera.look_at = ws["center"]
+        size = ws["size"]
+        scene.add_grid("/floor", width=1.6 * size, height=1.6 * size, cell_size=ws["cell"],
+                       section_size=10 * ws["cell"], position=(ws["center"][0], ws["center"][1], ws["floor_z"]))
+        goals = self.training_goals()
+        scene.add_point_cloud("/training_goals", points=goals.astype(np.float32), colors=(200, 30, 30),
+                              point_size=0.008 * size, point_shape="circle")
+        self._map_z = -0.05 * size  # just under the planar arm (its visuals reach z = -0.04 size)
+        self._map = scene.add_image("/error_map", np.zeros((1, 1, 4), np.uint8), 1.0, 1.0, visible=False)
+        self._drawn = (-1, None)
+
+    def training_goals(self) -> np.ndarray:
+        """3D points of the goals the current (or the next default) run trains on."""
+        arm = self.state.arm
+        r = self.state.runner
+        goals = r.problem.train_goals if r is not None and r.problem.arm is arm else arm.sample_goals(70, seed=0)
+        pts = np.zeros((len(goals), 3))
+        pts[:, list(arm.task_axes)] = goals
+        return pts
+
+    def _draw_views(self) -> None:
+        """Error map and network of the shown controller (at most twice a second)."""
+        shown = self.state.shown
+        if (shown.version, shown.arm) == self._drawn:
+            return
+        if self._drawn[1] is not shown.arm:
+            self._build_shared()
+        self._drawn = (shown.version, shown.arm)
+        image, err, scale = error_map(shown.arm, shown.controller)
+        grid = map_grid(shown.arm)
+        center = grid.center if len(shown.arm.task_axes) == 3 else np.array([*grid.center[:2], self._map_z])
+        self._map = self.server.scene.add_image(
+            "/error_map", image, render_width=grid.n * grid.cell, render_height=grid.n * grid.cell,
+            format="png", position=center, cast_shadow=False, receive_shadow=False, visible=self.show_map.value)
+        arm = shown.arm
+        finite = err[np.isfinite(err)]
+        self.map_legend.content = (
+            f"Error map of the shown controller over {len(err)} reachable goals"
+            f"{'' if len(arm.task_axes) == 2 else ' (the slice through the middle of the workspace)'}: "
+            f"dark purple 0, yellow ≥ {fmt_len(arm, scale)}. "
+            + (f"Median {fmt_len(arm, float(np.median(finite)))}, max {fmt_len(arm, float(finite.max()))}."
+               if len(finite) else "No controller.")
+        )
+        self.network.content = network_svg(shown.controller)
+
+    # ------------------------------------------------------------------ render loop
+    def _loop(self) -> None:
+        period, last_slow = 1.0 / FPS, 0.0
+        while not self._stop.is_set():
+            t0 = time.perf_counter()
+            try:
+                with self._sessions_lock:
+                    sessions = list(self.sessions.values())
+                for s in sessions:
+                    s.refresh()
+                if t0 - last_slow > 0.25:
+                    last_slow = t0
+                    self.panel.refresh()
+                    self._draw_views()
+                    self.runs.refresh()
+            except Exception:  # the loop must survive anything one frame does
+                log.exception("render loop")
+            self._stop.wait(max(0.0, period - (time.perf_counter() - t0)))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.state.reset() if self.state.running else None
+        self._thread.join(timeout=5)
+        self.server.stop()

@@ -1,0 +1,211 @@
+"""The server's shared state: one arm, the controller the arms show, and one training run.
+
+Nothing here knows about viser; the panels call these methods and show what they return.
+Methods that can be refused return a message (str) and change nothing, or None when done.
+
+The runner's subscriber (`_Tap`) runs in the training thread and only appends numbers and
+swaps a reference under a lock, so training speed does not depend on the GUI. The render
+loop polls `version` and redraws when the shown controller has changed.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+import lab
+import robots
+
+from .notebook import Notebook, entry_from_summary
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Shown:
+    """What the arms show: a controller for `arm` (or None), where it came from, a version."""
+
+    arm: robots.Arm
+    controller: object | None
+    source: str
+    version: int
+
+
+class _Tap:
+    """Runner subscriber: records each generation; on_end writes the notebook entry."""
+
+    def __init__(self, state: "LabState", runner: lab.Runner, recording: str | None):
+        self.state, self.runner, self.recording = state, runner, recording
+        self.started = time.time()
+
+    def __call__(self, event: lab.GenerationEvent) -> None:
+        self.state._on_generation(self.runner, event)
+
+    def on_end(self, summary: lab.RunSummary) -> None:
+        self.state._on_end(self.runner, summary, self.started, self.recording)
+
+
+class LabState:
+    def __init__(self, robot: str = "planar", notebook: Notebook | None = None, startup=None,
+                 recorder=None):
+        """startup: controller shown first (or None); recorder: callable(runner) -> object with
+        .path that records the run (lab.recording.RerunLogger), or None for no recordings."""
+        self._lock = threading.RLock()
+        self.notebook = notebook or Notebook()
+        self.recorder = recorder
+        self.runner: lab.Runner | None = None
+        self.recording: str | None = None
+        self.replaying = False  # the arms show a replayed controller, not the run's best
+        self._startup = startup
+        self._version = 0
+        self._shown = Shown(robots.load(robot), startup, "startup controller" if startup else "none", 0)
+        self._clear_history()
+
+    # ------------------------------------------------------------------ reading
+    @property
+    def shown(self) -> Shown:
+        return self._shown
+
+    @property
+    def arm(self) -> robots.Arm:
+        return self._shown.arm
+
+    @property
+    def running(self) -> bool:
+        r = self.runner
+        return r is not None and r.state in ("running", "paused")
+
+    def progress(self) -> dict:
+        """Plot data and counters of the current run (copies, any thread)."""
+        with self._lock:
+            r = self.runner
+            return dict(
+                generation=len(self._best), total=r.config.generations if r else 0,
+                state=r.state if r else "idle", best=np.array(self._best), median=np.array(self._median),
+                evals_per_s=self._evals / self._seconds if self._seconds > 0 else 0.0,
+                recording=self.recording, run_id=r.run_id if r else None,
+            )
+
+    # ------------------------------------------------------------------ changing what is shown
+    def show(self, controller, source: str, arm: robots.Arm | None = None) -> None:
+        with self._lock:
+            self._version += 1
+            self._shown = Shown(arm or self._shown.arm, controller, source, self._version)
+
+    def show_replay(self, controller, source: str) -> None:
+        """Show a replayed controller; training keeps going but no longer moves the arms."""
+        with self._lock:
+            self.replaying = True
+            self.show(controller, source)
+
+    def live(self) -> None:
+        """Back to the run's best controller (or the startup controller when there is no run)."""
+        with self._lock:
+            self.replaying = False
+            snap = self.runner.snapshot() if self.runner is not None else None
+            if snap is not None and snap.controller is not None and self.runner.config.robot == self.arm.name:
+                self.show(snap.controller, f"run {self.runner.run_id[:6]}, generation {snap.generation}")
+            else:
+                self._show_startup()
+
+    def _show_startup(self) -> None:
+        start = self._startup if self._startup is not None and _robot_of(self._startup, self.arm) else None
+        self.show(start, "startup controller" if start else "none (train one)")
+
+    def set_robot(self, name: str) -> str | None:
+        if name == self.arm.name:
+            return None
+        if self.running:
+            return f"refused: a {self.runner.config.robot} run is going; stop it before changing the robot"
+        try:
+            arm = robots.load(name)
+        except Exception as e:  # an unknown name or a broken model: keep the current arm
+            return f"refused: {e}"
+        with self._lock:
+            self.show(None, "none", arm)
+            self._show_startup()
+        return None
+
+    # ------------------------------------------------------------------ training
+    def start(self, config: lab.TrainConfig) -> str | None:
+        with self._lock:
+            if self.running:
+                return f"refused: a run is going (generation {len(self._best)}); stop it first"
+            if config.robot != self.arm.name:
+                msg = self.set_robot(config.robot)
+                if msg:
+                    return msg
+            try:
+                runner = lab.Runner(config)
+            except Exception as e:
+                return f"refused: cannot build this run: {e}"
+            recording = None
+            if self.recorder is not None:
+                try:
+                    path = getattr(self.recorder(runner), "path", None)
+                    recording = str(path) if path else None
+                except Exception as e:  # a run without a recording is still a run
+                    log.warning("no recording for this run: %s", e)
+            self._clear_history()
+            self.runner, self.recording, self.replaying = runner, recording, False
+            runner.subscribe(_Tap(self, runner, recording))
+            runner.start()
+            return None
+
+    def pause(self) -> str | None:
+        if not self.running or self.runner.state != "running":
+            return "refused: no run is going"
+        self.runner.pause()
+
+    def resume(self) -> str | None:
+        if not self.running or self.runner.state != "paused":
+            return "refused: no run is paused"
+        self.runner.resume()
+
+    def stop(self) -> str | None:
+        if not self.running:
+            return "refused: no run is going"
+        self.runner.stop(wait=True, timeout=10)
+
+    def reset(self) -> None:
+        """Stop any run, clear the progress and show the startup controller again."""
+        if self.running:
+            self.runner.stop(wait=True, timeout=10)
+        with self._lock:
+            self.runner, self.recording = None, None
+            self._clear_history()
+            self.replaying = False
+            self._show_startup()
+
+    def _clear_history(self) -> None:
+        self._best, self._median = [], []
+        self._evals, self._seconds = 0, 0.0
+
+    def _on_generation(self, runner: lab.Runner, event: lab.GenerationEvent) -> None:
+        with self._lock:
+            if runner is not self.runner:  # a run that was reset away
+                return
+            self._best.append(event.best)
+            self._median.append(event.median)
+            self._evals, self._seconds = event.evaluations, event.seconds
+            if (event.improved or event.index == 0) and not self.replaying:
+                self._version += 1
+                self._shown = Shown(self._shown.arm, event.controller,
+                                    f"run {runner.run_id[:6]}, generation {event.index + 1}", self._version)
+
+    def _on_end(self, runner, summary, started, recording) -> None:
+        try:
+            self.notebook.add(entry_from_summary(summary, started, recording))
+        except Exception:
+            log.exception("could not write the notebook entry of run %s", summary.run_id)
+
+
+def _robot_of(controller, arm: robots.Arm) -> bool:
+    """Whether a controller was made for this arm (its outputs are the arm's joints, in its limits)."""
+    enc = controller.encoding
+    return (tuple(enc.task_axes) == tuple(arm.task_axes) and len(enc.q_lo) == arm.nq
+            and np.allclose(enc.q_lo, arm.lower) and np.allclose(enc.q_hi, arm.upper))

@@ -1,0 +1,161 @@
+"""Teaching views: the workspace error map and the network drawing.
+
+Error map: the inverse-kinematics counterpart of a classifier's decision surface. Goals on
+a grid over the workspace (the task plane of a planar arm; the horizontal slice through the
+middle of the workspace for the others), kept where the arm can reach (a grid cell holds at
+least one end-effector position of 20,000 joint vectors drawn within the limits), each
+coloured by the controller's end-effector error ||g - reach(controller(g))||.
+
+Network: the controller as an SVG: inputs on the left, outputs (joints) on the right, hidden
+nodes by depth; enabled connections coloured by weight sign (red +, blue -), their width and
+opacity growing with |w|.
+"""
+
+from __future__ import annotations
+
+import functools
+import html
+from dataclasses import dataclass
+
+import numpy as np
+
+import robots
+from robots.ik import workspace_size
+
+from .scene import colormap
+
+GRID = 64
+
+
+@dataclass(frozen=True, eq=False)
+class MapGrid:
+    """Reachable cells of an n x n grid over the workspace (x, y) at height z."""
+
+    goals: np.ndarray  # (k, len(task_axes)) goal at each reachable cell's centre
+    cells: np.ndarray  # (k, 2) cell indices (i along x, j along y)
+    origin: np.ndarray  # (2,) x, y of the grid's corner
+    cell: float  # cell size [length]
+    n: int
+    z: float
+
+    @property
+    def center(self) -> np.ndarray:
+        return np.array([*(self.origin + 0.5 * self.n * self.cell), self.z])
+
+
+@functools.lru_cache(maxsize=16)
+def map_grid(arm: robots.Arm, n: int = GRID) -> MapGrid:
+    samples = arm.fk(arm.sample_q(20_000, seed=4321))  # (20000, 3)
+    lo, hi = arm.workspace_bounds
+    axes = list(arm.task_axes)
+    lo_xy, hi_xy = np.array([lo[axes.index(0)], lo[axes.index(1)]]), np.array([hi[axes.index(0)], hi[axes.index(1)]])
+    cell = float(np.max(hi_xy - lo_xy)) / (n - 1)
+    origin = 0.5 * (lo_xy + hi_xy) - 0.5 * n * cell
+    z = 0.0
+    if 2 in axes:  # the slice through the middle of the workspace, one cell thick
+        z = 0.5 * (lo[axes.index(2)] + hi[axes.index(2)])
+        samples = samples[np.abs(samples[:, 2] - z) < max(cell, 0.02 * workspace_size(arm))]
+    cells = np.unique(np.clip(np.floor((samples[:, :2] - origin) / cell).astype(int), 0, n - 1), axis=0)
+    xyz = np.column_stack([origin + (cells + 0.5) * cell, np.full(len(cells), z)])
+    return MapGrid(xyz[:, axes], cells, origin, cell, n, z)
+
+
+def error_map(arm: robots.Arm, controller) -> tuple[np.ndarray, np.ndarray, float]:
+    """(RGBA image (n, n, 4), errors (k,), colour scale [length]) of a controller over map_grid(arm).
+
+    Image row r holds cell row j = r (viser draws row 0 at the image plane's -y side);
+    unreachable cells are transparent."""
+    grid = map_grid(arm)
+    scale = 0.1 * workspace_size(arm)  # fixed per arm, so colours compare across training
+    image = np.zeros((grid.n, grid.n, 4), np.uint8)
+    if controller is None or len(grid.goals) == 0:
+        err, rgb = np.full(len(grid.goals), np.nan), np.full((len(grid.goals), 3), 160, np.uint8)
+    else:
+        err = np.linalg.norm(arm.reach(controller(grid.goals)) - grid.goals, axis=1)
+        rgb = colormap(err / scale)
+    i, j = grid.cells[:, 0], grid.cells[:, 1]
+    image[j, i, :3] = rgb
+    image[j, i, 3] = 235
+    return image, err, scale
+
+
+# ---------------------------------------------------------------------------- network drawing
+def network_graph(controller) -> tuple[list, list]:
+    """(nodes [(key, layer, label)], links [(src, dst, weight)]) of an MLP or a NEAT graph."""
+    enc = controller.encoding
+    in_labels = _input_labels(enc)
+    n_out = enc.n_outputs
+    if controller.kind == "mlp":
+        w_i, w_o = controller.w_i, controller.w_o  # (ni+1, nh), (nh, no); last row of w_i: bias
+        nodes = [(("i", k), 0, in_labels[k]) for k in range(enc.n_inputs)]
+        nodes += [(("h", h), 1, "") for h in range(controller.hidden)]
+        nodes += [(("o", o), 2, f"q{o + 1}") for o in range(n_out)]
+        links = [(("i", k), ("h", h), w_i[k, h]) for k in range(enc.n_inputs) for h in range(controller.hidden)]
+        links += [(("h", h), ("o", o), w_o[h, o]) for h in range(controller.hidden) for o in range(n_out)]
+        return nodes, links
+    genome = controller.genome
+    inputs, outputs = list(controller.input_keys), list(controller.output_keys)
+    links = [(int(i), int(o), float(w)) for i, o, w, enabled in genome["connections"] if enabled]
+    keys = set(inputs) | set(outputs) | {int(k) for k, *_ in genome["nodes"]}
+    depth = {k: 0 for k in inputs}
+    for _ in range(len(keys)):  # longest path from the inputs (the graph is feed-forward)
+        changed = False
+        for i, o, _w in links:
+            if i in depth and depth.get(o, -1) < depth[i] + 1 and o not in inputs:
+                depth[o], changed = depth[i] + 1, True
+        if not changed:
+            break
+    last = max([depth.get(k, 1) for k in keys if k not in outputs] + [0]) + 1
+    nodes = [(k, 0, in_labels[n]) for n, k in enumerate(inputs)]
+    nodes += [(k, min(depth.get(k, 1), last - 1) or 1, "") for k in sorted(keys - set(inputs) - set(outputs))]
+    nodes += [(k, last, f"q{n + 1}") for n, k in enumerate(outputs)]
+    return nodes, links
+
+
+def _input_labels(enc) -> list[str]:
+    axes = ["x", "y", "z"]
+    task = [axes[a] for a in enc.task_axes]
+    if enc.features == "polar":
+        return task + ["r", "φ"]
+    if enc.features == "cylindrical":
+        return ["r", "φ"] + task[2:]
+    return task
+
+
+def network_svg(controller, width: int = 300, height: int = 220) -> str:
+    """An SVG drawing of the controller's network (a short note when there is none)."""
+    if controller is None:
+        return "<p style='font-size:0.8em'>No controller yet.</p>"
+    nodes, links = network_graph(controller)
+    layers: dict[int, list] = {}
+    for key, layer, label in nodes:
+        layers.setdefault(layer, []).append((key, label))
+    n_layers = max(layers) + 1
+    pos = {}
+    for layer, members in layers.items():
+        x = 24 + (width - 48) * layer / max(n_layers - 1, 1)
+        for m, (key, _label) in enumerate(members):
+            pos[key] = (x, 12 + (height - 24) * (m + 0.5) / len(members))
+    wmax = max([abs(w) for *_, w in links] + [1e-9])
+    parts = [f"<svg xmlns='http://www.w3.org/2000/svg' width='100%' viewBox='0 0 {width} {height}'>"]
+    for src, dst, w in links:
+        if src not in pos or dst not in pos:
+            continue
+        a = abs(w) / wmax
+        color = "#d62728" if w > 0 else "#1f77b4"
+        (x1, y1), (x2, y2) = pos[src], pos[dst]
+        parts.append(f"<line x1='{x1:.1f}' y1='{y1:.1f}' x2='{x2:.1f}' y2='{y2:.1f}' stroke='{color}' "
+                     f"stroke-width='{0.4 + 2.6 * a:.2f}' stroke-opacity='{0.15 + 0.85 * a:.2f}'/>")
+    for key, layer, label in nodes:
+        x, y = pos[key]
+        fill = "#444" if layer == 0 else ("#2ca02c" if label.startswith("q") else "#ff7f0e")
+        parts.append(f"<circle cx='{x:.1f}' cy='{y:.1f}' r='5' fill='{fill}'/>")
+        if label:
+            dx = -8 if layer == 0 else 8
+            anchor = "end" if layer == 0 else "start"
+            parts.append(f"<text x='{x + dx:.1f}' y='{y + 3:.1f}' font-size='9' text-anchor='{anchor}' "
+                         f"fill='currentColor'>{html.escape(label)}</text>")
+    parts.append("</svg>")
+    n_hidden = sum(1 for _k, layer, label in nodes if layer > 0 and not label)
+    caption = f"{controller.kind}: {n_hidden} hidden, {len(links)} connections, {controller.n_params} parameters"
+    return "".join(parts) + f"<p style='font-size:0.75em;margin:0'>{caption}</p>"
