@@ -4,6 +4,7 @@
     run = lab.evolve(robot="planar", method="cmaes", generations=1000, population=50, targets=70, seed=0)
     run.controller(goals)        # (n, len(task_axes)) -> (n, nq) within the joint limits
     run.train_mse, run.test_mse  # final best on the training and held-out goals
+    lab.load_controller("recordings/....rrd", generation=None)  # a controller back from a Rerun recording
 
 Nothing here knows about the GUI.
 """
@@ -14,6 +15,19 @@ from .evolve import Run, evolve
 from .runner import GenerationEvent, Runner, RunSummary
 
 __all__ = [
-    "Controller", "GenerationEvent", "GraphController", "MLPController", "Run", "RunSummary", "Runner",
-    "TrainConfig", "controller_from_dict", "evolve",
+    "Controller", "GenerationEvent", "GraphController", "MLPController", "RerunLogger", "Run", "RunSummary",
+    "Runner", "TrainConfig", "controller_from_dict", "evolve", "load_controller",
 ]
+
+
+def __getattr__(name: str):
+    """RerunLogger and load_controller import rerun (~0.7 s) only when first used."""
+    if name == "RerunLogger":
+        from .recording import RerunLogger
+
+        return RerunLogger
+    if name == "load_controller":
+        from .replay import load_controller
+
+        return load_controller
+    raise AttributeError(f"module 'lab' has no attribute {name!r}")

@@ -30,6 +30,33 @@ def _train_parser(sub) -> None:
     p.add_argument("--features", default=None, choices=("cartesian", "polar"), help="network inputs")
     p.add_argument("--test-goals", type=int, default=None, help="held-out goals (default 1000)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    rec = p.add_mutually_exclusive_group()
+    rec.add_argument("--recording", metavar="PATH", default=None,
+                     help="Rerun recording to write (a .rrd file or a folder; default: "
+                          "recordings/<robot>-<method>-s<seed>-<time>.rrd)")
+    rec.add_argument("--no-recording", action="store_true", help="write no Rerun recording")
+
+
+def _replay_parser(sub) -> None:
+    p = sub.add_parser("replay", help="show a Rerun recording of a training run",
+                       description="Open a recording in the Rerun viewer; with no display (or --web), serve "
+                                   "the web viewer on 127.0.0.1 and print its URL. Ends the viewer on exit.")
+    p.add_argument("path", help="a .rrd file written by `python -m lab train`")
+    p.add_argument("--web", action="store_true", default=None, help="serve the web viewer even with a display")
+    p.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
+                   help="end the viewer after this many seconds (default: when it is closed, or Ctrl-C)")
+    p.add_argument("--web-port", type=int, default=None, help="web viewer port (default: a free one)")
+    p.add_argument("--grpc-port", type=int, default=None, help="data server port (default: a free one)")
+
+
+def replay(args) -> int:
+    from .replay import replay as show
+
+    try:
+        return show(args.path, web=args.web, timeout=args.timeout, web_port=args.web_port, grpc_port=args.grpc_port)
+    except (OSError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
 
 
 def train(args) -> int:
@@ -47,6 +74,16 @@ def train(args) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     runner = Runner(config)
+    logger = None
+    if not args.no_recording:
+        from .recording import RerunLogger
+
+        try:  # before training: a recording that cannot be written stops here
+            logger = RerunLogger(runner, path=args.recording)
+        except (OSError, ValueError) as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        runner.subscribe(logger)
     bar = tqdm(total=config.generations, unit="gen", disable=args.quiet, dynamic_ncols=True,
                desc=f"{config.robot} {config.method}")
 
@@ -61,6 +98,9 @@ def train(args) -> int:
     except KeyboardInterrupt:  # pragma: no cover - interactive
         runner.stop()
         summary = runner.join()
+    finally:
+        if logger is not None:
+            logger.close()  # no-op when the run's end has closed it
     bar.close()
     if summary.state == "failed":
         print(f"error: training failed: {summary.error}", file=sys.stderr)
@@ -71,6 +111,8 @@ def train(args) -> int:
           f"parameters {run.n_params}  time {run.seconds:.1f} s")
     print(f"training MSE  {run.train_mse:.6g}  ({config.targets} goals)")
     print(f"held-out MSE  {run.test_mse:.6g}  ({config.test_goals} goals)")
+    if logger is not None:
+        print(f"recording     {logger.path}  (python -m lab replay {logger.path})")
     return 0
 
 
@@ -78,8 +120,9 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m lab", description="Neuro-IK Lab: evolve neuro-controllers.")
     sub = parser.add_subparsers(dest="command", required=True)
     _train_parser(sub)
+    _replay_parser(sub)
     args = parser.parse_args(argv)
-    return {"train": train}[args.command](args)
+    return {"train": train, "replay": replay}[args.command](args)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,245 @@
+"""Reading recordings back, and showing them in the Rerun viewer.
+
+    controller = load_controller("recordings/planar-cmaes-s0-....rrd")        # the last generation's
+    controller = load_controller(path, generation=250)                        # in force at generation 250
+    rec = read_recording(path)  # protocol, per-generation best/median MSE, every logged controller
+    replay(path)                # the viewer (or, with no display, the web viewer on localhost)
+
+Only the file is needed (lab/recording.py describes its contents). A file without its footer
+(a killed writer) reads through RrdReader.stream(); a file cut inside a frame is salvaged with
+`rerun rrd merge --continue-on-error` into a temporary copy and read from there (`salvaged`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from urllib.parse import quote
+
+import numpy as np
+
+from .controllers import Controller, controller_from_dict
+from .recording import rerun_binary
+
+MAGIC = b"RRF"  # the first bytes of every .rrd file
+
+
+class RecordingError(ValueError):
+    """A file that is not a readable lab recording (the message names the file)."""
+
+
+@dataclass(frozen=True)
+class Recording:
+    """What a recording holds. generations, best, median: one row per logged generation (sorted);
+    controllers: (generation, document) with document = {"generation", "best_mse", "controller"}."""
+
+    path: Path
+    protocol: dict
+    generations: np.ndarray
+    best: np.ndarray
+    median: np.ndarray
+    controllers: list = field(repr=False)
+    summary: dict | None = None
+    salvaged: bool = False
+
+    @property
+    def last_generation(self) -> int | None:
+        """The last generation whose scalars were written completely."""
+        return int(self.generations[-1]) if len(self.generations) else None
+
+    def best_at(self, generation: int) -> float:
+        i = np.searchsorted(self.generations, generation, side="right") - 1
+        if i < 0:
+            raise RecordingError(f"{self.path}: no generation <= {generation} in the recording")
+        return float(self.best[i])
+
+    def controller_doc(self, generation: int | None = None) -> dict:
+        """The document of the controller in force at `generation` (default: the last complete one)."""
+        if not self.controllers:
+            raise RecordingError(f"{self.path}: the recording holds no controller")
+        if generation is None:
+            generation = self.last_generation if self.last_generation is not None else self.controllers[-1][0]
+        docs = [d for g, d in self.controllers if g <= generation]
+        if not docs:
+            raise RecordingError(f"{self.path}: no controller was logged at or before generation {generation} "
+                             f"(the first is at generation {self.controllers[0][0]})")
+        return docs[-1]
+
+
+def load_controller(path: str | os.PathLike, generation: int | None = None) -> Controller:
+    """Rebuild the controller logged at or before `generation` (default: the last complete generation)."""
+    return controller_from_dict(read_recording(path).controller_doc(generation)["controller"])
+
+
+def read_recording(path: str | os.PathLike) -> Recording:
+    """Read a recording written by lab.recording.RerunLogger (raises OSError/ValueError naming the file)."""
+    path = check_file(path)
+    try:
+        return _read(path, path, salvaged=False)
+    except RecordingError:
+        raise
+    except Exception as first:  # RuntimeError from a file cut inside a frame
+        with tempfile.TemporaryDirectory(prefix="lab-salvage-") as tmp:
+            copy = salvage(path, Path(tmp) / "salvaged.rrd", first)
+            try:
+                return _read(copy, path, salvaged=True)
+            except RecordingError:
+                raise
+            except Exception as e:
+                raise RecordingError(f"{path} cannot be read ({first}), even salvaged ({e})") from e
+
+
+def check_file(path: str | os.PathLike) -> Path:
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(2, f"no such recording: {path}", str(path))
+    if not path.is_file():
+        raise RecordingError(f"{path} is not a file (expected a Rerun .rrd recording)")
+    with open(path, "rb") as f:
+        head = f.read(len(MAGIC))
+    if head != MAGIC:
+        raise RecordingError(f"{path} is not a Rerun recording (it does not start with {MAGIC!r})")
+    return path
+
+
+def salvage(path: Path, out: Path, reason: Exception | None = None) -> Path:
+    """Copy every complete frame of a damaged .rrd to `out` (rerun rrd merge --continue-on-error)."""
+    try:
+        done = subprocess.run([rerun_binary(), "rrd", "merge", "--continue-on-error", str(path), "-o", str(out)],
+                              capture_output=True, text=True, timeout=120)
+    except (OSError, subprocess.SubprocessError) as e:
+        raise RecordingError(f"{path} cannot be read ({reason}) nor salvaged ({e})") from e
+    if done.returncode != 0 or not out.is_file():
+        raise RecordingError(f"{path} cannot be read ({reason}) nor salvaged: {done.stderr.strip()[-300:]}")
+    return out
+
+
+def _read(path: Path, name: Path, salvaged: bool) -> Recording:
+    from rerun.chunk import RrdReader
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "RRD file has no footer": expected after a crash
+        chunks = list(RrdReader(path).stream())
+    protocol, summary, rows, docs = None, None, [], []
+    for ch in chunks:
+        entity = ch.entity_path
+        if entity not in ("/protocol", "/summary", "/mse", "/controller"):
+            continue
+        rb = ch.to_record_batch()
+        if entity in ("/protocol", "/summary"):
+            text = rb.column("TextDocument:text").to_pylist()[-1][0]
+            protocol, summary = (json.loads(text), summary) if entity == "/protocol" else (protocol, json.loads(text))
+        elif entity == "/mse" and "generation" in rb.schema.names:
+            rows += zip(rb.column("generation").to_pylist(), rb.column("Scalars:scalars").to_pylist())
+        elif entity == "/controller" and "generation" in rb.schema.names:
+            for g, cell in zip(rb.column("generation").to_pylist(), rb.column("TextDocument:text").to_pylist()):
+                if cell:
+                    docs.append((int(g), json.loads(cell[0])))
+    if protocol is None:
+        raise RecordingError(f"{name} is a Rerun recording but not one of a lab training run (no /protocol)")
+    rows.sort(key=lambda r: r[0])
+    docs.sort(key=lambda d: d[0])
+    gens = np.array([g for g, _ in rows], dtype=np.int64)
+    best = np.array([v[0] for _, v in rows], dtype=np.float64)
+    median = np.array([v[1] for _, v in rows], dtype=np.float64)
+    return Recording(name, protocol, gens, best, median, docs, summary, salvaged)
+
+
+# ---------------------------------------------------------------------- the viewer
+def has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def web_url(web_port: int, grpc_port: int) -> str:
+    return f"http://127.0.0.1:{web_port}/?url=" + quote(f"rerun+http://127.0.0.1:{grpc_port}/proxy", safe="")
+
+
+def replay(path: str | os.PathLike, web: bool | None = None, timeout: float | None = None,
+           web_port: int | None = None, grpc_port: int | None = None, out=None) -> int:
+    """Show a recording: the native viewer, or (web=True, or no display) the web viewer served on
+    127.0.0.1, its URL printed. Returns when the viewer exits, after `timeout` seconds, or on
+    Ctrl-C / SIGTERM; the viewer's whole process group is ended then, so nothing is left behind."""
+    out = out or sys.stdout
+    path = check_file(path)
+    rec = read_recording(path)  # refuses what is not a lab recording; salvages a cut file
+    with tempfile.TemporaryDirectory(prefix="lab-replay-") as tmp:
+        shown = salvage(path, Path(tmp) / path.name) if rec.salvaged else path
+        web = (not has_display()) if web is None else web
+        cmd = [rerun_binary(), str(shown)]
+        if web:
+            web_port, grpc_port = web_port or free_port(), grpc_port or free_port()
+            cmd += ["--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port),
+                    "--web-viewer-port", str(web_port)]
+        proc = subprocess.Popen(cmd, start_new_session=True, stdin=subprocess.DEVNULL)
+        print(f"replaying {path} ({len(rec.generations)} generations{', salvaged' if rec.salvaged else ''}); "
+              f"viewer process {proc.pid}", file=out, flush=True)
+        if web:
+            print(f"web viewer: {web_url(web_port, grpc_port)}", file=out, flush=True)
+        return _wait_and_end(proc, timeout)
+
+
+def _wait_and_end(proc: subprocess.Popen, timeout: float | None) -> int:
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt) if _main_thread() else None
+    try:
+        proc.wait(timeout)
+        return 0
+    except subprocess.TimeoutExpired:
+        return 0
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        end_group(proc)
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def end_group(proc: subprocess.Popen, grace: float = 5.0) -> None:
+    """SIGTERM the process group of `proc` (started with start_new_session), then SIGKILL it."""
+    for sig, wait in ((signal.SIGTERM, grace), (signal.SIGKILL, grace)):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            break
+        deadline = time.monotonic() + wait
+        while time.monotonic() < deadline and _group_alive(proc.pid):
+            proc.poll()
+            time.sleep(0.05)
+        if not _group_alive(proc.pid):
+            break
+    proc.poll()
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+__all__ = ["Recording", "RecordingError", "check_file", "load_controller", "read_recording", "replay", "salvage"]

@@ -1,0 +1,310 @@
+"""Rerun recordings: what the logger writes, that controllers come back exactly from the file
+alone, and that stopped, killed and damaged runs still leave a file that loads or is refused
+by name. The viewer is started and ended without leaving a process behind."""
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rerun as rr
+from rerun.chunk import RrdReader
+
+import lab
+from lab.__main__ import main as cli
+from lab.recording import RerunLogger, default_path
+from lab.recording_views import network
+from lab.replay import load_controller, read_recording
+from lab.runner import Runner, build_problem
+
+SHORT = dict(robot="planar", generations=40, population=10, targets=15, test_goals=10)
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def logged_run(tmp_path, method, **changes):
+    """A short run with a logger; returns (runner, logger, summary, events)."""
+    config = lab.TrainConfig(method=method, **{**SHORT, **changes})
+    runner = Runner(config)
+    logger = RerunLogger(runner, path=tmp_path / f"{method}.rrd", pose_every=5)
+    events = []
+    runner.subscribe(logger)
+    runner.subscribe(events.append)
+    return runner, logger, runner.run(), events
+
+
+@pytest.fixture(scope="module", params=["cmaes", "neat"])
+def run(request, tmp_path_factory):
+    return logged_run(tmp_path_factory.mktemp(request.param), request.param)
+
+
+def entities(path) -> dict:
+    """entity path -> set of component column names, over the whole file."""
+    out = {}
+    for ch in RrdReader(path).stream():
+        out.setdefault(ch.entity_path, set()).update(ch.to_record_batch().schema.names)
+    return out
+
+
+# ---------------------------------------------------------------- contents
+def test_every_generation_is_logged_with_the_protocol(run):
+    runner, logger, summary, events = run
+    rec = read_recording(logger.path)
+    assert summary.state == "finished" and not rec.salvaged
+    np.testing.assert_array_equal(rec.generations, np.arange(len(events)))
+    np.testing.assert_array_equal(rec.best, [e.best for e in events])  # exact: no scalar is decimated
+    np.testing.assert_array_equal(rec.median, [e.median for e in events])
+    p = rec.protocol
+    assert (p["robot"], p["method"], p["seed"]) == ("planar", runner.config.method, 0)
+    np.testing.assert_array_equal(p["train_goals"], runner.problem.train_goals)
+    np.testing.assert_array_equal(p["lower"], runner.problem.arm.lower)
+    assert p["config"] == json.loads(json.dumps(runner.config.to_dict()))
+    assert p["hyperparameters"] == json.loads(json.dumps(runner.backend.hyperparameters()))
+    assert p["versions"]["rerun-sdk"] == rr.__version__
+    assert rec.summary["state"] == "finished" and rec.summary["train_mse"] == summary.train_mse
+    # one controller per change of the best, the first at generation 0
+    changes = [e.index for k, e in enumerate(events) if k == 0 or e.controller is not events[k - 1].controller]
+    assert [g for g, _ in rec.controllers] == changes and changes[0] == 0
+
+
+def test_views_and_blueprint(run):
+    runner, logger, _, events = run
+    found = entities(logger.path)
+    for entity in ("/world/arm", "/world/goals", "/world/reached", "/world/errors", "/log10_mse", "/search",
+                   "/about", "/controller"):
+        assert entity in found, entity
+    assert "Arrows3D:vectors" in found["/world/errors"] and "LineStrips3D:strips" in found["/world/arm"]
+    if runner.config.method == "neat":
+        assert {"GraphNodes:positions", "GraphEdges:edges"} <= found["/network"]
+    assert len(RrdReader(logger.path).blueprints()) == 1
+    RrdReader(logger.path).store()  # a cleanly closed file has its footer
+
+
+def test_mse_series_and_search_extras(run):
+    runner, logger, _, events = run
+    rows = {}
+    for ch in RrdReader(logger.path).stream():
+        if ch.entity_path in ("/mse", "/log10_mse", "/search") and not ch.is_static:
+            rb = ch.to_record_batch()
+            for g, v in zip(rb.column("generation").to_pylist(), rb.column("Scalars:scalars").to_pylist()):
+                rows[ch.entity_path, g] = v
+    for e in events:
+        mse = rows["/mse", e.index]
+        expected = [e.best, e.median] + ([e.worst] if np.isfinite(e.worst) else [])
+        assert mse == expected  # worst only when finite
+        np.testing.assert_allclose(rows["/log10_mse", e.index], np.log10(expected), rtol=1e-12)
+        keys = sorted(k for k, v in e.extras.items() if isinstance(v, (int, float)))
+        assert rows["/search", e.index] == [float(e.extras[k]) for k in keys]
+    wanted = {"cmaes": {"sigma", "restarts"}, "neat": {"species", "nodes", "connections"}}[runner.config.method]
+    assert wanted <= set(events[0].extras)
+
+
+@pytest.mark.parametrize("at", ["last", "middle", "first"])
+def test_load_controller_reproduces_the_logged_mse(run, at):
+    runner, logger, _, events = run
+    rec = read_recording(logger.path)
+    generation = {"last": None, "middle": len(events) // 2, "first": 0}[at]
+    controller = load_controller(logger.path, generation)
+    g = len(events) - 1 if generation is None else generation
+    problem = lab.problem.Problem(runner.problem.arm, runner.problem.encoding, targets=SHORT["targets"],
+                                  test_goals=1, goal_seed=rec.protocol["goal_seed"])
+    assert problem.controller_mse(controller) == pytest.approx(rec.best_at(g), rel=0, abs=1e-9)
+    assert controller.to_dict() == events[g].controller.to_dict()  # bit for bit
+
+
+def test_network_is_laid_out_in_layers(run):
+    runner, _, summary, _ = run
+    if runner.config.method != "neat":
+        pytest.skip("CMA-ES controllers have no genome")
+    c = summary.controller
+    nodes, edges = network(c)
+    ids = [str(x) for x in nodes.node_ids.as_arrow_array().to_pylist()]
+    x = dict(zip(ids, (p[0] for p in nodes.positions.as_arrow_array().to_pylist())))
+    assert {x[str(k)] for k in c.input_keys} == {0.0}
+    assert {x[str(k)] for k in c.output_keys} == {max(x.values())}
+    for edge in edges.edges.as_arrow_array().to_pylist():
+        assert x[edge["first"]] < x[edge["second"]]  # drawn left to right
+    enabled = sum(1 for *_, on in c.genome["connections"] if on)
+    assert len(edges.edges.as_arrow_array()) == enabled
+
+
+def test_logger_uses_its_own_stream(run):
+    assert rr.get_global_data_recording() is None and rr.get_thread_local_data_recording() is None
+
+
+# ---------------------------------------------------------------- paths
+def test_default_path_and_a_folder(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    config = lab.TrainConfig(method="cmaes", seed=3, **SHORT)
+    p = default_path(config)
+    assert re.fullmatch(r"recordings/planar-cmaes-s3-\d{8}-\d{6}\.rrd", p.as_posix())
+    logger = RerunLogger(config, build_problem(config), path=f"{tmp_path}/runs/")  # a folder: default name inside
+    logger.close()
+    assert logger.path.parent == tmp_path / "runs" and logger.path.name.startswith("planar-cmaes-s3-")
+    assert read_recording(logger.path).last_generation is None  # no generation, still a valid file
+
+
+def test_unwritable_path_is_refused_before_training(tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    runner = Runner(lab.TrainConfig(method="cmaes", **SHORT))
+    with pytest.raises(OSError, match=re.escape(str(blocker / "run.rrd"))):
+        RerunLogger(runner, path=blocker / "run.rrd")
+    with pytest.raises(ValueError, match="not a file"):
+        RerunLogger(runner, path="/dev/null")
+    assert runner.state == "idle" and not (blocker.parent / "run.rrd").exists()
+
+
+# ---------------------------------------------------------------- the command line
+def test_train_cli_writes_and_prints_the_recording(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    args = ["train", "--generations", "6", "--population", "8", "--targets", "10", "--test-goals", "10", "--quiet"]
+    assert cli(args + ["--recording", "out/run.rrd"]) == 0
+    assert "recording     out/run.rrd" in capsys.readouterr().out
+    assert read_recording(tmp_path / "out/run.rrd").last_generation == 5
+    assert cli(args) == 0  # on by default
+    [default] = (tmp_path / "recordings").glob("planar-cmaes-s0-*.rrd")
+    assert str(Path("recordings") / default.name) in capsys.readouterr().out
+    assert cli(args + ["--no-recording"]) == 0
+    assert "recording" not in capsys.readouterr().out
+    assert len(list((tmp_path / "recordings").iterdir())) == 1
+    assert cli(args + ["--recording", str(tmp_path / "out/run.rrd" / "x.rrd")]) == 2
+    assert "run.rrd" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- stops, crashes, damage
+def test_a_stopped_run_closes_its_recording(tmp_path):
+    config = lab.TrainConfig(method="neat", **{**SHORT, "generations": 100000})
+    runner = Runner(config)
+    logger = RerunLogger(runner, path=tmp_path / "stopped.rrd")
+    runner.subscribe(logger)
+    runner.start()
+    while runner.snapshot().generation < 10:
+        time.sleep(0.01)
+    runner.stop()
+    summary = runner.join(30)
+    assert summary.state == "stopped"
+    RrdReader(logger.path).store()  # footer written: closed cleanly
+    rec = read_recording(logger.path)
+    assert rec.summary["state"] == "stopped" and rec.last_generation == summary.generations - 1
+    c = load_controller(logger.path)
+    assert runner.problem.controller_mse(c) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
+
+
+@pytest.fixture(scope="module")
+def killed(tmp_path_factory):
+    """A `python -m lab train` process killed with SIGKILL while it writes its recording."""
+    path = tmp_path_factory.mktemp("killed") / "killed.rrd"
+    cmd = [sys.executable, "-m", "lab", "train", "--generations", "100000", "--population", "10", "--targets", "15",
+           "--test-goals", "10", "--quiet", "--recording", str(path)]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+            try:
+                if len(read_recording(path).generations) >= 30:
+                    break
+            except (OSError, ValueError):
+                pass  # not there yet
+        assert proc.poll() is None, proc.stderr.read().decode()
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    return path
+
+
+def test_a_killed_run_leaves_a_file_that_loads(killed):
+    rec = read_recording(killed)
+    assert rec.last_generation >= 29 and rec.summary is None  # no end was written
+    np.testing.assert_array_equal(rec.generations, np.arange(rec.last_generation + 1))
+    config = lab.TrainConfig(**rec.protocol["config"])
+    controller = load_controller(killed)
+    assert build_problem(config).controller_mse(controller) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
+
+
+@pytest.mark.parametrize("keep", [0.5, 0.9, 0.999])
+def test_a_file_cut_mid_frame_is_salvaged(killed, tmp_path, keep):
+    data = killed.read_bytes()
+    cut = tmp_path / "cut.rrd"
+    cut.write_bytes(data[: int(len(data) * keep)])
+    rec = read_recording(cut)  # salvaged: the protocol and the first generations come first in the file
+    assert rec.salvaged and rec.last_generation is not None and rec.last_generation <= read_recording(killed).last_generation
+    config = lab.TrainConfig(**rec.protocol["config"])
+    assert build_problem(config).controller_mse(load_controller(cut)) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
+
+
+@pytest.mark.parametrize("content", [b"", b"RRF", b"hello, not a recording\n" * 10, "killed-head"])
+def test_bad_files_are_refused_by_name(killed, tmp_path, content):
+    bad = tmp_path / "bad.rrd"
+    bad.write_bytes(killed.read_bytes()[:40] if content == "killed-head" else content)
+    with pytest.raises(ValueError, match=re.escape(str(bad))):
+        load_controller(bad)
+
+
+def test_missing_files_and_folders_are_refused_by_name(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.rrd"):
+        load_controller(tmp_path / "nope.rrd")
+    with pytest.raises(ValueError, match=re.escape(str(tmp_path))):
+        read_recording(tmp_path)
+
+
+def test_generation_before_the_first_controller_is_refused(run):
+    _, logger, _, _ = run
+    with pytest.raises(ValueError, match="generation -1"):
+        load_controller(logger.path, generation=-1)
+
+
+# ---------------------------------------------------------------- the viewer
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1][0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_replay_serves_the_web_viewer_and_leaves_nothing_behind(run):
+    _, logger, _, _ = run
+    cmd = [sys.executable, "-m", "lab", "replay", str(logger.path), "--web", "--timeout", "20"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        head = proc.stdout.readline()
+        pid = int(re.search(r"viewer process (\d+)", head).group(1))
+        url = re.search(r"(http://127\.0\.0\.1:\d+/\S*)", proc.stdout.readline()).group(1)
+        for _ in range(100):  # the server needs a moment
+            try:
+                assert urllib.request.urlopen(url, timeout=2).status == 200
+                break
+            except OSError:
+                time.sleep(0.1)
+        else:
+            pytest.fail(f"no web viewer at {url}")
+        assert _alive(pid)
+        proc.send_signal(signal.SIGINT)  # Ctrl-C
+        assert proc.wait(20) in (0, 130)
+    finally:
+        proc.kill()
+    deadline = time.monotonic() + 10
+    while _alive(pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _alive(pid), "the viewer outlived `python -m lab replay`"
+
+
+def test_replay_timeout_and_bad_paths(run, tmp_path, capsys):
+    _, logger, _, _ = run
+    assert cli(["replay", str(tmp_path / "missing.rrd")]) == 2
+    assert "missing.rrd" in capsys.readouterr().err
+    t0 = time.monotonic()
+    assert cli(["replay", str(logger.path), "--web", "--timeout", "1"]) == 0
+    out = capsys.readouterr().out
+    pid = int(re.search(r"viewer process (\d+)", out).group(1))
+    assert time.monotonic() - t0 < 15 and not _alive(pid)
