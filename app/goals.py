@@ -15,6 +15,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -25,6 +26,9 @@ from .scene import ArmView, frame_workspace, to_world
 
 MAX_GOALS = 8
 GHOST = (120, 200, 255)
+# IK queries run here, off the marker callback, one at a time; a tab asks again only when its
+# previous query is done, and the query reads the marker when it starts (the latest position)
+_IK_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="app-ik")
 
 
 def fmt_len(arm: robots.Arm, d: float) -> str:
@@ -62,10 +66,9 @@ class GoalView:
             self.update(self.tab.controller())
             self.tab.client.flush()
             self.tab.latency.append(time.perf_counter() - t0)
-            if self.ghost is not None and self.tab.show_ik.value:
-                self.update_ik()
-                self.tab.client.flush()
-            self.tab.write_table()
+        if self.ghost is not None:
+            self.tab.request_ik()
+        self.tab.table_dirty = True
 
     def update(self, controller) -> None:
         """Arm at controller(goal) and its error; the rest pose when there is no controller."""
@@ -82,8 +85,11 @@ class GoalView:
         self.label.text = f"net {fmt_len(arm, self.error)}" if controller is not None else "no controller"
 
     def update_ik(self) -> None:
-        self.ik = dls_ik(self.tab.arm, self.goal)
-        self.ghost.set_q(self.ik.q)
+        self.set_ik(dls_ik(self.tab.arm, self.goal))
+
+    def set_ik(self, result) -> None:
+        self.ik = result
+        self.ghost.set_q(result.q)
         self.ghost.visible = True
 
     def remove(self) -> None:
@@ -114,6 +120,8 @@ class TabSession:
         self.remove_button.on_click(lambda e: self.remove_goal())
         self.show_ik.on_update(lambda e: self._toggle_ik())
         self.version = -1
+        self.table_dirty = False
+        self._ik_pending = False
         self.build()
 
     def controller(self):
@@ -164,6 +172,32 @@ class TabSession:
             self.write_table()
         return None
 
+    def request_ik(self) -> None:
+        """Solve IK for the first goal in the IK thread (coalesced: at most one query waiting)."""
+        with self.lock:
+            if self._ik_pending or self.closed or not self.show_ik.value:
+                return
+            self._ik_pending = True
+        _IK_POOL.submit(self._solve_ik)
+
+    def _solve_ik(self) -> None:
+        try:
+            with self.lock:
+                goal = self.goals[0] if self.goals and not self.closed else None
+                arm, target = self.arm, goal.goal if goal is not None else None
+            if goal is None:
+                return
+            result = dls_ik(arm, target)
+            with self.lock:
+                if self.goals and self.goals[0] is goal and not self.closed and np.allclose(goal.goal, target):
+                    goal.set_ik(result)
+                    self.client.flush()
+                    self.table_dirty = True
+        finally:
+            self._ik_pending = False
+        if self.goals and not self.closed and not np.allclose(self.goals[0].goal, target):
+            self.request_ik()  # the marker moved while solving: solve for where it is now
+
     def _toggle_ik(self) -> None:
         with self.lock:
             g = self.goals[0] if self.goals else None
@@ -172,9 +206,13 @@ class TabSession:
                 self.write_table()
 
     def refresh(self) -> None:
-        """Redraw every goal with the shown controller (when it changed)."""
+        """Redraw every goal with the shown controller (when it changed); the table when stale."""
         shown = self.state.shown
         if shown.version == self.version:
+            if self.table_dirty:
+                with self.lock:
+                    self.table_dirty = False
+                    self.write_table()
             return
         with self.lock:
             if self.closed:

@@ -34,10 +34,12 @@ class TrainingPanel:
         d = lab.TrainConfig.preset(robot=state.arm.name)
         self.robot = gui.add_dropdown("Robot", robots.names(), initial_value=state.arm.name)
         self.method = gui.add_dropdown("Method", tuple(METHOD_LABELS[m] for m in METHODS), initial_value="CMA-ES")
-        self.population = gui.add_number("Population", d.population, step=1)
-        self.generations = gui.add_number("Generations", d.generations, step=1)
-        self.hidden = gui.add_number("Hidden units", d.hidden, step=1)
-        self.seed = gui.add_number("Seed", d.seed, step=1)
+        # float fields, so that a fraction typed in the browser reaches us (and is refused) instead of
+        # being truncated by viser's int cast
+        self.population = gui.add_number("Population", float(d.population), step=1)
+        self.generations = gui.add_number("Generations", float(d.generations), step=1)
+        self.hidden = gui.add_number("Hidden units", float(d.hidden), step=1)
+        self.seed = gui.add_number("Seed", float(d.seed), step=1)
         actions = {"Start": self.start, "Pause": self.pause, "Resume": self.resume, "Stop": self.stop,
                    "Reset": self.reset}
         icons = {"Start": viser.Icon.PLAYER_PLAY, "Pause": viser.Icon.PLAYER_PAUSE, "Resume": viser.Icon.PLAYER_PLAY,
@@ -57,6 +59,7 @@ class TrainingPanel:
         self.status = gui.add_markdown("Idle.")
         self.message = gui.add_markdown("")
         self._valid = {id(h): h.value for h in self._fields()}
+        self._reverting = False
         for h in self._fields():
             h.on_update(self._on_field)
         self._shown_gen = -1
@@ -78,26 +81,37 @@ class TrainingPanel:
         return lab.TrainConfig.preset(robot=self.robot.value, method=method, **values)
 
     def _on_field(self, event) -> None:
+        if self._reverting:  # our own write-back of a refused value
+            return
         handle = event.target
         if handle is self.method and self.method.value != self._valid[id(self.method)]:
             method = {v: k for k, v in METHOD_LABELS.items()}[self.method.value]
-            self._valid[id(self.hidden)] = DEFAULT_HIDDEN[method]
-            self.hidden.value = DEFAULT_HIDDEN[method]  # each method's own default size
+            self._reverting = True
+            self.hidden.value = float(DEFAULT_HIDDEN[method])  # each method's own default size
+            self._reverting = False
         try:
             self.config()
         except (ValueError, TypeError) as e:
             self.refuse(event.client, f"{handle.label}: {e}")
-            self.hidden.value = self._valid[id(self.hidden)] if handle is self.method else self.hidden.value
-            handle.value = self._valid[id(handle)]
+            self._revert(handle)
             return
         if handle is self.robot and self.robot.value != self.state.arm.name:
             msg = self.on_robot(self.robot.value) if self.on_robot else self.state.set_robot(self.robot.value)
             if msg:
                 self.refuse(event.client, msg)
-                handle.value = self._valid[id(handle)]
+                self._revert(handle)
                 return
         self._valid[id(handle)] = handle.value
+        self._valid[id(self.hidden)] = self.hidden.value
         self.message.content = ""
+
+    def _revert(self, handle) -> None:
+        self._reverting = True
+        try:
+            handle.value = self._valid[id(handle)]
+            self.hidden.value = self._valid[id(self.hidden)]
+        finally:
+            self._reverting = False
 
     def refuse(self, client, message: str) -> None:
         text = message if message.startswith("refused") else f"refused: {message}"

@@ -76,13 +76,14 @@ class ArmView:
                 scene.add_icosphere(node, radius=params[0], color=color, subdivisions=2, **kw)
             else:
                 scene.add_mesh_simple(node, params[0], params[1], color=color, **kw)
+        self.moving = {j: f for j, f in self.frames.items() if j > 0}  # joint 0 is the fixed base
         self.q = None
 
     def set_q(self, q) -> None:
         """Move the drawn arm to joint values q (nq,): one pose message per joint."""
         q = np.asarray(q, dtype=np.float64)
         pin.forwardKinematics(self.arm.model, self.data, self.arm.to_pinocchio(q))
-        for j, frame in self.frames.items():
+        for j, frame in self.moving.items():
             pos, wxyz = se3_pose(self.data.oMi[j])
             frame.position, frame.wxyz = pos, wxyz
         self.q = q

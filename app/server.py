@@ -14,6 +14,7 @@ tabs when the shown controller changes and refreshes progress, plot, map and net
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 import time
 
@@ -31,6 +32,10 @@ from .views import error_map, map_grid, network_svg
 log = logging.getLogger(__name__)
 
 FPS = 30.0
+# Python hands the GIL over every 5 ms by default: a marker callback waiting behind the training
+# thread's Python (pycma, neat-python) would wait that long. 1 ms keeps drags under 5 ms (see
+# benchmarks/bench_app.py) at no measurable cost to training, whose kernels release the GIL.
+SWITCH_INTERVAL = 0.001
 
 
 def rerun_recorder(folder: str):
@@ -51,7 +56,9 @@ def rerun_recorder(folder: str):
 class LabApp:
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, *, robot: str = "planar",
                  notebook: str = DEFAULT_PATH, recordings: str = "recordings", startup=True, record: bool = True):
-        """startup: True (the shipped or a quickly trained planar controller), a controller, or None."""
+        """startup: True (the shipped or a quickly trained planar controller), a controller, or None.
+        Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
+        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
         if startup is True:
             from .startup import startup_controller
 
@@ -65,6 +72,7 @@ class LabApp:
         self.host = host
         self.sessions: dict[int, TabSession] = {}
         self._sessions_lock = threading.Lock()
+        self._gone: set[int] = set()  # ids of closed tabs (ids are never reused)
         self._stop = threading.Event()
         gui = self.server.gui
         gui.configure_theme(control_width="large")
@@ -98,11 +106,16 @@ class LabApp:
     def _connect(self, client: viser.ClientHandle) -> None:
         session = TabSession(client, self.state)
         with self._sessions_lock:
-            self.sessions[client.client_id] = session
+            gone = client.client_id in self._gone  # the tab closed while its scene was being built
+            if not gone:
+                self.sessions[client.client_id] = session
+        if gone:
+            session.close()
 
     def _disconnect(self, client: viser.ClientHandle) -> None:
         with self._sessions_lock:
             session = self.sessions.pop(client.client_id, None)
+            self._gone.add(client.client_id)
         if session is not None:
             session.close()
 

@@ -2,18 +2,21 @@
 
 One query iterates, from the rest pose q_0 = arm.rest,
 
-    e_k  = g - p(q_k)[task_axes]                          task-space error, (m,)
-    J_k  = J_p(q_k)[task_axes]                            translational frame Jacobian rows, (m, nq)
-    dq_k = J_k^T (J_k J_k^T + lambda^2 I)^-1 e_k          (Wampler 1986; Buss 2004, eq. 11)
-    q_{k+1} = clamp(q_k + dq_k)                           joint limits; continuous joints wrap
+    e_k  = g - p(q_k)[task_axes]                        task-space error, (m,)
+    J_k  = J_p(q_k)[task_axes]                          translational frame Jacobian rows, (m, nq)
+    J#   = J_k^T (J_k J_k^T + lambda^2 I)^-1            damped pseudo-inverse (Wampler 1986; Buss 2004)
+    dq_k = J# e_k + (I - J# J_k) b_k                    b_k: a posture term toward mid-range
+    q_{k+1} = q_k + dq_k                                continuous joints wrap to [-pi, pi]
 
-joints held at a limit that the step would push further are dropped from J for that step
-(an active set), with J_p from `pinocchio.computeFrameJacobian` in the LOCAL_WORLD_ALIGNED frame of the
-end-effector frame. The arm's chain has one velocity per joint coordinate (nv == nq), so dq is
-a step in the arm's own coordinates. The damping lambda [length] is a fraction of the
-workspace size, so one setting serves arms in metres and the paper's units alike.
-It stops when ||e|| < tol, when the step stalls (an unreachable goal: the closest pose it
-finds), or after max_iter iterations.
+J_p comes from `pinocchio.computeFrameJacobian` (LOCAL_WORLD_ALIGNED, end-effector frame).
+The arm's chain has one velocity per coordinate (nv == nq), so dq is a step in the arm's own
+coordinates. Safeguards a textbook DLS needs here: no coordinate moves more than max_step per
+iteration; a joint the step would take past a limit stops at it and the others solve for the
+rest of the error (an active set); b_k = posture * min(1, ||e|| / (0.05 size)) * 0.85^k (mid - q)
+takes the planar arm off its stretched, singular rest pose and then fades away. The damping
+lambda [length] is a fraction of the workspace size, so one setting serves arms in metres and
+the paper's units alike. It stops when ||e|| < tol, when the step stalls or the error has not
+improved for 10 iterations (a goal out of reach), or after max_iter, and returns the best iterate.
 """
 
 from __future__ import annotations
@@ -46,6 +49,11 @@ def _step(J, e, bias, lam2) -> np.ndarray:
     """DLS step J# e plus the null-space posture term (I - J# J) bias, J# = J^T (J J^T + lam2 I)^-1."""
     J_pinv = J.T @ np.linalg.inv(J @ J.T + lam2 * np.eye(len(e)))  # (nq, m)
     return J_pinv @ e + bias - J_pinv @ (J @ bias)
+
+
+def _limited(dq: np.ndarray, max_step: float) -> np.ndarray:
+    """dq scaled down so that no coordinate moves more than max_step."""
+    return dq * min(1.0, max_step / max(float(np.max(np.abs(dq))), 1e-300))
 
 
 def _data(arm: Arm) -> pin.Data:
@@ -87,28 +95,38 @@ def dls_ik(arm: Arm, goal, q0=None, *, damping: float = 0.02, tol: float | None 
     direct = model.nq == arm.nq  # no continuous joint: Pinocchio's q is the arm's q
     err = np.inf
     it = 0
+    best, since_best, patience = (q, np.inf), 0, 10
     for it in range(max_iter + 1):
         q_pin = q if direct else arm.to_pinocchio(q)
         pin.forwardKinematics(model, data, q_pin)
         pin.updateFramePlacement(model, data, fid)
         e = goal - data.oMf[fid].translation[axes]
         err = float(np.linalg.norm(e))
-        if err < tol or it == max_iter:
+        if err < best[1]:
+            best, since_best = (q, err), 0
+        else:
+            since_best += 1
+        if err < tol or it == max_iter or since_best >= patience:
             break
         J = pin.computeFrameJacobian(model, data, q_pin, fid, pin.LOCAL_WORLD_ALIGNED)[:3][axes]  # (m, nq)
-        # toward mid-range, fading as the error does: leaves the rest pose's singularity, then vanishes
-        bias = np.where(cont, 0.0, posture * min(1.0, err / (0.05 * size)) * (mid - q))
-        dq = _step(J, e, bias, lam2)
-        blocked = ((q <= lower) & (dq < 0) | (q >= upper) & (dq > 0)) & ~cont
-        if blocked.any():  # a joint held at a limit: solve again without it (an active set)
-            J[:, blocked] = 0.0
-            dq = _step(J, e, bias, lam2)
-            dq[blocked] = 0.0
-        dq *= min(1.0, max_step / max(float(np.max(np.abs(dq))), 1e-300))
+        # toward mid-range, fading with the error and the iterations: it takes the arm off the rest
+        # pose's singularity, then vanishes (also for a goal out of reach)
+        bias = np.where(cont, 0.0, posture * min(1.0, err / (0.05 * size)) * 0.85**it * (mid - q))
+        dq = _limited(_step(J, e, bias, lam2), max_step)
+        held = np.zeros(len(q), bool)
+        for _ in range(len(q)):  # an active set: a joint the step would take past a limit stops at it
+            over = ~cont & ~held & ((q + dq < lower) | (q + dq > upper))
+            if not over.any():
+                break
+            held |= over
+            dq_held = np.where(held, np.clip(q + dq, lower, upper) - q, 0.0)
+            free = _step(np.where(held, 0.0, J), e - J @ dq_held, np.where(held, 0.0, bias), lam2)
+            dq = dq_held + _limited(np.where(held, 0.0, free), max_step)
         q_new = q + dq
         q_new[cont] = (q_new[cont] + np.pi) % (2 * np.pi) - np.pi
         q_new = np.clip(q_new, lower, upper)
-        if np.max(np.abs(q_new - q)) < 1e-10:  # stalled: a limit or an unreachable goal
+        if np.max(np.abs(q_new - q)) < 1e-10:  # stalled: held at limits
             break
         q = q_new
+    q, err = best
     return IKResult(q=q, error=err, iterations=it, seconds=time.perf_counter() - t0, converged=err < tol)

@@ -1,0 +1,184 @@
+"""The viser app, server side: tabs are headless websocket clients (app/probe.py).
+
+Checked: the pose sent for a dragged marker is the controller's output (through the arm's
+kinematics) and its printed error is ||goal - fk||; markers are constrained to the task axes;
+tabs have their own goals; the training panel drives the lab Runner (generations advance,
+pause holds them, refusals are shown); the notebook keeps runs across restarts.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import urllib.request
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from app.goals import fmt_len
+from app.notebook import Notebook
+from app.probe import Probe
+from app.server import LabApp
+
+# the render loop may redraw a tab in the instant between its socket closing and its session ending
+pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("app")
+    lab_app = LabApp(port=0, notebook=str(folder / "notebook.json"), recordings=str(folder / "rec"), record=False)
+    yield lab_app
+    lab_app.stop()
+
+
+@pytest.fixture
+def tab(app):
+    probe = Probe(app.url).start()
+    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+    yield probe
+    probe.close()
+
+
+def wait_until(predicate, timeout=20.0, step=0.02):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(step)
+    return False
+
+
+def session_of(app, probe):
+    owner = int(probe.owner("/tab/goal0/marker"))
+    assert wait_until(lambda: owner in app.sessions)
+    return app.sessions[owner]
+
+
+def last_pose(probe, name):
+    """(position, wxyz) last sent for a scene node."""
+    pos = next(m["position"] for _t, m in reversed(probe.messages) if m["type"] == "SetPositionMessage" and m["name"] == name)
+    wxyz = next(m["wxyz"] for _t, m in reversed(probe.messages) if m["type"] == "SetOrientationMessage" and m["name"] == name)
+    return np.array(pos), np.array(wxyz)
+
+
+def test_url_is_the_port_served(app):
+    assert app.url == f"http://127.0.0.1:{app.server.get_port()}"
+    with urllib.request.urlopen(app.url, timeout=10) as r:
+        assert r.status == 200
+
+
+def test_marker_is_constrained_to_the_task_plane(app, tab):
+    msg = tab.wait_for(lambda m: m["type"] == "TransformControlsMessage" and m["name"] == "/tab/goal0/marker")
+    props = msg["props"]
+    assert list(props["active_axes"]) == [True, True, False]  # planar arm: the plane z = 0
+    assert list(props["translation_limits"][2]) == [0.0, 0.0]
+    assert props["disable_rotations"]
+
+
+@pytest.mark.parametrize("goal", [(14.0, 6.0), (60.0, -40.0)], ids=["reachable", "unreachable"])
+def test_pose_sent_is_the_controller_output(app, tab, goal):
+    session = session_of(app, tab)
+    tab.drag("/tab/goal0/marker", (*goal, 0.0))
+    assert wait_until(lambda: np.allclose(session.goals[0].goal, goal))
+    arm, controller = session.arm, app.state.shown.controller
+    q = controller(np.array([goal]))[0]
+    # the last joint's frame, as sent to the browser, is where Pinocchio puts it for q
+    data = arm.model.createData()
+    pin.forwardKinematics(arm.model, data, arm.to_pinocchio(q))
+    j = arm.model.njoints - 1
+    pos, wxyz = last_pose(tab, f"/tab/goal0/arm/j{j}")
+    assert np.allclose(pos, data.oMi[j].translation, atol=1e-6)
+    R = pin.Quaternion(wxyz[0], *wxyz[1:]).toRotationMatrix()
+    assert np.allclose(R, data.oMi[j].rotation, atol=1e-6)
+    # the printed error is ||goal - fk(q)||, also for a goal out of reach
+    error = float(np.linalg.norm(arm.fk(q)[:2] - goal))
+    assert session.goals[0].error == pytest.approx(error)
+    assert wait_until(lambda: any(m["type"] == "GuiUpdateMessage" and fmt_len(arm, error) in str(m["updates"])
+                                  for _t, m in list(tab.messages)))
+    assert np.all(q >= arm.lower - 1e-12) and np.all(q <= arm.upper + 1e-12)
+    if goal[0] > 50:
+        assert error > 10  # out of reach: the pose and a large error, no crash
+
+
+def test_tabs_have_their_own_goals_and_a_closed_tab_harms_nothing(app, tab):
+    other = Probe(app.url).start()
+    try:
+        a, b = session_of(app, tab), session_of(app, other)
+        assert a is not b
+        assert a.add_goal() is None
+        assert len(a.goals) == 2 and len(b.goals) == 1
+        assert "refused" in b.remove_goal()  # the last goal stays
+        assert a.remove_goal() is None and len(a.goals) == 1
+    finally:
+        other.close()
+    assert wait_until(lambda: len(app.sessions) == 1)
+    tab.drag("/tab/goal0/marker", (10.0, 10.0, 0.0))  # the remaining tab still answers
+
+
+def test_training_panel_runs_pauses_refuses_and_keeps_a_notebook(app, tab):
+    panel, state = app.panel, app.state
+    session = session_of(app, tab)
+    panel.generations.value = 100_000
+    panel.population.value = 20
+    panel.buttons["Start"].value = True
+    assert wait_until(lambda: state.progress()["generation"] >= 5)
+    # the arms follow training: the pose is the new best controller's
+    assert wait_until(lambda: state.shown.source.startswith("run") and session.version == state.shown.version)
+    goal = session.goals[0].goal
+    assert np.allclose(session.goals[0].arm_view.q, session.controller()(goal[None])[0])
+    panel.buttons["Start"].value = True  # a second start is refused, with a message
+    assert "refused" in panel.message.content.lower() and "run is going" in panel.message.content
+    panel.buttons["Pause"].value = True
+    assert wait_until(lambda: state.runner.state == "paused")
+    time.sleep(0.1)
+    held = state.progress()["generation"]
+    time.sleep(0.4)
+    assert state.progress()["generation"] == held
+    panel.buttons["Resume"].value = True
+    assert wait_until(lambda: state.progress()["generation"] > held + 2)
+    panel.refresh(force=True)
+    assert "Running" in panel.status.content and "evaluations/s" in panel.status.content
+    panel.buttons["Stop"].value = True
+    assert state.runner.state == "stopped"
+    entry = state.notebook.entries()[-1]
+    assert entry["run_id"] == state.runner.run_id and entry["state"] == "stopped"
+    assert entry["robot"] == "planar" and entry["settings"]["population"] == 20 and entry["test_mse"] > 0
+    assert Notebook(state.notebook.path).entries()[-1]["run_id"] == entry["run_id"]  # kept on disk
+    panel.buttons["Reset"].value = True
+    assert state.progress()["generation"] == 0 and state.shown.source == "startup controller"
+    panel.generations.value, panel.population.value = 1000, 50
+
+
+@pytest.mark.parametrize("field,bad,reason", [("population", 0, "population"), ("generations", -5, "generations"),
+                                              ("seed", 2.5, "whole number"), ("population", 3, "CMA-ES")])
+def test_invalid_numbers_are_refused_with_a_message(app, field, bad, reason):
+    handle = getattr(app.panel, field)
+    before = handle.value
+    handle.value = bad
+    assert handle.value == before  # put back
+    assert "refused" in app.panel.message.content.lower() and reason in app.panel.message.content
+
+
+def test_robot_change_is_refused_while_training(app):
+    panel, state = app.panel, app.state
+    panel.generations.value = 100_000
+    assert panel.start() is None
+    try:
+        panel.robot.value = "scara"
+        assert panel.robot.value == "planar" and state.arm.name == "planar"
+        assert "stop it before changing the robot" in panel.message.content
+    finally:
+        panel.stop()
+        panel.reset()
+        panel.generations.value = 1000
+
+
+def test_notebook_survives_a_restart_and_a_bad_file(tmp_path):
+    path = tmp_path / "nb.json"
+    nb = Notebook(str(path))
+    nb.add({"run_id": "abc", "robot": "planar", "method": "cmaes", "seed": 0, "generations": 3})
+    assert Notebook(str(path)).get("abc")["generations"] == 3
+    path.write_text("{ not json")
+    assert Notebook(str(path)).entries() == [] and os.path.exists(str(path) + ".bad")
