@@ -35,7 +35,7 @@ class TrainConfig:
                                # (None: DEFAULT_HIDDEN of the method)
     sigma0: float = 0.25  # CMA-ES initial step size
     restarts: bool = True  # CMA-ES: restart from a new point when a run stagnates (same budget)
-    mutation_power: float = 0.1  # NEAT: std of a weight or bias perturbation (paper: 1)
+    mutation_power: float = 0.05  # NEAT: std of a weight or bias perturbation (paper: 1)
     add_node: float = 0.002  # NEAT: probability of an add-node mutation (paper: 0.002)
     add_connection: float = 0.002  # NEAT: probability of an add-connection mutation (paper: 0.002)
     paper: bool = False  # record that this is the paper's literal method (see preset)
