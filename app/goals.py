@@ -220,13 +220,13 @@ class TabSession:
             if shown.arm is not self.arm:
                 self.build()
             self.version = shown.version
-            controller = self.controller()
+            controller = shown.controller if shown.arm is self.arm else None  # one snapshot for all
             for g in self.goals:
                 g.update(controller)
-            self.write_table()
+            self.write_table(shown)
 
-    def write_table(self) -> None:
-        shown, arm = self.state.shown, self.arm
+    def write_table(self, shown=None) -> None:
+        shown, arm = shown or self.state.shown, self.arm
         rows = ["| goal | network error | IK error |", "|---|---|---|"]
         for g in self.goals:
             ik = fmt_len(arm, g.ik.error) if g.index == 0 and g.ik is not None and self.show_ik.value else ""
