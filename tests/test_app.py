@@ -122,33 +122,37 @@ def test_training_panel_runs_pauses_refuses_and_keeps_a_notebook(app, tab):
     session = session_of(app, tab)
     panel.generations.value = 100_000
     panel.population.value = 20
-    panel.buttons["Start"].value = True
-    assert wait_until(lambda: state.progress()["generation"] >= 5)
-    # the arms follow training: the pose is the new best controller's
-    assert wait_until(lambda: state.shown.source.startswith("run") and session.version == state.shown.version)
-    goal = session.goals[0].goal
-    assert np.allclose(session.goals[0].arm_view.q, session.controller()(goal[None])[0])
-    panel.buttons["Start"].value = True  # a second start is refused, with a message
-    assert "refused" in panel.message.content.lower() and "run is going" in panel.message.content
-    panel.buttons["Pause"].value = True
-    assert wait_until(lambda: state.runner.state == "paused")
-    time.sleep(0.1)
-    held = state.progress()["generation"]
-    time.sleep(0.4)
-    assert state.progress()["generation"] == held
-    panel.buttons["Resume"].value = True
-    assert wait_until(lambda: state.progress()["generation"] > held + 2)
-    panel.refresh(force=True)
-    assert "Running" in panel.status.content and "evaluations/s" in panel.status.content
-    panel.buttons["Stop"].value = True
-    assert state.runner.state == "stopped"
-    entry = state.notebook.entries()[-1]
-    assert entry["run_id"] == state.runner.run_id and entry["state"] == "stopped"
-    assert entry["robot"] == "planar" and entry["settings"]["population"] == 20 and entry["test_mse"] > 0
-    assert Notebook(state.notebook.path).entries()[-1]["run_id"] == entry["run_id"]  # kept on disk
-    panel.buttons["Reset"].value = True
-    assert state.progress()["generation"] == 0 and state.shown.source == "startup controller"
-    panel.generations.value, panel.population.value = 1000, 50
+    try:
+        panel.buttons["Start"].value = True
+        assert wait_until(lambda: state.progress()["generation"] >= 5)
+        panel.buttons["Start"].value = True  # a second start is refused, with a message
+        assert "refused" in panel.message.content.lower() and "run is going" in panel.message.content
+        panel.buttons["Pause"].value = True
+        assert wait_until(lambda: state.runner.state == "paused")
+        time.sleep(0.1)
+        held = state.progress()["generation"]
+        # the arms follow training: once redrawn, the pose is the run's best controller's
+        assert wait_until(lambda: session.version == state.shown.version)
+        assert state.shown.source.startswith("run")
+        goal = session.goals[0].goal
+        assert np.allclose(session.goals[0].arm_view.q, state.shown.controller(goal[None])[0])
+        time.sleep(0.3)
+        assert state.progress()["generation"] == held
+        panel.buttons["Resume"].value = True
+        assert wait_until(lambda: state.progress()["generation"] > held + 2)
+        panel.refresh(force=True)
+        assert "Running" in panel.status.content and "evaluations/s" in panel.status.content
+        panel.buttons["Stop"].value = True
+        assert state.runner.state == "stopped"
+        entry = state.notebook.entries()[-1]
+        assert entry["run_id"] == state.runner.run_id and entry["state"] == "stopped"
+        assert entry["robot"] == "planar" and entry["settings"]["population"] == 20 and entry["test_mse"] > 0
+        assert Notebook(state.notebook.path).entries()[-1]["run_id"] == entry["run_id"]  # kept on disk
+        panel.buttons["Reset"].value = True
+        assert state.progress()["generation"] == 0 and state.shown.source == "startup controller"
+    finally:
+        state.reset()
+        panel.generations.value, panel.population.value = 1000, 50
 
 
 @pytest.mark.parametrize("field,bad,reason", [("population", 0, "population"), ("generations", -5, "generations"),
