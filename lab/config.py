@@ -34,7 +34,7 @@ class TrainConfig:
     hidden: int | None = None  # MLP hidden units (CMA-ES); NEAT: hidden nodes of the first genomes
                                # (None: DEFAULT_HIDDEN of the method)
     sigma0: float = 0.25  # CMA-ES initial step size
-    restarts: bool = True  # CMA-ES: restart from a new point when a run stagnates (same budget)
+    restarts: bool = False  # CMA-ES: restart from a new point when a start stagnates (same budget)
     mutation_power: float = 0.05  # NEAT: std of a weight or bias perturbation (paper: 1)
     add_node: float = 0.002  # NEAT: probability of an add-node mutation (paper: 0.002)
     add_connection: float = 0.002  # NEAT: probability of an add-connection mutation (paper: 0.002)
