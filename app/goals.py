@@ -6,8 +6,9 @@ label with the end-effector error ||goal - reach(q)||. The first goal also has a
 the damped least-squares IK solution (robots.ik) with its error, iterations and time.
 
 A marker update moves its arm at once, in the callback (one network forward pass, one
-forward kinematics, nq pose messages, then a flush); `refresh` redraws all goals when the
-controller changes (the render loop calls it). A lock per tab keeps the two apart.
+forward kinematics, nq pose messages, then a flush); the IK query runs in its own thread, at
+most 10 times a second per tab; `refresh` (called by the render loop) redraws all goals when
+the controller changes, at most 5 times a second. A lock per tab keeps them apart.
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -26,9 +26,46 @@ from .scene import ArmView, frame_workspace, to_world
 
 MAX_GOALS = 8
 GHOST = (120, 200, 255)
-# IK queries run here, off the marker callback, one at a time; a tab asks again only when its
-# previous query is done, and the query reads the marker when it starts (the latest position)
-_IK_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="app-ik")
+REDRAW_PERIOD = 0.2  # s: redraws caused by training (and table updates) at most 5 times a second
+SAME_POSE = 1e-4  # rad (or length): a redraw moves an arm only when a joint changes more than this
+IK_PERIOD = 0.1  # s: at most one IK query per tab this often (the marker's latest position)
+
+
+class _IKWorker:
+    """One thread solving IK off the marker callbacks, for the tabs that asked, each tab at most
+    once per IK_PERIOD; a query reads the marker when it starts, so a drag ends solved."""
+
+    def __init__(self):
+        self._cond = threading.Condition()
+        self._due: dict = {}  # tab -> time it may run
+        self._thread = None
+
+    def request(self, tab: "TabSession") -> None:
+        with self._cond:
+            if tab not in self._due:
+                self._due[tab] = max(time.monotonic(), tab.last_ik + IK_PERIOD)
+                self._cond.notify()
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="app-ik", daemon=True)
+                self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._due:
+                    self._cond.wait()
+                tab, due = min(self._due.items(), key=lambda kv: kv[1])
+                if due > time.monotonic():
+                    self._cond.wait(due - time.monotonic())
+                    continue
+                del self._due[tab]
+            try:
+                tab.solve_ik()
+            except Exception:  # a closed tab, a removed node: the next request starts afresh
+                pass
+
+
+_IK = _IKWorker()
 
 
 def fmt_len(arm: robots.Arm, d: float) -> str:
@@ -70,8 +107,10 @@ class GoalView:
             self.tab.request_ik()
         self.tab.table_dirty = True
 
-    def update(self, controller) -> None:
-        """Arm at controller(goal) and its error; the rest pose when there is no controller."""
+    def update(self, controller, moved: bool = True) -> None:
+        """Arm at controller(goal) and its error; the rest pose when there is no controller.
+        moved=False (a redraw for a new controller): poses that change less than SAME_POSE
+        in every joint are not sent again."""
         arm, goal = self.tab.arm, self.goal
         if controller is None:
             q, self.error, self.net_s = arm.rest, np.nan, np.nan
@@ -80,12 +119,13 @@ class GoalView:
             q = controller(goal[None])[0]
             self.net_s = time.perf_counter() - t
             self.error = float(np.linalg.norm(arm.reach(q) - goal))
-        self.arm_view.set_q(q)
-        self.label.position = np.asarray(self.marker.position) + self.tab.ws["label_offset"]
-        self.label.text = f"net {fmt_len(arm, self.error)}" if controller is not None else "no controller"
-
-    def update_ik(self) -> None:
-        self.set_ik(dls_ik(self.tab.arm, self.goal))
+        if moved or self.arm_view.q is None or np.max(np.abs(q - self.arm_view.q)) > SAME_POSE:
+            self.arm_view.set_q(q)
+        if moved:
+            self.label.position = np.asarray(self.marker.position) + self.tab.ws["label_offset"]
+        text = f"net {fmt_len(arm, self.error)}" if controller is not None else "no controller"
+        if text != self.label.text:
+            self.label.text = text
 
     def set_ik(self, result) -> None:
         self.ik = result
@@ -103,11 +143,12 @@ class GoalView:
 class TabSession:
     """Goals and arms of one client (tab); `app` gives the shared state and the shown controller."""
 
-    def __init__(self, client, state):
+    def __init__(self, client, state, latency: deque | None = None):
+        """latency: where to append the seconds from a marker update to its pose flushed."""
         self.client, self.state = client, state
         self.lock = threading.RLock()
         self.closed = False
-        self.latency: deque = deque(maxlen=10_000)  # seconds from marker update to the pose flushed
+        self.latency = deque(maxlen=10_000) if latency is None else latency
         self.goals: list[GoalView] = []
         gui = client.gui
         self.folder = gui.add_folder("Goals (this tab)", order=0)
@@ -121,7 +162,7 @@ class TabSession:
         self.show_ik.on_update(lambda e: self._toggle_ik())
         self.version = -1
         self.table_dirty = False
-        self._ik_pending = False
+        self.last_ik = self.last_draw = 0.0
         self.build()
 
     def controller(self):
@@ -158,7 +199,8 @@ class TabSession:
             self.goals.append(goal)
             goal.update(self.controller())
             if goal.ghost is not None:
-                goal.update_ik() if self.show_ik.value else setattr(goal.ghost, "visible", False)
+                goal.ghost.visible = False
+                self.request_ik()
             self.write_table()
         return None
 
@@ -173,46 +215,46 @@ class TabSession:
         return None
 
     def request_ik(self) -> None:
-        """Solve IK for the first goal in the IK thread (coalesced: at most one query waiting)."""
-        with self.lock:
-            if self._ik_pending or self.closed or not self.show_ik.value:
-                return
-            self._ik_pending = True
-        _IK_POOL.submit(self._solve_ik)
+        """Solve IK for the first goal in the IK thread (see _IKWorker)."""
+        if not self.closed and self.show_ik.value:
+            _IK.request(self)
 
-    def _solve_ik(self) -> None:
-        try:
-            with self.lock:
-                goal = self.goals[0] if self.goals and not self.closed else None
-                arm, target = self.arm, goal.goal if goal is not None else None
-            if goal is None:
-                return
-            result = dls_ik(arm, target)
-            with self.lock:
-                if self.goals and self.goals[0] is goal and not self.closed and np.allclose(goal.goal, target):
-                    goal.set_ik(result)
-                    self.client.flush()
-                    self.table_dirty = True
-        finally:
-            self._ik_pending = False
-        if self.goals and not self.closed and not np.allclose(self.goals[0].goal, target):
-            self.request_ik()  # the marker moved while solving: solve for where it is now
+    def solve_ik(self) -> None:
+        self.last_ik = time.monotonic()
+        with self.lock:
+            goal = self.goals[0] if self.goals and not self.closed else None
+            arm, target = self.arm, goal.goal if goal is not None else None
+        if goal is None:
+            return
+        result = dls_ik(arm, target)
+        with self.lock:
+            if self.goals and self.goals[0] is goal and not self.closed:
+                goal.set_ik(result)
+                self.client.flush()
+                self.table_dirty = True
+                if not np.allclose(goal.goal, target):
+                    self.request_ik()  # the marker moved while solving: solve where it is now
 
     def _toggle_ik(self) -> None:
         with self.lock:
             g = self.goals[0] if self.goals else None
             if g is not None and g.ghost is not None:
-                g.update_ik() if self.show_ik.value else setattr(g.ghost, "visible", False)
+                g.ghost.visible = False
+                self.request_ik()
                 self.write_table()
 
     def refresh(self) -> None:
-        """Redraw every goal with the shown controller (when it changed); the table when stale."""
-        shown = self.state.shown
+        """Redraw every goal with the shown controller when it changed (at most every
+        REDRAW_PERIOD while training; at once for another arm); the table when stale."""
+        shown, now = self.state.shown, time.monotonic()
+        if now - self.last_draw < REDRAW_PERIOD and shown.arm is self.arm:
+            return
         if shown.version == self.version:
             if self.table_dirty:
                 with self.lock:
                     self.table_dirty = False
                     self.write_table()
+                self.last_draw = now
             return
         with self.lock:
             if self.closed:
@@ -222,8 +264,10 @@ class TabSession:
             self.version = shown.version
             controller = shown.controller if shown.arm is self.arm else None  # one snapshot for all
             for g in self.goals:
-                g.update(controller)
+                g.update(controller, moved=False)
             self.write_table(shown)
+            self.table_dirty = False
+        self.last_draw = now
 
     def write_table(self, shown=None) -> None:
         shown, arm = shown or self.state.shown, self.arm

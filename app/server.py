@@ -17,6 +17,7 @@ import logging
 import sys
 import threading
 import time
+from collections import deque
 
 import numpy as np
 import viser
@@ -32,6 +33,8 @@ from .views import error_map, map_grid, network_svg
 log = logging.getLogger(__name__)
 
 FPS = 30.0
+PANEL_PERIOD = 0.25  # s: progress, plot and status
+VIEWS_PERIOD = 1.0  # s: error map and network drawing (each a few ms and a few kB per tab)
 # Python hands the GIL over every 5 ms by default: a marker callback waiting behind the training
 # thread's Python (pycma, neat-python) would wait that long. 1 ms keeps drags under 5 ms (see
 # benchmarks/bench_app.py) at no measurable cost to training, whose kernels release the GIL.
@@ -73,6 +76,7 @@ class LabApp:
         self.sessions: dict[int, TabSession] = {}
         self._sessions_lock = threading.Lock()
         self._gone: set[int] = set()  # ids of closed tabs (ids are never reused)
+        self.latency: deque = deque(maxlen=100_000)  # s from a marker update to its pose flushed, all tabs
         self._stop = threading.Event()
         gui = self.server.gui
         gui.configure_theme(control_width="large")
@@ -104,7 +108,7 @@ class LabApp:
 
     # ------------------------------------------------------------------ tabs
     def _connect(self, client: viser.ClientHandle) -> None:
-        session = TabSession(client, self.state)
+        session = TabSession(client, self.state, self.latency)
         with self._sessions_lock:
             gone = client.client_id in self._gone  # the tab closed while its scene was being built
             if not gone:
@@ -154,7 +158,7 @@ class LabApp:
         return pts
 
     def _draw_views(self) -> None:
-        """Error map and network of the shown controller (at most twice a second)."""
+        """Error map and network of the shown controller, when it has changed."""
         shown = self.state.shown
         if (shown.version, shown.arm) == self._drawn:
             return
@@ -180,7 +184,9 @@ class LabApp:
 
     # ------------------------------------------------------------------ render loop
     def _loop(self) -> None:
-        period, last_slow = 1.0 / FPS, 0.0
+        """Tabs every frame (each redraws at most every REDRAW_PERIOD), the panel 4 times a
+        second, the error map, network and runs list once a second (at once after a change of arm)."""
+        period, last_panel, last_views = 1.0 / FPS, 0.0, 0.0
         while not self._stop.is_set():
             t0 = time.perf_counter()
             try:
@@ -188,9 +194,11 @@ class LabApp:
                     sessions = list(self.sessions.values())
                 for s in sessions:
                     s.refresh()
-                if t0 - last_slow > 0.25:
-                    last_slow = t0
+                if t0 - last_panel > PANEL_PERIOD:
+                    last_panel = t0
                     self.panel.refresh()
+                if t0 - last_views > VIEWS_PERIOD or self._drawn[1] is not self.state.arm:
+                    last_views = t0
                     self._draw_views()
                     self.runs.refresh()
             except Exception:  # the loop must survive anything one frame does
