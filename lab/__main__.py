@@ -12,6 +12,7 @@ import sys  # noqa: E402
 import robots  # noqa: E402
 
 from .config import METHODS, TrainConfig  # noqa: E402
+from .experiments import cli as experiments_cli  # noqa: E402
 
 
 def _train_parser(sub) -> None:
@@ -121,8 +122,9 @@ def main(argv=None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     _train_parser(sub)
     _replay_parser(sub)
+    experiments_cli.add_parser(sub)
     args = parser.parse_args(argv)
-    return {"train": train, "replay": replay}[args.command](args)
+    return {"train": train, "replay": replay, "reproduce": experiments_cli.main}[args.command](args)
 
 
 if __name__ == "__main__":

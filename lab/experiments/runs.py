@@ -1,0 +1,133 @@
+"""One run of the experiment: its spec, the function that trains it, and the per-run JSON store.
+
+    spec = RunSpec("planar", "cmaes", seed=3, generations=1000, population=50)
+    result = train_run(spec)        # a plain dict: train/test MSE, history, seconds, seed, config, controller
+    store = RunStore(out / "runs")
+    store.save(spec, result)        # runs/planar-cmaes-s003.json, written atomically (temp file + os.replace)
+    store.load(spec)                # the stored dict, or None when the run has not finished
+
+A run is finished when its JSON exists and its stored config equals spec.config(): a rerun with
+the same settings skips it. A run that failed twice is kept as runs/<name>.failed.json (error and
+traceback) until a later attempt succeeds.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import tempfile
+import time
+import traceback
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from ..config import TrainConfig
+
+
+@dataclass(frozen=True, order=True)
+class RunSpec:
+    robot: str
+    method: str
+    seed: int
+    generations: int = 1000
+    population: int = 50
+    targets: int = 70
+    test_goals: int = 1000
+    paper: bool = False
+
+    @property
+    def name(self) -> str:
+        return f"{self.robot}-{self.method}-s{self.seed:03d}"
+
+    def config(self) -> TrainConfig:
+        """The TrainConfig lab.evolve builds for this run (validated)."""
+        return TrainConfig.preset(paper=self.paper, robot=self.robot, method=self.method,
+                                  generations=self.generations, population=self.population,
+                                  targets=self.targets, seed=self.seed, test_goals=self.test_goals)
+
+
+def train_run(spec: RunSpec) -> dict:
+    """Train one run with lab.evolve and return its result as JSON-ready data."""
+    import lab
+
+    t0 = time.perf_counter()
+    run = lab.evolve(spec.robot, spec.method, spec.generations, spec.population, spec.targets, spec.seed,
+                     paper=spec.paper, test_goals=spec.test_goals)
+    return {
+        "name": spec.name, "robot": spec.robot, "method": spec.method, "seed": spec.seed,
+        "spec": asdict(spec), "config": run.config.to_dict(),
+        "train_mse": run.train_mse, "test_mse": run.test_mse,
+        "history": [float(v) for v in run.history],  # best training MSE so far, per generation
+        "seconds": run.seconds,  # optimizer time (lab.Run.seconds)
+        "wall_seconds": time.perf_counter() - t0,  # with problem setup and held-out evaluation
+        "evaluations": run.evaluations, "n_params": run.n_params,
+        "controller": run.controller.to_dict() if run.controller is not None else None,
+        "host": platform.node(), "pid": os.getpid(), "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+
+
+def attempt(train, spec: RunSpec) -> dict:
+    """Call train(spec) in a worker; never raises: {"ok": True, "result": ...} or the error."""
+    try:
+        return {"ok": True, "result": train(spec)}
+    except Exception as e:  # reported and retried by the scheduler, never dropped
+        return {"ok": False, "error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()}
+
+
+def write_json_atomic(path: Path, data) -> None:
+    """Write JSON to a temp file in the same folder, fsync, then os.replace: never a half file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        os.fchmod(fd, 0o644)  # mkstemp makes 0600 files
+        with os.fdopen(fd, "w") as f:
+            json.dump(data, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+class ConfigMismatch(ValueError):
+    """A stored run was made with other settings than the ones asked for."""
+
+
+class RunStore:
+    """runs/<name>.json per finished run, runs/<name>.failed.json per run that failed twice."""
+
+    def __init__(self, folder: Path):
+        self.folder = Path(folder)
+
+    def path(self, spec: RunSpec) -> Path:
+        return self.folder / f"{spec.name}.json"
+
+    def failed_path(self, spec: RunSpec) -> Path:
+        return self.folder / f"{spec.name}.failed.json"
+
+    def load(self, spec: RunSpec, overwrite: bool = False) -> dict | None:
+        """The stored result, None if absent or unreadable; ConfigMismatch if made with other settings
+        (None instead with overwrite: the run is redone)."""
+        try:
+            data = json.loads(self.path(spec).read_text())
+        except (OSError, ValueError):
+            return None
+        expected = spec.config().to_dict()
+        if data.get("config") != expected:
+            if overwrite:
+                return None
+            diff = {k: (data.get("config", {}).get(k), v) for k, v in expected.items()
+                    if data.get("config", {}).get(k) != v}
+            raise ConfigMismatch(f"{self.path(spec)} was made with other settings "
+                                 f"(stored vs asked: {diff}); use another --out or --overwrite")
+        return data
+
+    def save(self, spec: RunSpec, result: dict) -> None:
+        write_json_atomic(self.path(spec), result)
+        self.failed_path(spec).unlink(missing_ok=True)
+
+    def save_failure(self, spec: RunSpec, failure: dict) -> None:
+        write_json_atomic(self.failed_path(spec), {"name": spec.name, "spec": asdict(spec), **failure})
