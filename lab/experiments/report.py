@@ -129,52 +129,78 @@ def _headline(exp) -> str:
     return "\n".join(md)
 
 
-def report_md(exp, outputs_seconds: float) -> str:
+def _n(k: int, noun: str) -> str:
+    return f"{k} {noun}{'' if k == 1 else 's'}"
+
+
+def _what_was_run(exp) -> list[str]:
     c = exp.config
+    preset = ("**the paper's literal method** (`--paper`: `TrainConfig.preset(paper=True)`)" if c.paper else
+              "**this project's tuned defaults** (no `--paper`; `TrainConfig.preset(paper=False)`)")
+    cfg = {m: next(s for s in exp.specs if s.method == m).config().to_dict() for m in c.methods}
+    return ["## What was run\n",
+            f"- Method settings: {preset}.",
+            f"- {_n(len(c.robots), 'arm')} ({', '.join(c.robots)}) × {_n(len(c.methods), 'method')} "
+            f"({', '.join(c.methods)}) × "
+            f"{c.runs} runs = {len(exp.specs)} runs; {c.generations} generations, population {c.population}, "
+            f"{c.targets} fixed training goals, {c.test_goals} held-out goals.",
+            f"- Seeds: run i of every arm and method uses seed {c.seed} + i ({c.seed}..{c.seed + c.runs - 1}); "
+            f"goals fixed across runs (goal_seed {cfg[c.methods[0]]['goal_seed']}).",
+            *[f"- {LABEL.get(m, m)} config: `{cfg[m]}`" for m in c.methods],
+            f"- Executed: {exp.executed} runs in this call on {exp.executor}; resumed from `runs/`: {exp.resumed}."]
+
+
+def _machine(exp) -> list[str]:
+    loaded = exp.load_before and exp.load_before[0] > 0.5
+    return ["\n## Machine and versions\n",
+            f"- {platform.node()}: {_cpu_model()}, {os.cpu_count()} cores, {platform.platform()}.",
+            f"- Load average (1, 5, 15 min) at start: {', '.join(f'{v:.2f}' for v in exp.load_before)}; at the end "
+            f"of the runs: {', '.join(f'{v:.2f}' for v in exp.load_after)}."
+            + (" **Other work was running on this machine at the start: times are pessimistic.**" if loaded else ""),
+            f"- {_versions()}; lab commit {_git()}."]
+
+
+def _time_taken(exp, outputs_seconds: float) -> list[str]:
     ran = [exp.results[s.name] for s in exp.specs if s.name in exp.results]
     run_seconds = sum(d.get("wall_seconds", d["seconds"]) for d in ran)
     since_start = _process_seconds()
-    loaded = exp.load_before and exp.load_before[0] > 0.5
-    preset = ("**the paper's literal method** (`--paper`: `TrainConfig.preset(paper=True)`)" if c.paper else
-              "**this project's tuned defaults** (no `--paper`; `TrainConfig.preset(paper=False)`)")
-    cfg = {m: exp.specs[[s.method for s in exp.specs].index(m)].config().to_dict() for m in c.methods}
-    md = [f"# Reproduction of Martin H. & de Lope (2009), Tables 3-5 and Figures 5-6\n",
-          f"Command: `{command(c)}`  \nStarted {exp.started}.\n",
-          "## What was run\n",
-          f"- Method settings: {preset}.",
-          f"- {len(c.robots)} arms ({', '.join(c.robots)}) × {len(c.methods)} methods ({', '.join(c.methods)}) × "
-          f"{c.runs} runs = {len(exp.specs)} runs; {c.generations} generations, population {c.population}, "
-          f"{c.targets} fixed training goals, {c.test_goals} held-out goals.",
-          f"- Seeds: run i of every arm and method uses seed {c.seed} + i ({c.seed}..{c.seed + c.runs - 1}); "
-          f"goals fixed across runs (goal_seed {cfg[c.methods[0]]['goal_seed']}).",
-          *[f"- {LABEL.get(m, m)} config: `{cfg[m]}`" for m in c.methods],
-          f"- Executed: {exp.executed} runs in this call on {exp.executor}; resumed from `runs/`: {exp.resumed}.",
-          "\n## Machine and versions\n",
-          f"- {platform.node()}: {_cpu_model()}, {os.cpu_count()} cores, {platform.platform()}.",
-          f"- Load average (1, 5, 15 min) at start: {', '.join(f'{v:.2f}' for v in exp.load_before)}; at the end of "
-          f"the runs: {', '.join(f'{v:.2f}' for v in exp.load_after)}."
-          + (" **Other work was running on this machine at the start: times are pessimistic.**" if loaded else ""),
-          f"- {_versions()}; lab commit {_git()}.",
-          "\n## Time taken\n",
-          f"- Runs: **{exp.wall_seconds:.1f} s** wall for the {exp.executed} runs executed in this call "
-          f"(sum of all {len(ran)} runs' own wall times: {run_seconds:.1f} s); outputs: {outputs_seconds:.1f} s."
-          + (f" Since the process started (imports included): **{since_start:.1f} s**." if since_start else ""),
+    line = (f"- Runs: **{exp.wall_seconds:.1f} s** wall for the {exp.executed} runs executed in this call "
+            f"(sum of all {len(ran)} runs' own wall times: {run_seconds:.1f} s); outputs: {outputs_seconds:.1f} s.")
+    if since_start:
+        line += f" Since the process started (imports included): **{since_start:.1f} s**."
+    if exp.resumed:
+        line += f" The {exp.resumed} resumed runs took their time in earlier calls."
+    return ["\n## Time taken\n", line]
+
+
+def _failures(exp) -> list[str]:
+    if not (exp.failures or exp.retried):
+        return []
+    return ["## Failures\n",
+            *[f"- **{f['name']} failed {f['attempts']} times** and is missing from the tables: {f['error']} "
+              f"(runs/{f['name']}.failed.json)" for f in exp.failures],
+            *[f"- {r['name']} failed once ({r['errors'][0]}) and succeeded on retry." for r in exp.retried], ""]
+
+
+def _files(c) -> list[str]:
+    return ["## Files\n",
+            "- [table3.md](table3.md), [table3.csv](table3.csv): final training MSEs, sorted, with the paper's",
+            "- [table4.md](table4.md), [table5.md](table5.md): Welch t-tests over all runs and the best 10",
+            *[f"- [{figure_name(r)}]({figure_name(r)}): convergence, {r} arm" for r in c.robots],
+            "- [generalization.md](generalization.md): held-out against training MSE per run",
+            "- `experiment.rrd`: every run's curve on the `generation` timeline (`rerun experiment.rrd`)"
+            if c.recording else "- no Rerun recording (`--no-recording`)",
+            "- `runs/<arm>-<method>-s<seed>.json`: each run's result (history, MSEs, seconds, config, controller)", ""]
+
+
+def report_md(exp, outputs_seconds: float) -> str:
+    md = ["# Reproduction of Martin H. & de Lope (2009), Tables 3-5 and Figures 5-6\n",
+          f"Command: `{command(exp.config)}`  \nStarted {exp.started}.\n",
+          *_what_was_run(exp), *_machine(exp), *_time_taken(exp, outputs_seconds),
           "\n## Headline: this experiment against the paper\n",
           "Final training MSE (Table 3's statistics):\n", _headline(exp),
-          "p one-sided is in the direction of the observed difference (the paper's *Significance*); "
-          "two-sided is twice that. See table4.md and table5.md for the paper's own columns recomputed.\n"]
-    if exp.failures or exp.retried:
-        md.append("## Failures\n")
-        md += [f"- **{f['name']} failed {f['attempts']} times** and is missing from the tables: {f['error']} "
-               f"(runs/{f['name']}.failed.json)" for f in exp.failures]
-        md += [f"- {r['name']} failed once ({r['errors'][0]}) and succeeded on retry." for r in exp.retried]
-        md.append("")
-    md += ["## Files\n", "- [table3.md](table3.md), [table3.csv](table3.csv): final training MSEs, sorted, with the paper's",
-           "- [table4.md](table4.md), [table5.md](table5.md): Welch t-tests over all runs and the best 10",
-           *[f"- [{figure_name(r)}]({figure_name(r)}): convergence, {r} arm" for r in c.robots],
-           "- [generalization.md](generalization.md): held-out against training MSE per run",
-           "- `experiment.rrd`: every run's curve on the `generation` timeline (`rerun experiment.rrd`)"
-           if c.recording else "- no Rerun recording (`--no-recording`)",
-           "- `runs/<arm>-<method>-s<seed>.json`: each run's result (history, MSEs, seconds, config, controller)", ""]
+          "Welch's t-test: p one-sided is in the direction of the observed difference (the paper's "
+          "*Significance*); two-sided is twice that. table4.md and table5.md add the paper's own Table 3 "
+          "recomputed.\n" if {"cmaes", "neat"} <= set(exp.config.methods) else "",
+          *_failures(exp), *_files(exp.config)]
     return "\n".join(md)
-

@@ -73,7 +73,8 @@ class ReproduceConfig:
         specs = [RunSpec(r, m, self.seed + i, self.generations, self.population, self.targets,
                          self.test_goals, self.paper)
                  for r in self.robots for m in self.methods for i in range(self.runs)]
-        specs[0].config()
+        for s in specs:  # ValueError naming the field (e.g. population < 4 for CMA-ES) before any work
+            s.config()
         return specs
 
 
