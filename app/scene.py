@@ -41,7 +41,8 @@ def _geometry(arm: robots.Arm) -> tuple:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", DeprecationWarning)
                 V = np.asarray(geo.vertices(), dtype=np.float32)
-                F = np.array([list(geo.tri_indices(i)) for i in range(geo.num_tris)], dtype=np.uint32)
+                tris = (geo.tri_indices(i) for i in range(geo.num_tris))
+                F = np.array([(t[0], t[1], t[2]) for t in tris], dtype=np.uint32)
             kind, params = "Mesh", (V, F.reshape(-1, 3))
         else:
             continue

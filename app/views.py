@@ -3,7 +3,7 @@
 Error map: the inverse-kinematics counterpart of a classifier's decision surface. Goals on
 a grid over the workspace (the task plane of a planar arm; the horizontal slice through the
 middle of the workspace for the others), kept where the arm can reach (a grid cell holds at
-least one end-effector position of 20,000 joint vectors drawn within the limits), each
+least one end-effector position of joint vectors drawn uniformly within the limits), each
 coloured by the controller's end-effector error ||g - reach(controller(g))||.
 
 Network: the controller as an SVG: inputs on the left, outputs (joints) on the right, hidden
@@ -25,6 +25,7 @@ from robots.ik import workspace_size
 from .scene import colormap
 
 GRID = 64
+GRID_3D = 40
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,8 +45,12 @@ class MapGrid:
 
 
 @functools.lru_cache(maxsize=16)
-def map_grid(arm: robots.Arm, n: int = GRID) -> MapGrid:
-    samples = arm.fk(arm.sample_q(20_000, seed=4321))  # (20000, 3)
+def map_grid(arm: robots.Arm, n: int | None = None) -> MapGrid:
+    """The plane: 64 x 64 cells from 20,000 joint samples; a 3D arm's slice: 40 x 40 cells from
+    400,000 samples (a slab one cell thick holds few of them)."""
+    planar = len(arm.task_axes) == 2
+    n = n or (GRID if planar else GRID_3D)
+    samples = arm.fk(arm.sample_q(20_000 if planar else 400_000, seed=4321))  # (k, 3)
     lo, hi = arm.workspace_bounds
     axes = list(arm.task_axes)
     lo_xy, hi_xy = np.array([lo[axes.index(0)], lo[axes.index(1)]]), np.array([hi[axes.index(0)], hi[axes.index(1)]])
@@ -75,7 +80,7 @@ def error_map(arm: robots.Arm, controller) -> tuple[np.ndarray, np.ndarray, floa
         rgb = colormap(err / scale)
     i, j = grid.cells[:, 0], grid.cells[:, 1]
     image[j, i, :3] = rgb
-    image[j, i, 3] = 235
+    image[j, i, 3] = 235 if len(arm.task_axes) == 2 else 140  # a slice lets the arm show through
     return image, err, scale
 
 

@@ -186,3 +186,33 @@ def test_notebook_survives_a_restart_and_a_bad_file(tmp_path):
     assert Notebook(str(path)).get("abc")["generations"] == 3
     path.write_text("{ not json")
     assert Notebook(str(path)).entries() == [] and os.path.exists(str(path) + ".bad")
+
+
+def test_python_m_app_prints_the_url_it_really_serves(tmp_path):
+    import signal
+    import socket
+    import subprocess
+    import sys
+
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen()
+    port = taken.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "app", "--port", str(port), "--no-record",
+                             "--notebook", str(tmp_path / "nb.json")],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        url = None
+        for line in proc.stdout:
+            if "Neuro-IK Lab ready" in line:
+                url = line.rsplit(" ", 1)[-1].strip()
+                break
+        assert url is not None and url.startswith("http://127.0.0.1:")
+        served = int(url.rsplit(":", 1)[1])
+        assert served != port  # the taken port was skipped, and the URL says which one is used
+        with urllib.request.urlopen(url, timeout=10) as r:
+            assert r.status == 200
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(20)
+        taken.close()
