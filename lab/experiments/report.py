@@ -163,9 +163,12 @@ def _machine(exp) -> list[str]:
 def _time_taken(exp, outputs_seconds: float) -> list[str]:
     ran = [exp.results[s.name] for s in exp.specs if s.name in exp.results]
     run_seconds = sum(d.get("wall_seconds", d["seconds"]) for d in ran)
+    cpu_seconds = sum(d.get("cpu_seconds", 0.0) for d in ran)
     since_start = _process_seconds()
     line = (f"- Runs: **{exp.wall_seconds:.1f} s** wall for the {exp.executed} runs executed in this call "
-            f"(sum of all {len(ran)} runs' own wall times: {run_seconds:.1f} s); outputs: {outputs_seconds:.1f} s.")
+            f"(sum of all {len(ran)} runs' own wall times: {run_seconds:.1f} s, CPU times: {cpu_seconds:.1f} s, "
+            f"/ {os.cpu_count()} cores = {cpu_seconds / (os.cpu_count() or 1):.1f} s, the ideal wall time on idle cores); "
+            f"outputs: {outputs_seconds:.1f} s.")
     if since_start:
         line += f" Since the process started (imports included): **{since_start:.1f} s**."
     if exp.resumed:

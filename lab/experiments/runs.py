@@ -51,7 +51,7 @@ def train_run(spec: RunSpec) -> dict:
     """Train one run with lab.evolve and return its result as JSON-ready data."""
     import lab
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     run = lab.evolve(spec.robot, spec.method, spec.generations, spec.population, spec.targets, spec.seed,
                      paper=spec.paper, test_goals=spec.test_goals)
     return {
@@ -61,6 +61,7 @@ def train_run(spec: RunSpec) -> dict:
         "history": [float(v) for v in run.history],  # best training MSE so far, per generation
         "seconds": run.seconds,  # optimizer time (lab.Run.seconds)
         "wall_seconds": time.perf_counter() - t0,  # with problem setup and held-out evaluation
+        "cpu_seconds": time.process_time() - c0,  # this process's CPU time for the run
         "evaluations": run.evaluations, "n_params": run.n_params,
         "controller": run.controller.to_dict() if run.controller is not None else None,
         "host": platform.node(), "pid": os.getpid(), "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
