@@ -94,14 +94,15 @@ def train(args) -> int:
             bar.set_postfix(best=f"{event.best:.4g}", median=f"{event.median:.4g}", refresh=False)
 
     runner.subscribe(progress)
-    try:
-        summary = runner.run()
-    except KeyboardInterrupt:  # pragma: no cover - interactive
+    try:  # the run in its own thread: Ctrl-C reaches this one, which stops the run after its generation
+        runner.start()
+        summary = runner.join()
+    except KeyboardInterrupt:
         runner.stop()
         summary = runner.join()
     finally:
         if logger is not None:
-            logger.close()  # no-op when the run's end has closed it
+            logger.close(wait=True)  # the run's end has closed it: waits for the compaction
     bar.close()
     if summary.state == "failed":
         print(f"error: training failed: {summary.error}", file=sys.stderr)

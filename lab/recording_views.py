@@ -52,7 +52,7 @@ def pose(geo: Geometry, controller) -> dict:
     reached = to_3d(geo.arm.reach(q), geo.arm.task_axes)
     r = geo.radius
     return {
-        "world/arm": rr.LineStrips3D(strips, radii=r, colors=[*GREY, 110]),
+        "world/arm": rr.LineStrips3D(strips, radii=0.6 * r, colors=[*GREY, 110]),
         "world/reached": rr.Points3D(reached, radii=2.5 * r, colors=BLUE),
         "world/errors": rr.Arrows3D(origins=geo.goals3, vectors=reached - geo.goals3, radii=0.7 * r, colors=RED),
     }
@@ -99,6 +99,12 @@ def network(controller) -> tuple:
     return nodes, rr.GraphEdges([(str(i), str(o)) for i, o in edges if i in pos and o in pos], graph_type="directed")
 
 
+def palette(n: int) -> list:
+    """n distinct series colours."""
+    base = [ORANGE, [150, 70, 200], [30, 160, 170], [200, 60, 120], [110, 110, 40], [90, 90, 90]]
+    return [base[k % len(base)] for k in range(n)]
+
+
 def input_names(encoding) -> list[str]:
     axes = ["xyz"[a] for a in encoding.task_axes]
     extra = ["r", "phi"] if encoding.features == "polar" else []
@@ -106,9 +112,10 @@ def input_names(encoding) -> list[str]:
     return names + [f"in{k}" for k in range(len(names), encoding.n_inputs)]
 
 
-def blueprint(method: str) -> rrb.Blueprint:
+def blueprint(method: str, geo: Geometry | None = None) -> rrb.Blueprint:
     """Arm on the left; error curves (log10 first, linear in a tab), search state and the network
-    (NEAT) or the controller's JSON (CMA-ES) on the right; the time panel on `generation`."""
+    (NEAT) or the controller's JSON (CMA-ES) on the right; the time panel on `generation`.
+    With the geometry, the 3D camera frames the workspace (from above for a planar arm)."""
     mse = rrb.Tabs(rrb.TimeSeriesView(origin="/log10_mse", name="log10 training MSE"),
                    rrb.TimeSeriesView(origin="/mse", name="training MSE (linear)"), name="Training error")
     search = rrb.TimeSeriesView(origin="/search", name="CMA-ES step size and restarts" if method == "cmaes"
@@ -120,11 +127,21 @@ def blueprint(method: str) -> rrb.Blueprint:
                                force_center=rrb.archetypes.ForceCenter(enabled=False))
     else:
         detail = rrb.TextDocumentView(origin="/controller", name="Best controller (JSON)")
-    left = rrb.Vertical(rrb.Spatial3DView(origin="/world", name="Arm at the best controller, every training goal"),
+    arm = rrb.Spatial3DView(origin="/world", name="Arm at the best controller, every training goal",
+                            eye_controls=_eye(geo) if geo is not None else None)
+    left = rrb.Vertical(arm,
                         rrb.TextDocumentView(origin="/about", name="About this recording"), row_shares=[3, 1])
     right = rrb.Vertical(mse, search, detail, row_shares=[2, 1, 2])
     return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[3, 2]),
                          rrb.TimePanel(timeline="generation", expanded=True), collapse_panels=False)
+
+
+def _eye(geo: Geometry) -> rrb.EyeControls3D:
+    lo, hi = (to_3d(b[None, :], geo.arm.task_axes)[0] for b in geo.arm.workspace_bounds)
+    center, size = (lo + hi) / 2, float(np.max(hi - lo))
+    planar = len(geo.arm.task_axes) == 2
+    offset = np.array([0.0, -0.35, 1.3]) if planar else np.array([1.1, -1.1, 0.8])
+    return rrb.EyeControls3D(position=center + size * offset, look_target=center, eye_up=[0.0, 0.0, 1.0])
 
 
 def about(config) -> str:

@@ -197,27 +197,42 @@ def test_a_stopped_run_closes_its_recording(tmp_path):
     assert runner.problem.controller_mse(c) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
 
 
+def _train_until(path, generations: int, timeout: float = 60.0) -> subprocess.Popen:
+    """Start `python -m lab train` (endless) recording to `path`; return once it has logged `generations`."""
+    cmd = [sys.executable, "-m", "lab", "train", "--generations", "100000", "--population", "10", "--targets", "15",
+           "--test-goals", "10", "--quiet", "--recording", str(path)]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+        try:
+            if len(read_recording(path).generations) >= generations:
+                return proc
+        except (OSError, ValueError):
+            pass  # not there yet
+    proc.kill()
+    pytest.fail(f"the training process logged too little: {proc.communicate()[1][-2000:]}")
+
+
+def test_ctrl_c_stops_the_cli_run_and_closes_its_recording(tmp_path):
+    path = tmp_path / "interrupted.rrd"
+    proc = _train_until(path, 20)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    rec = read_recording(path)
+    assert rec.summary["state"] == "stopped" and rec.summary["generations"] == len(rec.generations) >= 20
+    assert f"recording     {path}" in out
+    RrdReader(path).store()  # closed with its footer
+
+
 @pytest.fixture(scope="module")
 def killed(tmp_path_factory):
     """A `python -m lab train` process killed with SIGKILL while it writes its recording."""
     path = tmp_path_factory.mktemp("killed") / "killed.rrd"
-    cmd = [sys.executable, "-m", "lab", "train", "--generations", "100000", "--population", "10", "--targets", "15",
-           "--test-goals", "10", "--quiet", "--recording", str(path)]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 60
-    try:
-        while time.monotonic() < deadline and proc.poll() is None:
-            time.sleep(0.2)
-            try:
-                if len(read_recording(path).generations) >= 30:
-                    break
-            except (OSError, ValueError):
-                pass  # not there yet
-        assert proc.poll() is None, proc.stderr.read().decode()
-        os.kill(proc.pid, signal.SIGKILL)
-    finally:
-        proc.kill()
-        proc.wait()
+    proc = _train_until(path, 30)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.communicate()
     assert proc.returncode == -signal.SIGKILL
     return path
 
