@@ -9,6 +9,8 @@ A marker update moves its arm at once, in the callback (one network forward pass
 forward kinematics, nq pose messages, then a flush); the IK query runs in its own thread, at
 most 10 times a second per tab; `refresh` (called by the render loop) redraws all goals when
 the controller changes, at most 5 times a second. A lock per tab keeps them apart.
+Poses go out through scene.set_pose inside client.atomic() (see there: viser's setters cost
+most of the server's time while dragging).
 """
 
 from __future__ import annotations
@@ -22,50 +24,14 @@ import numpy as np
 import robots
 from robots.ik import dls_ik
 
-from .scene import ArmView, frame_workspace, to_world
+from .ikworker import IK_WORKER
+from .scene import ArmView, frame_workspace, set_pose, to_world
 
 MAX_GOALS = 8
 GHOST = (120, 200, 255)
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 REDRAW_PERIOD = 0.2  # s: redraws caused by training (and table updates) at most 5 times a second
 SAME_POSE = 1e-4  # rad (or length): a redraw moves an arm only when a joint changes more than this
-IK_PERIOD = 0.1  # s: at most one IK query per tab this often (the marker's latest position)
-
-
-class _IKWorker:
-    """One thread solving IK off the marker callbacks, for the tabs that asked, each tab at most
-    once per IK_PERIOD; a query reads the marker when it starts, so a drag ends solved."""
-
-    def __init__(self):
-        self._cond = threading.Condition()
-        self._due: dict = {}  # tab -> time it may run
-        self._thread = None
-
-    def request(self, tab: "TabSession") -> None:
-        with self._cond:
-            if tab not in self._due:
-                self._due[tab] = max(time.monotonic(), tab.last_ik + IK_PERIOD)
-                self._cond.notify()
-            if self._thread is None:
-                self._thread = threading.Thread(target=self._run, name="app-ik", daemon=True)
-                self._thread.start()
-
-    def _run(self) -> None:
-        while True:
-            with self._cond:
-                while not self._due:
-                    self._cond.wait()
-                tab, due = min(self._due.items(), key=lambda kv: kv[1])
-                if due > time.monotonic():
-                    self._cond.wait(due - time.monotonic())
-                    continue
-                del self._due[tab]
-            try:
-                tab.solve_ik()
-            except Exception:  # a closed tab, a removed node: the next request starts afresh
-                pass
-
-
-_IK = _IKWorker()
 
 
 def fmt_len(arm: robots.Arm, d: float) -> str:
@@ -119,18 +85,20 @@ class GoalView:
             q = controller(goal[None])[0]
             self.net_s = time.perf_counter() - t
             self.error = float(np.linalg.norm(arm.reach(q) - goal))
-        if moved or self.arm_view.q is None or np.max(np.abs(q - self.arm_view.q)) > SAME_POSE:
-            self.arm_view.set_q(q)
-        if moved:
-            self.label.position = np.asarray(self.marker.position) + self.tab.ws["label_offset"]
-        text = f"net {fmt_len(arm, self.error)}" if controller is not None else "no controller"
-        if text != self.label.text:
-            self.label.text = text
+        with self.tab.client.atomic():  # one wake-up of the sender for all the messages
+            if moved or self.arm_view.q is None or np.max(np.abs(q - self.arm_view.q)) > SAME_POSE:
+                self.arm_view.set_q(q)
+            if moved:
+                set_pose(self.label, np.asarray(self.marker.position) + self.tab.ws["label_offset"], IDENTITY)
+            text = f"net {fmt_len(arm, self.error)}" if controller is not None else "no controller"
+            if text != self.label.text:
+                self.label.text = text
 
     def set_ik(self, result) -> None:
         self.ik = result
-        self.ghost.set_q(result.q)
-        self.ghost.visible = True
+        with self.tab.client.atomic():
+            self.ghost.set_q(result.q)
+            self.ghost.visible = True
 
     def remove(self) -> None:
         for view in (self.arm_view, self.ghost):
@@ -153,8 +121,8 @@ class TabSession:
         gui = client.gui
         self.folder = gui.add_folder("Goals (this tab)", order=0)
         with self.folder:
-            self.add_button = gui.add_button("Add goal", icon="plus")
-            self.remove_button = gui.add_button("Remove goal", icon="minus")
+            self.add_button = gui.add_button("Add goal")  # no icons: viser reads each from a zip file
+            self.remove_button = gui.add_button("Remove goal")
             self.show_ik = gui.add_checkbox("IK ghost (damped least squares)", True)
             self.table = gui.add_markdown("")
         self.add_button.on_click(lambda e: self.add_goal())
@@ -217,7 +185,7 @@ class TabSession:
     def request_ik(self) -> None:
         """Solve IK for the first goal in the IK thread (see _IKWorker)."""
         if not self.closed and self.show_ik.value:
-            _IK.request(self)
+            IK_WORKER.request(self)
 
     def solve_ik(self) -> None:
         self.last_ik = time.monotonic()

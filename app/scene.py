@@ -17,6 +17,7 @@ import warnings
 
 import numpy as np
 import pinocchio as pin
+from viser._messages import SetOrientationMessage, SetPositionMessage
 
 import robots
 from robots.ik import workspace_size
@@ -85,8 +86,7 @@ class ArmView:
         q = np.asarray(q, dtype=np.float64)
         pin.forwardKinematics(self.arm.model, self.data, self.arm.to_pinocchio(q))
         for j, frame in self.moving.items():
-            pos, wxyz = se3_pose(self.data.oMi[j])
-            frame.position, frame.wxyz = pos, wxyz
+            set_pose(frame, *se3_pose(self.data.oMi[j]))
         self.q = q
 
     @property
@@ -101,6 +101,26 @@ class ArmView:
     def remove(self) -> None:
         for frame in self.frames.values():
             frame.remove()
+
+
+def set_pose(handle, position: np.ndarray, wxyz: np.ndarray) -> None:
+    """handle.position, handle.wxyz = position, wxyz, about 7x faster.
+
+    viser 1.1's pose setters cost about 0.3 ms per pose (casts, np.allclose, property
+    machinery), which made arm updates the server's main cost while dragging. This queues the
+    same two messages through the scene's own (private) queue and keeps the handle's state in
+    step; if that API is not there (another viser), it falls back to the setters."""
+    impl = handle._impl
+    queue = getattr(getattr(impl, "api", None), "_queue_scene_message", None)
+    if queue is None or not hasattr(impl, "removed"):
+        handle.position, handle.wxyz = position, wxyz
+        return
+    if impl.removed:  # a message for a removed node would bring it back in the browser
+        return
+    impl.position[:] = position
+    impl.wxyz[:] = wxyz
+    queue(SetPositionMessage(impl.name, (float(position[0]), float(position[1]), float(position[2]))))
+    queue(SetOrientationMessage(impl.name, (float(wxyz[0]), float(wxyz[1]), float(wxyz[2]), float(wxyz[3]))))
 
 
 def to_world(arm: robots.Arm, goal) -> np.ndarray:
