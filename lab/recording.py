@@ -25,9 +25,9 @@ Cost: __call__ only queues the event. The logger's own thread drains the queue a
 each as one column batch (rr.send_columns), then a flush; the display-only series (/log10_mse,
 /search) go out every 0.1 s the same way. A process killed with SIGKILL therefore loses at most
 the last 20 ms of generations (0.1 s of the display series). Every chunk and flush costs ~0.3 ms
-of CPU whatever it holds, so flushing after every 2 ms generation (flush_interval=0) would cost
-~30-50% of a core; benchmarks/bench_recording.py measures the default. The closed file is
-compacted in a background thread (`rerun rrd optimize`: about 2.5x smaller, same data).
+of CPU whatever it holds: with 2 ms generations the logger uses ~35% of a core when it flushes
+after every generation (flush_interval=0), ~11% at 20 ms (benchmarks/bench_recording.py). The
+closed file is compacted in a background thread (`rerun rrd optimize`: about 2.5x smaller).
 """
 
 from __future__ import annotations
