@@ -12,6 +12,7 @@ import sys  # noqa: E402
 import robots  # noqa: E402
 
 from .config import METHODS, TrainConfig  # noqa: E402
+from .encoding import FEATURES  # noqa: E402
 from .experiments import cli as experiments_cli  # noqa: E402
 
 
@@ -28,7 +29,7 @@ def _train_parser(sub) -> None:
     p.add_argument("--paper", action="store_true", help="the paper's method literally (lab.config.PAPER_PRESET)")
     p.add_argument("--hidden", type=int, default=None, help="MLP hidden units; NEAT: initial hidden nodes")
     p.add_argument("--sigma0", type=float, default=None, help="CMA-ES initial step size")
-    p.add_argument("--features", default=None, choices=("cartesian", "polar"), help="network inputs")
+    p.add_argument("--features", default=None, choices=FEATURES, help="network inputs")
     p.add_argument("--test-goals", type=int, default=None, help="held-out goals (default 1000)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     rec = p.add_mutually_exclusive_group()
