@@ -5,8 +5,8 @@ arm), an arm drawn at q = controller(goal) (the first solid, the others transluc
 label with the end-effector error ||goal - reach(q)||. The first goal also has a ghost arm at
 the damped least-squares IK solution (robots.ik) with its error, iterations and time.
 
-A marker update moves its arm at once, in the callback (one network forward pass, one
-forward kinematics, nq pose messages, then a flush); the IK query runs in its own thread, at
+A marker update moves its arm at once, in the callback (in viser's event loop: one network
+forward pass, one forward kinematics, nq pose messages, then a flush); the IK query runs in its own thread, at
 most 10 times a second per tab; `refresh` (called by the render loop) redraws all goals when
 the controller changes, at most 5 times a second. A lock per tab keeps them apart.
 Poses go out through scene.set_pose inside client.atomic() (see there: viser's setters cost
@@ -15,6 +15,7 @@ most of the server's time while dragging).
 
 from __future__ import annotations
 
+import asyncio
 import threading
 import time
 from collections import deque
@@ -61,14 +62,29 @@ class GoalView:
     def goal(self) -> np.ndarray:
         return np.asarray(self.marker.position, float)[list(self.tab.arm.task_axes)]
 
-    def _on_update(self, _event) -> None:
+    async def _on_update(self, _event) -> None:
+        """Runs in viser's event loop, which saves the hop to its thread pool (about 1 ms when
+        training keeps the cores busy); when a redraw holds the tab's lock, the update goes to
+        the thread pool rather than block the loop."""
         t0 = time.perf_counter()
+        if self.tab.lock.acquire(blocking=False):
+            try:
+                self._move(t0)
+            finally:
+                self.tab.lock.release()
+        else:
+            await asyncio.get_running_loop().run_in_executor(None, self._move_locked, t0)
+
+    def _move_locked(self, t0: float) -> None:
         with self.tab.lock:
-            if self.tab.closed or self.marker not in self.tab.markers():
-                return
-            self.update(self.tab.controller())
-            self.tab.client.flush()
-            self.tab.latency.append(time.perf_counter() - t0)
+            self._move(t0)
+
+    def _move(self, t0: float) -> None:
+        if self.tab.closed or all(m is not self.marker for m in self.tab.markers()):
+            return
+        self.update(self.tab.controller())
+        self.tab.client.flush()
+        self.tab.latency.append((self.tab.client.client_id, t0, time.perf_counter()))
         if self.ghost is not None:
             self.tab.request_ik()
         self.tab.table_dirty = True
@@ -112,7 +128,8 @@ class TabSession:
     """Goals and arms of one client (tab); `app` gives the shared state and the shown controller."""
 
     def __init__(self, client, state, latency: deque | None = None):
-        """latency: where to append the seconds from a marker update to its pose flushed."""
+        """latency: where to append (client id, callback start, pose flushed) [perf_counter s]
+        for every marker update."""
         self.client, self.state = client, state
         self.lock = threading.RLock()
         self.closed = False
@@ -183,7 +200,7 @@ class TabSession:
         return None
 
     def request_ik(self) -> None:
-        """Solve IK for the first goal in the IK thread (see _IKWorker)."""
+        """Solve IK for the first goal in the IK thread (app/ikworker.py)."""
         if not self.closed and self.show_ik.value:
             IK_WORKER.request(self)
 

@@ -76,7 +76,7 @@ class LabApp:
         self.sessions: dict[int, TabSession] = {}
         self._sessions_lock = threading.Lock()
         self._gone: set[int] = set()  # ids of closed tabs (ids are never reused)
-        self.latency: deque = deque(maxlen=100_000)  # s from a marker update to its pose flushed, all tabs
+        self.latency: deque = deque(maxlen=100_000)  # (tab, callback start, pose flushed) of marker updates
         self._stop = threading.Event()
         gui = self.server.gui
         gui.configure_theme(control_width="large")

@@ -1,16 +1,17 @@
 """Responsiveness of the app while it trains (issue 6, point 9).
 
-    python benchmarks/bench_app.py                  # 10 tabs, one dragging; 2 rounds of 8 s each
+    python benchmarks/bench_app.py                  # 10 tabs, one dragging; 4 rounds of 6 s each
     python benchmarks/bench_app.py --clients 10 --dragging 10 --hz 10   # every tab drags
 
-Two numbers, measured side by side in alternating rounds (headless, app, headless, app, ...):
+Two numbers, measured side by side in rounds (headless then app, app then headless, ...):
 
 1. Marker update -> pose sent, with `--clients` tabs connected while a run trains. Every tab
    is a headless websocket client (app/probe.py) in a separate process; `--dragging` of them
    drag their own goal marker `--hz` times a second; for each drag it times from sending the update to receiving
-   the arm's new pose (loopback round trip: an upper bound of the server-side time), and the
-   server records, in the marker callback, the time from its start to the pose being flushed
-   to the socket (a lower bound). Target: p95 <= 5 ms.
+   the arm's new pose (the loopback round trip, client decoding included), and the server
+   side is timed from the update's arrival in viser's event loop (a handler placed first in
+   its handler list) to the new pose being flushed to the sender, in the marker callback.
+   Target: server side p95 <= 5 ms.
 2. Training throughput (evaluations per second over the same window) with the app serving
    those tabs, over headless training (the same lab Runner, nothing else running; each with
    the GIL switch interval it runs with: Python's default 5 ms headless, the app's 1 ms).
@@ -28,6 +29,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import resource  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -44,17 +46,27 @@ CONFIG = dict(robot="planar", method="cmaes", generations=10**7, population=50, 
 
 
 class Meter:
-    """Runner subscriber: (time, evaluations) of each generation."""
+    """Runner subscriber: (wall time, the runner thread's CPU time, evaluations) per generation."""
 
     def __init__(self):
         self.points = []
 
     def __call__(self, event):
-        self.points.append((time.perf_counter(), event.evaluations))
+        self.points.append((time.perf_counter(), time.thread_time(), event.evaluations))
+
+    def window(self, t0: float, t1: float):
+        pts = [p for p in self.points if t0 <= p[0] <= t1]
+        return pts[0], pts[-1]
 
     def rate(self, t0: float, t1: float) -> float:
-        pts = [(t, e) for t, e in self.points if t0 <= t <= t1]
-        return (pts[-1][1] - pts[0][1]) / (pts[-1][0] - pts[0][0]) if len(pts) > 1 else float("nan")
+        """Evaluations per wall-clock second."""
+        a, b = self.window(t0, t1)
+        return (b[2] - a[2]) / (b[0] - a[0])
+
+    def cores(self, t0: float, t1: float) -> float:
+        """CPU the runner thread got, in cores (the machine's other load shows here)."""
+        a, b = self.window(t0, t1)
+        return (b[1] - a[1]) / (b[0] - a[0])
 
 
 def headless(seconds: float) -> float:
@@ -67,7 +79,21 @@ def headless(seconds: float) -> float:
     time.sleep(seconds)
     t1 = time.perf_counter()
     runner.stop()
-    return meter.rate(t0, t1)
+    return dict(rate=meter.rate(t0, t1), runner_cpu=meter.cores(t0, t1))
+
+
+arrivals: dict = {}  # tab -> perf_counter times its marker updates reached the server
+
+
+def record_arrivals(app) -> None:
+    """Time each marker update as the server's event loop receives it: a handler put first in
+    viser's (private) handler list for TransformControlsUpdateMessage."""
+    from viser._messages import TransformControlsUpdateMessage
+
+    def arrived(client_id, _message) -> None:
+        arrivals.setdefault(client_id, []).append(time.perf_counter())
+
+    app.server._websock_server._incoming_handlers.setdefault(TransformControlsUpdateMessage, []).insert(0, arrived)
 
 
 def with_app(app, clients: int, dragging: int, seconds: float, hz: float) -> dict:
@@ -86,13 +112,24 @@ def with_app(app, clients: int, dragging: int, seconds: float, hz: float) -> dic
     app.state.runner.subscribe(meter)
     time.sleep(1.0)  # warm-up: training and the redraws it causes
     app.latency.clear()
-    t0 = time.perf_counter()
+    arrivals.clear()
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    children0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     out = json.loads(proc.communicate(timeout=seconds + 60)[0].strip().splitlines()[-1])
-    t1 = time.perf_counter()
-    server = list(app.latency)
+    t1, cpu1 = time.perf_counter(), time.process_time()
+    children1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    client_cpu = (children1.ru_utime + children1.ru_stime) - (children0.ru_utime + children0.ru_stime)
+    server, work = [], []
+    for cid, start, flushed in list(app.latency):  # pair each pose with the update that caused it
+        before = [t for t in arrivals.get(cid, ()) if t <= start]
+        if before:
+            server.append(flushed - before[-1])
+            work.append(flushed - start)
     app.state.stop()
     app.state.reset()
-    return dict(rate=meter.rate(t0, t1), rtt=out["rtt"], server=server)
+    runner_cpu = meter.cores(t0, t1)
+    return dict(rate=meter.rate(t0, t1), rtt=out["rtt"], server=server, work=work, runner_cpu=runner_cpu,
+                app_cpu=(cpu1 - cpu0) / (t1 - t0) - runner_cpu, client_cpu=client_cpu / (t1 - t0))
 
 
 def serve_clients(url: str, clients: int, dragging: int, seconds: float, hz: float) -> None:
@@ -140,8 +177,8 @@ def main() -> None:
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--clients", type=int, default=10)
-    ap.add_argument("--seconds", type=float, default=8.0)
-    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--seconds", type=float, default=6.0)
+    ap.add_argument("--rounds", type=int, default=4)
     ap.add_argument("--dragging", type=int, default=1, help="how many of the tabs drag their marker")
     ap.add_argument("--hz", type=float, default=30.0, help="marker updates per second per dragging tab")
     args = ap.parse_args()
@@ -149,31 +186,43 @@ def main() -> None:
 
     folder = tempfile.mkdtemp(prefix="bench-app-")
     app = LabApp(port=0, notebook=os.path.join(folder, "notebook.json"), recordings=folder, record=False)
+    record_arrivals(app)
     heads, apps = [], []
     load = os.getloadavg()
     try:
         for r in range(args.rounds):
-            heads.append(headless(args.seconds))
-            apps.append(with_app(app, args.clients, args.dragging, args.seconds, args.hz))
-            a = apps[-1]
-            print(f"round {r + 1}: headless {heads[-1]:,.0f} eval/s, app {a['rate']:,.0f} eval/s "
-                  f"({len(a['rtt'])} drags)", flush=True)
+            if r % 2 == 0:  # alternate which goes first, so a trend in the machine's load cancels out
+                heads.append(headless(args.seconds))
+                apps.append(with_app(app, args.clients, args.dragging, args.seconds, args.hz))
+            else:
+                apps.append(with_app(app, args.clients, args.dragging, args.seconds, args.hz))
+                heads.append(headless(args.seconds))
+            a, h = apps[-1], heads[-1]
+            print(f"round {r + 1}: headless {h['rate']:,.0f} eval/s (runner {h['runner_cpu']:.2f} cores), "
+                  f"app {a['rate']:,.0f} eval/s (runner {a['runner_cpu']:.2f} cores, app threads "
+                  f"{a['app_cpu']:.2f}, client process {a['client_cpu']:.2f}; {len(a['rtt'])} drags)", flush=True)
     finally:
         app.stop()
     rtt = [x for a in apps for x in a["rtt"]]
     server = [x for a in apps for x in a["server"]]
-    ratio = np.mean([a["rate"] for a in apps]) / np.mean(heads)
-    pairs = [a["rate"] / h for a, h in zip(apps, heads)]
+    work = [x for a in apps for x in a["work"]]
+    rate_h, rate_a = np.mean([h["rate"] for h in heads]), np.mean([a["rate"] for a in apps])
+    pairs = [a["rate"] / h["rate"] for a, h in zip(apps, heads)]
+    per_cpu_h = np.mean([h["rate"] / h["runner_cpu"] for h in heads])
+    per_cpu_a = np.mean([a["rate"] / a["runner_cpu"] for a in apps])
     print(f"\n{args.clients} tabs connected, {args.dragging} dragging at {args.hz:g} Hz, while planar CMA-ES "
           f"(population 50) trains, "
           f"{args.rounds} x {args.seconds:g} s, {os.cpu_count()} cores, load average before {load[0]:.1f}, "
           f"after {os.getloadavg()[0]:.1f}")
     print(f"marker -> pose, loopback round trip: p50 {pct(rtt, 50):.2f} ms, p95 {pct(rtt, 95):.2f} ms, "
           f"max {pct(rtt, 100):.1f} ms ({len(rtt)} drags)")
-    print(f"marker -> pose, in the server callback: p50 {pct(server, 50):.2f} ms, p95 {pct(server, 95):.2f} ms")
-    print(f"training throughput with the app: {100 * ratio:.0f} % of headless "
-          f"({np.mean([a['rate'] for a in apps]):,.0f} vs {np.mean(heads):,.0f} evaluations/s; "
-          f"round by round {', '.join(f'{100 * p:.0f}' for p in pairs)} %)")
+    print(f"marker -> pose, server side (update received -> pose flushed to the sender): p50 {pct(server, 50):.2f} ms, "
+          f"p95 {pct(server, 95):.2f} ms; of which in the callback: p50 {pct(work, 50):.2f} ms, p95 {pct(work, 95):.2f} ms")
+    print(f"training throughput with the app: {100 * rate_a / rate_h:.0f} % of headless "
+          f"({rate_a:,.0f} vs {rate_h:,.0f} evaluations/s; round by round {', '.join(f'{100 * p:.0f}' for p in pairs)} %)")
+    print(f"  per CPU-second of the runner thread: {100 * per_cpu_a / per_cpu_h:.0f} % "
+          f"({per_cpu_a:,.0f} vs {per_cpu_h:,.0f}); the app's own threads used "
+          f"{np.mean([a['app_cpu'] for a in apps]):.2f} cores, the client process {np.mean([a['client_cpu'] for a in apps]):.2f}")
 
 
 if __name__ == "__main__":
