@@ -58,8 +58,9 @@ def session_of(app, probe):
 
 def last_pose(probe, name):
     """(position, wxyz) last sent for a scene node."""
-    pos = next(m["position"] for _t, m in reversed(probe.messages) if m["type"] == "SetPositionMessage" and m["name"] == name)
-    wxyz = next(m["wxyz"] for _t, m in reversed(probe.messages) if m["type"] == "SetOrientationMessage" and m["name"] == name)
+    msgs = list(probe.messages)
+    pos = next(m["position"] for _t, m in reversed(msgs) if m["type"] == "SetPositionMessage" and m["name"] == name)
+    wxyz = next(m["wxyz"] for _t, m in reversed(msgs) if m["type"] == "SetOrientationMessage" and m["name"] == name)
     return np.array(pos), np.array(wxyz)
 
 
@@ -88,10 +89,13 @@ def test_pose_sent_is_the_controller_output(app, tab, goal):
     data = arm.model.createData()
     pin.forwardKinematics(arm.model, data, arm.to_pinocchio(q))
     j = arm.model.njoints - 1
-    pos, wxyz = last_pose(tab, f"/tab/goal0/arm/j{j}")
-    assert np.allclose(pos, data.oMi[j].translation, atol=1e-6)
-    R = pin.Quaternion(wxyz[0], *wxyz[1:]).toRotationMatrix()
-    assert np.allclose(R, data.oMi[j].rotation, atol=1e-6)
+
+    def sent_pose_is_pinocchios() -> bool:  # once the drag's messages have all arrived
+        pos, wxyz = last_pose(tab, f"/tab/goal0/arm/j{j}")
+        R = pin.Quaternion(wxyz[0], *wxyz[1:]).toRotationMatrix()
+        return np.allclose(pos, data.oMi[j].translation, atol=1e-6) and np.allclose(R, data.oMi[j].rotation, atol=1e-6)
+
+    assert wait_until(sent_pose_is_pinocchios, timeout=10)
     # the printed error is ||goal - fk(q)||, also for a goal out of reach
     error = float(np.linalg.norm(arm.fk(q)[:2] - goal))
     assert session.goals[0].error == pytest.approx(error)
@@ -216,3 +220,36 @@ def test_python_m_app_prints_the_url_it_really_serves(tmp_path):
         proc.send_signal(signal.SIGINT)
         proc.wait(20)
         taken.close()
+
+
+def test_changing_the_robot_rebuilds_every_tab(app, tab):
+    session = session_of(app, tab)
+    app.panel.robot.value = "scara"
+    try:
+        assert app.state.arm.name == "scara" and app.state.shown.controller is None  # nothing trained yet
+        assert wait_until(lambda: session.arm.name == "scara")
+        msg = tab.wait_for(lambda m: m["type"] == "TransformControlsMessage" and m["name"] == "/tab/goal0/marker"
+                           and list(m["props"]["active_axes"]) == [True, True, True])
+        assert msg["props"]["disable_rotations"]
+        assert wait_until(lambda: session.goals and "no controller" in session.goals[0].label.text)
+    finally:
+        app.panel.robot.value = "planar"
+    assert wait_until(lambda: session.arm.name == "planar") and app.state.shown.source == "startup controller"
+
+
+def test_neat_from_the_panel_draws_the_growing_network(app):
+    panel, state = app.panel, app.state
+    panel.method.value = "NEAT"
+    assert panel.hidden.value == 0  # NEAT's own default: start without hidden nodes
+    panel.generations.value, panel.population.value = 30, 30
+    try:
+        assert panel.start() is None
+        state.runner.join(60)
+        assert state.runner.state == "finished" and state.shown.controller.kind == "graph"
+        app._draw_views()
+        enabled = sum(1 for c in state.shown.controller.genome["connections"] if c[3])
+        assert app.network.content.count("<line") == enabled
+    finally:
+        state.reset()
+        panel.method.value = "CMA-ES"
+        panel.generations.value, panel.population.value = 1000, 50
