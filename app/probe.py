@@ -106,6 +106,9 @@ class Probe:
         return arrived - t0
 
     def close(self) -> None:
+        """Close the socket (the server sees the tab go) and stop the client's loop; idempotent."""
+        if not self._loop.is_running():
+            return
         if self._ws is not None:
             asyncio.run_coroutine_threadsafe(self._ws.close(), self._loop).result(10)
         self._loop.call_soon_threadsafe(self._loop.stop)

@@ -106,8 +106,9 @@ def test_pose_sent_is_the_controller_output(app, tab, goal):
         assert error > 10  # out of reach: the pose and a large error, no crash
 
 
-def test_tabs_have_their_own_goals_and_a_closed_tab_harms_nothing(app, tab):
+def test_tabs_have_their_own_goals_and_a_tab_closing_mid_run_harms_nothing(app, tab):
     other = Probe(app.url).start()
+    app.panel.generations.value = 100_000
     try:
         a, b = session_of(app, tab), session_of(app, other)
         assert a is not b
@@ -115,10 +116,17 @@ def test_tabs_have_their_own_goals_and_a_closed_tab_harms_nothing(app, tab):
         assert len(a.goals) == 2 and len(b.goals) == 1
         assert "refused" in b.remove_goal()  # the last goal stays
         assert a.remove_goal() is None and len(a.goals) == 1
+        assert app.panel.start() is None
+        assert wait_until(lambda: app.state.progress()["generation"] >= 3)
+        other.close()  # mid-run
+        assert wait_until(lambda: len(app.sessions) == 1)
+        n = app.state.progress()["generation"]
+        assert wait_until(lambda: app.state.progress()["generation"] > n + 3)  # training goes on
+        tab.drag("/tab/goal0/marker", (10.0, 10.0, 0.0))  # the remaining tab still answers
     finally:
         other.close()
-    assert wait_until(lambda: len(app.sessions) == 1)
-    tab.drag("/tab/goal0/marker", (10.0, 10.0, 0.0))  # the remaining tab still answers
+        app.state.reset()
+        app.panel.generations.value = 1000
 
 
 def test_training_panel_runs_pauses_refuses_and_keeps_a_notebook(app, tab):
