@@ -148,6 +148,8 @@ def test_training_panel_runs_pauses_refuses_and_keeps_a_notebook(app, tab):
         assert state.shown.source.startswith("run")
         goal = session.goals[0].goal
         assert np.allclose(session.goals[0].arm_view.q, state.shown.controller(goal[None])[0], rtol=0, atol=1e-4)
+        printed = fmt_len(session.arm, session.goals[0].error)  # the label and the tab's table agree
+        assert printed in session.goals[0].label.text and printed in session.table.content
         time.sleep(0.3)
         assert state.progress()["generation"] == held
         panel.buttons["Resume"].value = True
