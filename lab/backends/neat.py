@@ -151,15 +151,19 @@ def genome_to_controller(genome, config: neat.Config, encoding, record: bool = T
     record: also keep all the genome's nodes and connections (for logs and display).
     """
     gc = config.genome_config
-    enabled = [cg.key for cg in genome.connections.values() if cg.enabled]
-    layers, required = neat.graphs.feed_forward_layers(gc.input_keys, gc.output_keys, enabled)
+    enabled = [cg for cg in genome.connections.values() if cg.enabled]
+    layers, required = neat.graphs.feed_forward_layers(gc.input_keys, gc.output_keys, [cg.key for cg in enabled])
     sources = required | set(gc.input_keys)
+    incoming: dict[int, list] = {}  # in the order neat sums them: the genome's connection order
+    for cg in enabled:
+        i, o = cg.key
+        if i in sources:
+            incoming.setdefault(o, []).append((int(i), float(cg.weight)))
     nodes = []
     for layer in layers:
         for key in sorted(layer):  # neat iterates a set; the order within a layer does not matter
-            links = tuple((i, genome.connections[(i, o)].weight) for i, o in enabled if o == key and i in sources)
             ng = genome.nodes[key]
-            nodes.append((int(key), float(ng.bias), float(ng.response), tuple((int(i), float(w)) for i, w in links)))
+            nodes.append((int(key), float(ng.bias), float(ng.response), tuple(incoming.get(key, ()))))
     record = {
         "nodes": [[int(k), float(n.bias)] for k, n in sorted(genome.nodes.items())],
         "connections": [[int(i), int(o), float(c.weight), bool(c.enabled)] for (i, o), c in sorted(genome.connections.items())],
@@ -174,6 +178,7 @@ class NEATBackend(Backend):
         super().__init__(problem, config)
         enc = problem.encoding
         self.params = neat_parameters(config)
+        self._compiled: dict[int, GraphController] = {}
         self.neat_config = make_neat_config(enc.n_inputs, enc.n_outputs, config.population, config.hidden,
                                             config.seed, self.params)
         with _RANDOM_LOCK:
@@ -203,7 +208,11 @@ class NEATBackend(Backend):
         pop = self.population
         genomes = list(pop.population.values())
         enc = self.problem.encoding
-        graphs = [genome_to_controller(g, self.neat_config, enc, record=False) for g in genomes]
+        # genomes are never changed once made, and elites live on: compile each genome once
+        cache = {g.key: self._compiled.get(g.key) or genome_to_controller(g, self.neat_config, enc, record=False)
+                 for g in genomes}
+        self._compiled = cache
+        graphs = [cache[g.key] for g in genomes]
         mse = self.problem.graphs_mse(graphs)
         for g, m in zip(genomes, mse):
             g.fitness = -float(m) if np.isfinite(m) else BAD_FITNESS
