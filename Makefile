@@ -38,7 +38,9 @@ test: install browser
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 bench: install
-	$(PY) benchmarks/bench_fk.py
+	$(PY) benchmarks/bench_fk.py --arms planar,scara,ur5,panda,kinova
+	$(PY) benchmarks/bench_speed.py --generations 1000 --rounds 3
+	$(PY) benchmarks/bench_recording.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache
