@@ -146,29 +146,63 @@ def make_neat_config(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, 
 
 
 def genome_to_controller(genome, config: neat.Config, encoding, record: bool = True) -> GraphController:
-    """Compile a genome the way neat.nn.FeedForwardNetwork.create does, into a GraphController.
+    """Compile a genome into the network neat.nn.FeedForwardNetwork.create builds from it.
 
+    The same nodes (neat.graphs.required_for_output: the outputs and every non-input node with a
+    path to one), each summing the same enabled links in the genome's connection order (links from
+    required nodes and inputs), evaluated in a topological order: the same values as neat's
+    layer by layer order. Linear in the genome's size (neat's feed_forward_layers is quadratic).
     record: also keep all the genome's nodes and connections (for logs and display).
     """
     gc = config.genome_config
+    inputs = set(gc.input_keys)
     enabled = [cg for cg in genome.connections.values() if cg.enabled]
-    layers, required = neat.graphs.feed_forward_layers(gc.input_keys, gc.output_keys, [cg.key for cg in enabled])
-    sources = required | set(gc.input_keys)
+    preds: dict[int, list] = {}
+    for cg in enabled:
+        preds.setdefault(cg.key[1], []).append(cg.key[0])
+    required = set(gc.output_keys)
+    stack = list(gc.output_keys)
+    while stack:
+        for a in preds.get(stack.pop(), ()):
+            if a not in inputs and a not in required:
+                required.add(a)
+                stack.append(a)
     incoming: dict[int, list] = {}  # in the order neat sums them: the genome's connection order
     for cg in enabled:
         i, o = cg.key
-        if i in sources:
+        if o in required and (i in required or i in inputs):
             incoming.setdefault(o, []).append((int(i), float(cg.weight)))
     nodes = []
-    for layer in layers:
-        for key in sorted(layer):  # neat iterates a set; the order within a layer does not matter
-            ng = genome.nodes[key]
-            nodes.append((int(key), float(ng.bias), float(ng.response), tuple(incoming.get(key, ()))))
+    for key in _topological(required, incoming):
+        ng = genome.nodes[key]
+        nodes.append((int(key), float(ng.bias), float(ng.response), tuple(incoming.get(key, ()))))
     record = {
         "nodes": [[int(k), float(n.bias)] for k, n in sorted(genome.nodes.items())],
         "connections": [[int(i), int(o), float(c.weight), bool(c.enabled)] for (i, o), c in sorted(genome.connections.items())],
     } if record else {}
     return GraphController(encoding, tuple(nodes), tuple(gc.input_keys), tuple(gc.output_keys), record)
+
+
+def _topological(required: set, incoming: dict) -> list:
+    """Required nodes ordered so that every node comes after the required nodes it reads (Kahn)."""
+    waiting = {n: sum(1 for i, _ in incoming.get(n, ()) if i in required) for n in required}
+    readers: dict[int, list] = {}
+    for n in required:
+        for i, _ in incoming.get(n, ()):
+            if i in required:
+                readers.setdefault(i, []).append(n)
+    ready = sorted(n for n, k in waiting.items() if k == 0)
+    order = []
+    while ready:
+        n = ready.pop()
+        order.append(n)
+        for r in readers.get(n, ()):
+            waiting[r] -= 1
+            if waiting[r] == 0:
+                ready.append(r)
+    if len(order) != len(required):
+        raise ValueError("the genome's enabled connections form a cycle: not a feed-forward network")
+    return order
 
 
 class NEATBackend(Backend):
