@@ -91,6 +91,7 @@ class LabApp:
             self.runs = RunsPanel(gui, self)
         self.show_map.on_update(lambda e: setattr(self._map, "visible", self.show_map.value))
         self._drawn = (-1, None)  # (shown version, arm) of the map and the network
+        self._views_lock = threading.Lock()  # the render loop and callers must not interleave draws
         self._build_shared()
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
@@ -159,6 +160,10 @@ class LabApp:
 
     def _draw_views(self) -> None:
         """Error map and network of the shown controller, when it has changed."""
+        with self._views_lock:  # else a slow draw of an older controller can land after a newer one
+            self._draw_views_locked()
+
+    def _draw_views_locked(self) -> None:
         shown = self.state.shown
         if (shown.version, shown.arm) == self._drawn:
             return
