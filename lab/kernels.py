@@ -155,15 +155,21 @@ def _segment_means(E, n, out):
 @numba.njit(**_JIT)
 def _population_mse(A, goalsT, axes, qmap, chain, out):
     """A (nq, P n): outputs of P controllers side by side -> out (P,) <- MSE of each."""
-    n = goalsT.shape[1]
-    P = out.shape[0]
     for o in range(A.shape[0]):
         _to_joints_row(A[o], o, qmap)
+    _joints_side_by_side_mse(A, goalsT, axes, chain, out)
+
+
+@numba.njit(**_JIT)
+def _joints_side_by_side_mse(Q, goalsT, axes, chain, out):
+    """Q (nq, P n): joint values of P controllers side by side -> out (P,) <- MSE of each."""
+    n = goalsT.shape[1]
+    P = out.shape[0]
     tiled = np.empty((goalsT.shape[0], P * n))
     for p in range(P):
         tiled[:, p * n:(p + 1) * n] = goalsT
     E = np.empty(P * n)
-    fk_sq_errors(A, tiled, axes, chain, E)
+    fk_sq_errors(Q, tiled, axes, chain, E)
     _segment_means(E, n, out)
 
 
@@ -281,9 +287,4 @@ def joints_mse(QT, goalsT, axes, chain, out):
     Q = np.empty((nq, P * n))
     for p in range(P):
         Q[:, p * n:(p + 1) * n] = QT[p]
-    tiled = np.empty((goalsT.shape[0], P * n))
-    for p in range(P):
-        tiled[:, p * n:(p + 1) * n] = goalsT
-    E = np.empty(P * n)
-    fk_sq_errors(Q, tiled, axes, chain, E)
-    _segment_means(E, n, out)
+    _joints_side_by_side_mse(Q, goalsT, axes, chain, out)
