@@ -51,10 +51,18 @@ def neat_parameters(config) -> dict:
                 conn_add_prob=config.add_connection)
 
 
+def _gene_floats(name: str, p: dict) -> str:
+    """The [DefaultGenome] lines of a float gene (bias or weight): both follow the paper's weight rules."""
+    cap = p["weight_cap"]
+    items = [("init_mean", 0.0), ("init_stdev", 1.0), ("max_value", cap), ("min_value", -cap),
+             ("mutate_power", p["weight_mutate_power"]), ("mutate_rate", p["weight_mutate_rate"]),
+             ("replace_rate", 0.0)]
+    return "\n".join(f"{name}_{key:<18s}= {value}" for key, value in items)
+
+
 def neat_config_text(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int,
                      params: dict = PAPER_NEAT) -> str:
     p = params
-    cap = p["weight_cap"]
     return f"""
 [NEAT]
 fitness_criterion     = max
@@ -76,13 +84,7 @@ activation_options      = tanh_
 aggregation_default     = sum
 aggregation_mutate_rate = 0.0
 aggregation_options     = sum
-bias_init_mean          = 0.0
-bias_init_stdev         = 1.0
-bias_max_value          = {cap}
-bias_min_value          = {-cap}
-bias_mutate_power       = {p["weight_mutate_power"]}
-bias_mutate_rate        = {p["weight_mutate_rate"]}
-bias_replace_rate       = 0.0
+{_gene_floats('bias', p)}
 response_init_mean      = 1.0
 response_init_stdev     = 0.0
 response_max_value      = 1.0
@@ -90,13 +92,7 @@ response_min_value      = 1.0
 response_mutate_power   = 0.0
 response_mutate_rate    = 0.0
 response_replace_rate   = 0.0
-weight_init_mean        = 0.0
-weight_init_stdev       = 1.0
-weight_max_value        = {cap}
-weight_min_value        = {-cap}
-weight_mutate_power     = {p["weight_mutate_power"]}
-weight_mutate_rate      = {p["weight_mutate_rate"]}
-weight_replace_rate     = 0.0
+{_gene_floats('weight', p)}
 enabled_default         = True
 enabled_mutate_rate     = 0.0
 enabled_rate_to_true_add = {p["enabled_rate_to_true_add"]}
