@@ -16,6 +16,7 @@ import argparse  # noqa: E402
 import logging  # noqa: E402
 import socket  # noqa: E402
 import sys  # noqa: E402
+import threading  # noqa: E402
 import time  # noqa: E402
 
 
@@ -48,6 +49,10 @@ def main(argv=None) -> int:
     app = LabApp(args.host, args.port, robot=args.robot, notebook=args.notebook, recordings=args.recordings,
                  record=not args.no_record)
     print(f"\nNeuro-IK Lab ready in {time.perf_counter() - t0:.1f} s: {app.url}", flush=True)
+    # the first Start would otherwise wait for numba to compile the fitness kernels (~30 s, once)
+    from lab.warmup import compile_kernels
+
+    threading.Thread(target=compile_kernels, name="kernel-warmup", daemon=True).start()
     if args.host in ("0.0.0.0", ""):
         print(f"  on this network: http://{socket.gethostname()}:{app.port}", flush=True)
     print(f"  startup controller: {app.startup_note}; runs list: {args.notebook}. Ctrl-C stops.", flush=True)
