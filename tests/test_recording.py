@@ -197,26 +197,32 @@ def test_a_stopped_run_closes_its_recording(tmp_path):
     assert runner.problem.controller_mse(c) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
 
 
-def _train_until(path, generations: int, timeout: float = 60.0) -> subprocess.Popen:
-    """Start `python -m lab train` (endless) recording to `path`; return once it has logged `generations`."""
+def _train_until(path, generations: int, timeout: float = 60.0) -> tuple[subprocess.Popen, int]:
+    """Start `python -m lab train` (endless) recording to `path`; return once it has logged `generations`,
+    with the file's size when it first held a complete generation (the file only grows while it is written,
+    so every prefix at least that long holds one)."""
     cmd = [sys.executable, "-m", "lab", "train", "--generations", "100000", "--population", "10", "--targets", "15",
            "--test-goals", "10", "--quiet", "--recording", str(path)]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + timeout
+    deadline, first_size = time.monotonic() + timeout, None
     while time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.2)
         try:
-            if len(read_recording(path).generations) >= generations:
-                return proc
+            size = path.stat().st_size
+            logged = len(read_recording(path).generations)
         except (OSError, ValueError):
-            pass  # not there yet
+            continue  # not there yet
+        if logged and first_size is None:
+            first_size = size
+        if logged >= generations:
+            return proc, first_size
     proc.kill()
     pytest.fail(f"the training process logged too little: {proc.communicate()[1][-2000:]}")
 
 
 def test_ctrl_c_stops_the_cli_run_and_closes_its_recording(tmp_path):
     path = tmp_path / "interrupted.rrd"
-    proc = _train_until(path, 20)
+    proc, _ = _train_until(path, 20)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
@@ -230,14 +236,18 @@ def test_ctrl_c_stops_the_cli_run_and_closes_its_recording(tmp_path):
 def killed(tmp_path_factory):
     """A `python -m lab train` process killed with SIGKILL while it writes its recording."""
     path = tmp_path_factory.mktemp("killed") / "killed.rrd"
-    proc = _train_until(path, 30)
+    proc, first_size = _train_until(path, 30)
+    deadline = time.monotonic() + 60
+    while path.stat().st_size < 1.5 * first_size and time.monotonic() < deadline:  # room to cut past first_size
+        time.sleep(0.05)
     os.kill(proc.pid, signal.SIGKILL)
     proc.communicate()
     assert proc.returncode == -signal.SIGKILL
-    return path
+    return path, first_size
 
 
 def test_a_killed_run_leaves_a_file_that_loads(killed):
+    killed, _ = killed
     rec = read_recording(killed)
     assert rec.last_generation >= 29 and rec.summary is None  # no end was written
     np.testing.assert_array_equal(rec.generations, np.arange(rec.last_generation + 1))
@@ -248,9 +258,12 @@ def test_a_killed_run_leaves_a_file_that_loads(killed):
 
 @pytest.mark.parametrize("keep", [0.5, 0.9, 0.999])
 def test_a_file_cut_mid_frame_is_salvaged(killed, tmp_path, keep):
+    killed, first_size = killed
     data = killed.read_bytes()
     cut = tmp_path / "cut.rrd"
-    cut.write_bytes(data[: int(len(data) * keep)])
+    # cut anywhere past the point where the file first held a generation (before it: static data only,
+    # whose share of the file depends on how fast the machine ran the killed process)
+    cut.write_bytes(data[: first_size + int((len(data) - first_size) * keep)])
     rec = read_recording(cut)  # salvaged: the protocol and the first generations come first in the file
     assert rec.salvaged and rec.last_generation is not None and rec.last_generation <= read_recording(killed).last_generation
     config = lab.TrainConfig(**rec.protocol["config"])
@@ -259,6 +272,7 @@ def test_a_file_cut_mid_frame_is_salvaged(killed, tmp_path, keep):
 
 @pytest.mark.parametrize("content", [b"", b"RRF", b"hello, not a recording\n" * 10, "killed-head"])
 def test_bad_files_are_refused_by_name(killed, tmp_path, content):
+    killed, _ = killed
     bad = tmp_path / "bad.rrd"
     bad.write_bytes(killed.read_bytes()[:40] if content == "killed-head" else content)
     with pytest.raises(ValueError, match=re.escape(str(bad))):
