@@ -88,7 +88,7 @@ def error_map(arm: robots.Arm, controller) -> tuple[np.ndarray, np.ndarray, floa
 def network_graph(controller) -> tuple[list, list]:
     """(nodes [(key, layer, label)], links [(src, dst, weight)]) of an MLP or a NEAT graph."""
     enc = controller.encoding
-    in_labels = _input_labels(enc)
+    in_labels = enc.input_names
     n_out = enc.n_outputs
     if controller.kind == "mlp":
         w_i, w_o = controller.w_i, controller.w_o  # (ni+1, nh), (nh, no); last row of w_i: bias
@@ -115,16 +115,6 @@ def network_graph(controller) -> tuple[list, list]:
     nodes += [(k, min(depth.get(k, 1), last - 1) or 1, "") for k in sorted(keys - set(inputs) - set(outputs))]
     nodes += [(k, last, f"q{n + 1}") for n, k in enumerate(outputs)]
     return nodes, links
-
-
-def _input_labels(enc) -> list[str]:
-    axes = ["x", "y", "z"]
-    task = [axes[a] for a in enc.task_axes]
-    if enc.features == "polar":
-        return task + ["r", "φ"]
-    if enc.features == "cylindrical":
-        return ["r", "φ"] + task[2:]
-    return task
 
 
 def network_svg(controller, width: int = 300, height: int = 220) -> str:

@@ -6,7 +6,12 @@ Inputs (features):
     "polar"      the same, plus the goal's distance from the base axis r = hypot(x, y) and its
                  bearing phi = atan2(y, x), both scaled to [-1, 1] by their ranges over the workspace;
     "cylindrical"  r and phi in place of x and y (then z, for 3D goals): as many inputs as
-                 "cartesian", in the coordinates of an arm whose first joint turns about z.
+                 "cartesian", in the coordinates of an arm whose first joint turns about z;
+    "reach"      "polar" plus the slack of reach s = sqrt(1 - r / r_max) (0 beyond r_max), r_max the
+                 largest r of the workspace. Near full reach an arm's inverse kinematics has a fold:
+                 the elbow angle goes as acos(r / r_max) ~ sqrt(2 (1 - r / r_max)), whose slope in r
+                 is unbounded; in s it is almost linear (the SCARA's theta2 = 2 acos(1 - s^2) is
+                 within 6% of 2.83 s over its range), so a small tanh network needs no steep units.
 Outputs: a network output a in [-1, 1] maps linearly onto the joint range widened by a
 margin m on each side, then clipped to the limits:
     q = clip(lower - m h + (a + 1) (1 + m) h, lower, upper),   h = (upper - lower) / 2.
@@ -23,7 +28,7 @@ import numpy as np
 
 import robots
 
-FEATURES = ("cartesian", "polar", "cylindrical")
+FEATURES = ("cartesian", "polar", "cylindrical", "reach")
 
 
 @dataclass(frozen=True, eq=False)
@@ -37,6 +42,7 @@ class Encoding:
     q_lo: np.ndarray  # (nq,) joint lower limits
     q_hi: np.ndarray  # (nq,) joint upper limits
     margin: float = 0.0  # output range widening (fraction of the half range), then clipped
+    r_max: float = 0.0  # "reach": the largest distance from the base axis in the workspace
 
     def __post_init__(self):
         if self.features not in FEATURES:
@@ -47,15 +53,23 @@ class Encoding:
     @classmethod
     def for_arm(cls, arm: robots.Arm, features: str = "cartesian", margin: float = 0.0) -> "Encoding":
         goals = arm.sample_goals(20_000, seed=12345)
-        raw = _raw_features(goals, features, len(arm.task_axes))
+        r_max = float(np.hypot(goals[:, 0], goals[:, 1]).max()) if features == "reach" else 0.0
+        raw = _raw_features(goals, features, len(arm.task_axes), r_max)
         lo, hi = raw.min(axis=0), raw.max(axis=0)
         flat = hi - lo < 1e-9
         lo, hi = np.where(flat, lo - 0.5, lo), np.where(flat, hi + 0.5, hi)
-        return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy(), float(margin))
+        return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy(), float(margin), r_max)
 
     @property
     def n_inputs(self) -> int:
         return len(self.in_lo)
+
+    @property
+    def input_names(self) -> list[str]:
+        """One short label per network input, in order."""
+        task = ["xyz"[a] for a in self.task_axes]
+        return {"cartesian": task, "polar": task + ["r", "φ"], "cylindrical": ["r", "φ"] + task[2:],
+                "reach": task + ["r", "φ", "s"]}[self.features]
 
     @property
     def n_outputs(self) -> int:
@@ -66,7 +80,7 @@ class Encoding:
         goals = np.asarray(goals, dtype=np.float64)
         if goals.ndim != 2 or goals.shape[1] != len(self.task_axes):
             raise ValueError(f"goals must have shape (n, {len(self.task_axes)}), got {goals.shape}")
-        raw = _raw_features(goals, self.features, len(self.task_axes))
+        raw = _raw_features(goals, self.features, len(self.task_axes), self.r_max)
         return 2.0 * (raw - self.in_lo) / (self.in_hi - self.in_lo) - 1.0
 
     @property
@@ -89,15 +103,16 @@ class Encoding:
             "features": self.features, "task_axes": list(self.task_axes),
             "in_lo": self.in_lo.tolist(), "in_hi": self.in_hi.tolist(),
             "q_lo": self.q_lo.tolist(), "q_hi": self.q_hi.tolist(), "margin": self.margin,
+            **({"r_max": self.r_max} if self.features == "reach" else {}),
         }
 
     @classmethod
     def from_dict(cls, d: dict) -> "Encoding":
         return cls(d["features"], tuple(d["task_axes"]), *(np.asarray(d[k], float) for k in ("in_lo", "in_hi", "q_lo", "q_hi")),
-                   float(d.get("margin", 0.0)))
+                   float(d.get("margin", 0.0)), float(d.get("r_max", 0.0)))
 
 
-def _raw_features(goals: np.ndarray, features: str, k: int) -> np.ndarray:
+def _raw_features(goals: np.ndarray, features: str, k: int, r_max: float = 0.0) -> np.ndarray:
     if features == "cartesian":
         return goals
     if k < 2:
@@ -106,4 +121,6 @@ def _raw_features(goals: np.ndarray, features: str, k: int) -> np.ndarray:
     phi = np.arctan2(goals[:, 1], goals[:, 0])
     if features == "cylindrical":
         return np.column_stack([r, phi, goals[:, 2:]])
+    if features == "reach":
+        return np.column_stack([goals, r, phi, np.sqrt(np.clip(1.0 - r / r_max, 0.0, 1.0))])
     return np.column_stack([goals, r, phi])

@@ -46,7 +46,8 @@ def evolve(robot: str = "planar", method: str = "cmaes", generations: int = 1000
     """Evolve a neuro-controller for `robot` with `method` ("cmaes" or "neat"); blocks until done.
 
     paper=True uses the paper's literal method (lab.config.PAPER_PRESET); options override
-    single settings of TrainConfig (hidden, sigma0, features, restarts, test_goals, goal_seed).
+    single settings of TrainConfig (hidden, sigma0, diagonal, features, margin, restarts, test_goals,
+    goal_seed, mutation_power, add_node, add_connection).
     subscribers get every GenerationEvent (see lab.runner).
     """
     config = TrainConfig.preset(paper=paper, robot=robot, method=method, generations=generations,

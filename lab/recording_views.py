@@ -85,7 +85,7 @@ def network(controller) -> tuple:
         depth.setdefault(k, 1)
     last = max([depth[k] for k in hidden], default=0) + 1
     depth.update({k: last for k in outputs})
-    names = input_names(controller.encoding)
+    names = controller.encoding.input_names
     label = {k: names[n] for n, k in enumerate(inputs)} | {k: f"q{n}" for n, k in enumerate(outputs)}
     keys = inputs + hidden + outputs
     columns: dict[int, list] = {}
@@ -103,13 +103,6 @@ def palette(n: int) -> list:
     """n distinct series colours."""
     base = [ORANGE, [150, 70, 200], [30, 160, 170], [200, 60, 120], [110, 110, 40], [90, 90, 90]]
     return [base[k % len(base)] for k in range(n)]
-
-
-def input_names(encoding) -> list[str]:
-    axes = ["xyz"[a] for a in encoding.task_axes]
-    extra = ["r", "phi"] if encoding.features == "polar" else []
-    names = (axes + extra)[: encoding.n_inputs]
-    return names + [f"in{k}" for k in range(len(names), encoding.n_inputs)]
 
 
 def blueprint(method: str, geo: Geometry | None = None) -> rrb.Blueprint:

@@ -46,13 +46,14 @@ class CMAESBackend(Backend):
             "verbose": -9,
             "verb_log": 0,
             "maxiter": np.inf,
+            "CMA_diagonal": self.config.diagonal,  # a fast, diagonal-only start (0: full C from the first)
         }
         self.es = cma.CMAEvolutionStrategy(x0, self.config.sigma0, opts)
         self._start_best = np.inf
         self._start_best_gen = self.generation
 
     def hyperparameters(self) -> dict:
-        return {"dim": self.dim, "hidden": self.config.hidden, "sigma0": self.config.sigma0,
+        return {"dim": self.dim, "hidden": self.config.hidden, "sigma0": self.config.sigma0, "diagonal": self.config.diagonal,
                 "popsize": self.config.population, "restarts": self.config.restarts,
                 "stall_generations": STALL, "cma": cma.__version__}
 
@@ -62,6 +63,10 @@ class CMAESBackend(Backend):
         finite = np.isfinite(f)
         worst = f[finite].max() if finite.any() else 1.0
         self.es.tell(list(X), np.where(finite, f, 10.0 * worst + 1e6).tolist())
+        if self.es.sm.randn is np.random.randn:
+            # pycma 4.x switches from the diagonal to the full sampler (CMA_diagonal) with a new
+            # sampler that draws from numpy's global, unseeded generator: give it ours back
+            self.es.sm.randn = self.es.opts["randn"]
         i = int(np.argmin(f))
         self._offer(f[i], lambda: MLPController(self.problem.encoding, self.config.hidden, X[i].copy()))
         extras = {"sigma": float(self.es.sigma), "restarts": self.restarts}
