@@ -26,8 +26,9 @@ PAPER_BEST = {("planar", "cmaes"): 0.1976, ("scara", "cmaes"): 0.0529,
 
 # the paper's method, this project's defaults, and the defaults with one choice undone
 DEFAULT_VARIANTS = {
-    "cmaes": ["paper", "default", "features=cartesian", "margin=0.0", "hidden=12", "sigma0=0.5", "restarts=True"],
-    "neat": ["paper", "default", "mutation_power=1.0", "margin=0.0"],
+    "cmaes": ["paper", "default", "features=polar", "features=cartesian", "margin=0.5", "hidden=8", "sigma0=0.4",
+              "diagonal=0"],
+    "neat": ["paper", "default", "mutation_power=1.0", "margin=0.0", "features=reach"],
 }
 
 
