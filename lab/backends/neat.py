@@ -20,11 +20,13 @@ seed even when several run in threads of one process.
 
 Generations are advanced one at a time (the body of Population.run), so the runner can
 pause and stop between any two; all genomes of a generation are compiled to one program and
-evaluated in one compiled call.
+evaluated in one compiled call. Genomes are FastGenome (neat_genome.py): the very genomes
+neat.DefaultGenome makes from the same random state, in about half the time.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import random
@@ -36,6 +38,7 @@ import numpy as np
 
 from ..controllers import GraphController
 from .base import Backend, StepResult
+from .neat_genome import FastGenome
 
 _RANDOM_LOCK = threading.Lock()
 BAD_FITNESS = -1e30  # neat-python needs a finite float; NaN/inf outputs get this
@@ -52,7 +55,7 @@ def neat_parameters(config) -> dict:
 
 
 def _gene_floats(name: str, p: dict) -> str:
-    """The [DefaultGenome] lines of a float gene (bias or weight): both follow the paper's weight rules."""
+    """The genome section's lines of a float gene (bias or weight): both follow the paper's weight rules."""
     cap = p["weight_cap"]
     items = [("init_mean", 0.0), ("init_stdev", 1.0), ("max_value", cap), ("min_value", -cap),
              ("mutate_power", p["weight_mutate_power"]), ("mutate_rate", p["weight_mutate_rate"]),
@@ -61,7 +64,8 @@ def _gene_floats(name: str, p: dict) -> str:
 
 
 def neat_config_text(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int,
-                     params: dict = PAPER_NEAT) -> str:
+                     params: dict = PAPER_NEAT, genome_section: str = "DefaultGenome") -> str:
+    """neat-python's config file; genome_section: the genome type's name (neat.Config reads that section)."""
     p = params
     return f"""
 [NEAT]
@@ -72,7 +76,7 @@ reset_on_extinction   = True
 no_fitness_termination = True
 seed                  = {seed}
 
-[DefaultGenome]
+[{genome_section}]
 num_inputs              = {n_inputs}
 num_outputs             = {n_outputs}
 num_hidden              = {hidden}
@@ -127,13 +131,14 @@ def textbook_tanh(z: float) -> float:
 
 
 def make_neat_config(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int,
-                     params: dict = PAPER_NEAT) -> neat.Config:
-    """A fresh neat.Config (never reuse one between runs) with the textbook tanh registered."""
+                     params: dict = PAPER_NEAT, genome_type=FastGenome) -> neat.Config:
+    """A fresh neat.Config (never reuse one between runs) with the textbook tanh registered.
+    genome_type: FastGenome (the same genomes as neat.DefaultGenome, faster) or neat.DefaultGenome."""
     fd, path = tempfile.mkstemp(suffix=".ini", prefix="neat-")
     try:
         with os.fdopen(fd, "w") as f:
-            f.write(neat_config_text(n_inputs, n_outputs, pop_size, hidden, seed, params))
-        config = neat.Config(neat.DefaultGenome, neat.DefaultReproduction, neat.DefaultSpeciesSet,
+            f.write(neat_config_text(n_inputs, n_outputs, pop_size, hidden, seed, params, genome_type.__name__))
+        config = neat.Config(genome_type, neat.DefaultReproduction, neat.DefaultSpeciesSet,
                              neat.DefaultStagnation, path)
     finally:
         os.unlink(path)
@@ -151,32 +156,45 @@ def genome_to_controller(genome, config: neat.Config, encoding, record: bool = T
     record: also keep all the genome's nodes and connections (for logs and display).
     """
     gc = config.genome_config
-    inputs = set(gc.input_keys)
-    enabled = [cg for cg in genome.connections.values() if cg.enabled]
+    keys, weights = [], []
+    for cg in genome.connections.values():
+        if cg.enabled:
+            keys.append(cg.key)
+            weights.append(cg.weight)
+    genes = genome.nodes
+    nodes = []
+    for key, gene_key, links in _wiring(tuple(keys), tuple(gc.input_keys), tuple(gc.output_keys)):
+        ng = genes[gene_key]
+        links = tuple([(i, float(weights[j])) for i, j in links])
+        nodes.append((key, float(ng.bias), float(ng.response), links))
+    record = {
+        "nodes": [[int(k), float(n.bias)] for k, n in sorted(genome.nodes.items())],
+        "connections": [[int(i), int(o), float(c.weight), bool(c.enabled)] for (i, o), c in sorted(genome.connections.items())],
+    } if record else {}
+    return GraphController(encoding, tuple(nodes), tuple(gc.input_keys), tuple(gc.output_keys), record)
+
+
+@functools.lru_cache(maxsize=4096)
+def _wiring(enabled: tuple, input_keys: tuple, output_keys: tuple) -> tuple:
+    """What genome_to_controller compiles, from the enabled connections' keys alone (in the
+    genome's order; the genomes of a population mostly share them, hence the cache): the
+    required nodes in evaluation order, each as (int key, key, ((int source, index in enabled), ...))."""
+    inputs = set(input_keys)
     preds: dict[int, list] = {}
-    for cg in enabled:
-        preds.setdefault(cg.key[1], []).append(cg.key[0])
-    required = set(gc.output_keys)
-    stack = list(gc.output_keys)
+    for i, o in enabled:
+        preds.setdefault(o, []).append(i)
+    required = set(output_keys)
+    stack = list(output_keys)
     while stack:
         for a in preds.get(stack.pop(), ()):
             if a not in inputs and a not in required:
                 required.add(a)
                 stack.append(a)
     incoming: dict[int, list] = {}  # in the order neat sums them: the genome's connection order
-    for cg in enabled:
-        i, o = cg.key
+    for j, (i, o) in enumerate(enabled):
         if o in required and (i in required or i in inputs):
-            incoming.setdefault(o, []).append((int(i), float(cg.weight)))
-    nodes = []
-    for key in _topological(required, incoming):
-        ng = genome.nodes[key]
-        nodes.append((int(key), float(ng.bias), float(ng.response), tuple(incoming.get(key, ()))))
-    record = {
-        "nodes": [[int(k), float(n.bias)] for k, n in sorted(genome.nodes.items())],
-        "connections": [[int(i), int(o), float(c.weight), bool(c.enabled)] for (i, o), c in sorted(genome.connections.items())],
-    } if record else {}
-    return GraphController(encoding, tuple(nodes), tuple(gc.input_keys), tuple(gc.output_keys), record)
+            incoming.setdefault(o, []).append((int(i), j))
+    return tuple((int(key), key, tuple(incoming.get(key, ()))) for key in _topological(required, incoming))
 
 
 def _topological(required: set, incoming: dict) -> list:
@@ -203,6 +221,7 @@ def _topological(required: set, incoming: dict) -> list:
 
 class NEATBackend(Backend):
     method = "neat"
+    genome_type = FastGenome  # neat.DefaultGenome gives the same runs, slower
 
     def __init__(self, problem, config):
         super().__init__(problem, config)
@@ -210,7 +229,7 @@ class NEATBackend(Backend):
         self.params = neat_parameters(config)
         self._compiled: dict[int, GraphController] = {}
         self.neat_config = make_neat_config(enc.n_inputs, enc.n_outputs, config.population, config.hidden,
-                                            config.seed, self.params)
+                                            config.seed, self.params, self.genome_type)
         with _RANDOM_LOCK:
             saved = random.getstate()
             self.population = neat.Population(self.neat_config, seed=config.seed)

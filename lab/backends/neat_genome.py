@@ -1,0 +1,354 @@
+"""FastGenome: neat-python 2.0's DefaultGenome, bit for bit, without its per-gene overhead.
+
+neat-python spends most of a generation in pure-Python genome code: speciation's distance,
+crossover (a method call, hasattr checks and asserts per gene, and a quadratic cycle test for
+every inherited connection) and mutation (every attribute of every gene reads its rates from
+the config by name). FastGenome does the same work with the config values read once per
+genome and the per-gene loops written out. It is a drop-in for neat.DefaultGenome (section
+[FastGenome] in the config file) and produces the very same genomes:
+
+- the same calls to the global `random` module in the same order (random(), gauss(),
+  choice(), uniform() ...), so a run leaves the same random state behind;
+- the same genes in the same dict order (crossover walks the same set of innovation
+  numbers, built the same way, so in the same iteration order);
+- the same floating-point operations in the same order (distance sums gene by gene in the
+  genome's order, as neat does; clamps are min/max written as the comparisons they make).
+
+Rare paths (replacing a value by a fresh draw, a string option mutation, new genes from
+configure_new or structural mutations) call neat-python's own attribute code.
+
+Crossover's cycle test: every connection a child inherits has a key of parent1 (the fitter
+parent), so when parent1's connection keys are acyclic the child's are a subset, and neat's
+creates_cycle can never fire. FastGenome records that knowledge as `_acyclic_at`: the number
+of connections the genome had when its key set was last known acyclic (-1: not known). Under
+feed_forward every way neat-python makes or changes a genome keeps the keys acyclic
+(configure_new; add node splits a link; add connection checks creates_cycle; deletions and
+crossover take subsets), so every FastGenome it makes carries the mark; a parent without it
+(a hand-built genome, one edited by add_connection, a DefaultGenome, a genome whose connection
+count changed behind FastGenome's back) gets neat's exact per-gene test instead. Code that edits
+`connections` in place must go through the genome's methods or reset `_acyclic_at` to -1.
+
+Distance has no per-genome cache: only about a quarter of the genome pairs speciation compares
+share their gene order, and a cached path measured no faster than the plain loop here.
+
+The gene subclasses keep their attributes in __slots__ (no per-gene dict is made); they behave
+as, and are instances of, DefaultNodeGene and DefaultConnectionGene.
+"""
+
+from __future__ import annotations
+
+import warnings
+from random import choice, gauss, random
+
+from neat.genes import DefaultConnectionGene, DefaultNodeGene
+from neat.genome import DefaultGenome, DefaultGenomeConfig
+from neat.graphs import creates_cycle
+
+_new = object.__new__
+
+
+class FastNodeGene(DefaultNodeGene):
+    __slots__ = ("key", "bias", "response", "activation", "aggregation", "time_constant")
+
+    def mutate(self, config):
+        _mutate_nodes((self,), config, _node_plan(config))
+
+
+class FastConnectionGene(DefaultConnectionGene):
+    __slots__ = ("key", "innovation", "weight", "enabled")
+
+    def mutate(self, config):
+        _mutate_connections((self,), config, _connection_plan(config))
+
+
+_NODE_ATTRS = ("bias", "response", "activation", "aggregation", "time_constant")
+_CONNECTION_ATTRS = ("weight", "enabled")
+assert tuple(a.name for a in DefaultNodeGene._gene_attributes) == _NODE_ATTRS
+assert tuple(a.name for a in DefaultConnectionGene._gene_attributes) == _CONNECTION_ATTRS
+_BIAS, _RESPONSE, _ACTIVATION, _AGGREGATION, _TIME_CONSTANT = DefaultNodeGene._gene_attributes
+_WEIGHT, _ENABLED = DefaultConnectionGene._gene_attributes
+
+
+def _float_plan(attr, config):
+    """What FloatAttribute.mutate_value reads: (mutate rate, replace rate + mutate rate, power, min, max)."""
+    mutate_rate = getattr(config, attr.mutate_rate_name)
+    return (mutate_rate, getattr(config, attr.replace_rate_name) + mutate_rate,
+            getattr(config, attr.mutate_power_name), getattr(config, attr.min_value_name),
+            getattr(config, attr.max_value_name))
+
+
+def _node_plan(config):
+    return (_float_plan(_BIAS, config), _float_plan(_RESPONSE, config),
+            getattr(config, _ACTIVATION.mutate_rate_name), getattr(config, _AGGREGATION.mutate_rate_name),
+            _float_plan(_TIME_CONSTANT, config))
+
+
+def _connection_plan(config):
+    rate = getattr(config, _ENABLED.mutate_rate_name)
+    # BoolAttribute.mutate_value: the rate for a True value, then for a False one
+    return (_float_plan(_WEIGHT, config), rate + getattr(config, _ENABLED.rate_to_false_add_name),
+            rate + getattr(config, _ENABLED.rate_to_true_add_name))
+
+
+def _mutate_connections(genes, config, plan):
+    """Each gene's BaseGene.mutate: weight (FloatAttribute), then enabled (BoolAttribute)."""
+    (w_rate, w_replace, w_power, w_min, w_max), e_true, e_false = plan
+    for cg in genes:
+        r = random()
+        if r < w_rate:
+            v = cg.weight + gauss(0.0, w_power)
+            if w_max < v:  # max(min(v, w_max), w_min), as min and max compare
+                v = w_max
+            if w_min > v:
+                v = w_min
+            cg.weight = v
+        elif r < w_replace:
+            cg.weight = _WEIGHT.init_value(config)
+        rate = e_true if cg.enabled else e_false
+        if rate > 0:
+            if random() < rate:
+                cg.enabled = random() < 0.5
+
+
+def _mutate_nodes(genes, config, plan):
+    """Each gene's BaseGene.mutate: bias, response (floats), activation, aggregation (strings),
+    time_constant (float)."""
+    ((b_rate, b_replace, b_power, b_min, b_max), (r_rate, r_replace, r_power, r_min, r_max),
+     act_rate, agg_rate, (t_rate, t_replace, t_power, t_min, t_max)) = plan
+    for ng in genes:
+        r = random()
+        if r < b_rate:
+            v = ng.bias + gauss(0.0, b_power)
+            if b_max < v:
+                v = b_max
+            if b_min > v:
+                v = b_min
+            ng.bias = v
+        elif r < b_replace:
+            ng.bias = _BIAS.init_value(config)
+        r = random()
+        if r < r_rate:
+            v = ng.response + gauss(0.0, r_power)
+            if r_max < v:
+                v = r_max
+            if r_min > v:
+                v = r_min
+            ng.response = v
+        elif r < r_replace:
+            ng.response = _RESPONSE.init_value(config)
+        if act_rate > 0:
+            if random() < act_rate:
+                ng.activation = choice(getattr(config, _ACTIVATION.options_name))
+        if agg_rate > 0:
+            if random() < agg_rate:
+                ng.aggregation = choice(getattr(config, _AGGREGATION.options_name))
+        r = random()
+        if r < t_rate:
+            v = ng.time_constant + gauss(0.0, t_power)
+            if t_max < v:
+                v = t_max
+            if t_min > v:
+                v = t_min
+            ng.time_constant = v
+        elif r < t_replace:
+            ng.time_constant = _TIME_CONSTANT.init_value(config)
+
+
+def _known_acyclic(genome) -> bool:
+    """True when the genome's connection keys are known to form no cycle (see the module docstring)."""
+    return getattr(genome, "_acyclic_at", -1) == len(genome.connections)
+
+
+class FastGenome(DefaultGenome):
+    """neat.DefaultGenome with the same results, faster: see the module docstring."""
+
+    @classmethod
+    def parse_config(cls, param_dict):
+        param_dict["node_gene_type"] = FastNodeGene
+        param_dict["connection_gene_type"] = FastConnectionGene
+        return DefaultGenomeConfig(param_dict, cls.__name__)
+
+    def __init__(self, key):
+        super().__init__(key)
+        self._acyclic_at = 0  # no connections: acyclic
+
+    # ------------------------------------------------------------ creation
+    def configure_new(self, config):
+        super().configure_new(config)
+        # feed-forward initial connections run input -> hidden -> output; recurrent ones add self-loops
+        self._acyclic_at = len(self.connections) if config.feed_forward else -1
+
+    def configure_crossover(self, genome1, genome2, config):
+        """DefaultGenome.configure_crossover and BaseGene.crossover/copy, written out."""
+        if genome1.fitness > genome2.fitness:
+            parent1, parent2 = genome1, genome2
+        else:
+            parent1, parent2 = genome2, genome1
+
+        # the same dicts and the same set, built the same way: the same iteration order
+        parent1_innovations = {cg.innovation: cg for cg in parent1.connections.values()}
+        parent2_innovations = {cg.innovation: cg for cg in parent2.connections.values()}
+        all_innovations = set(parent1_innovations.keys()) | set(parent2_innovations.keys())
+
+        feed_forward = config.feed_forward
+        parent1_acyclic = _known_acyclic(parent1)
+        check_cycles = feed_forward and not parent1_acyclic
+        connections = self.connections
+        get1, get2 = parent1_innovations.get, parent2_innovations.get
+        for innovation_num in all_innovations:
+            cg1 = get1(innovation_num)
+            if cg1 is None:
+                continue  # genes only in parent2 (less fit) are not inherited
+            cg2 = get2(innovation_num)
+            new_gene = _new(type(cg1))
+            new_gene.key = key = cg1.key
+            new_gene.innovation = cg1.innovation
+            if cg2 is not None and cg2.key == key:
+                # matching genes: BaseGene.crossover (one draw per attribute, then the 75% disable rule)
+                new_gene.weight = cg1.weight if random() > 0.5 else cg2.weight
+                new_gene.enabled = cg1.enabled if random() > 0.5 else cg2.enabled
+                if not cg1.enabled or not cg2.enabled:
+                    if random() < 0.75:
+                        new_gene.enabled = False
+            else:
+                if cg2 is not None:
+                    warnings.warn(
+                        f"Innovation number collision: innovation {innovation_num} assigned to both "
+                        f"{cg1.key} and {cg2.key}. Treating as disjoint genes.",
+                        RuntimeWarning
+                    )
+                # disjoint or excess gene of the fittest parent: BaseGene.copy
+                new_gene.weight = cg1.weight
+                new_gene.enabled = cg1.enabled
+            # the key is parent1's: no cycle possible when parent1's keys are acyclic
+            if check_cycles and creates_cycle(list(connections), key):
+                continue
+            connections[key] = new_gene
+
+        nodes = self.nodes
+        get2 = parent2.nodes.get
+        for key, ng1 in parent1.nodes.items():
+            ng2 = get2(key)
+            new_gene = _new(type(ng1))
+            new_gene.key = ng1.key
+            if ng2 is None:  # BaseGene.copy
+                new_gene.bias = ng1.bias
+                new_gene.response = ng1.response
+                new_gene.activation = ng1.activation
+                new_gene.aggregation = ng1.aggregation
+                new_gene.time_constant = ng1.time_constant
+            else:  # BaseGene.crossover
+                new_gene.bias = ng1.bias if random() > 0.5 else ng2.bias
+                new_gene.response = ng1.response if random() > 0.5 else ng2.response
+                new_gene.activation = ng1.activation if random() > 0.5 else ng2.activation
+                new_gene.aggregation = ng1.aggregation if random() > 0.5 else ng2.aggregation
+                new_gene.time_constant = ng1.time_constant if random() > 0.5 else ng2.time_constant
+            nodes[key] = new_gene
+
+        # checked gene by gene, or a subset of parent1's acyclic keys
+        self._acyclic_at = len(connections) if feed_forward or parent1_acyclic else -1
+
+    # ------------------------------------------------------------ mutation
+    def mutate(self, config):
+        """DefaultGenome.mutate: the same structural draws, then every gene's attributes."""
+        if config.single_structural_mutation:
+            div = max(1, (config.node_add_prob + config.node_delete_prob +
+                          config.conn_add_prob + config.conn_delete_prob))
+            r = random()
+            if r < (config.node_add_prob / div):
+                self.mutate_add_node(config)
+            elif r < ((config.node_add_prob + config.node_delete_prob) / div):
+                self.mutate_delete_node(config)
+            elif r < ((config.node_add_prob + config.node_delete_prob +
+                       config.conn_add_prob) / div):
+                self.mutate_add_connection(config)
+            elif r < ((config.node_add_prob + config.node_delete_prob +
+                       config.conn_add_prob + config.conn_delete_prob) / div):
+                self.mutate_delete_connection()
+        else:
+            if random() < config.node_add_prob:
+                self.mutate_add_node(config)
+
+            if random() < config.node_delete_prob:
+                self.mutate_delete_node(config)
+
+            if random() < config.conn_add_prob:
+                self.mutate_add_connection(config)
+
+            if random() < config.conn_delete_prob:
+                self.mutate_delete_connection()
+
+        _mutate_connections(self.connections.values(), config, _connection_plan(config))
+        _mutate_nodes(self.nodes.values(), config, _node_plan(config))
+
+    # The structural mutations are neat-python's own; these keep the acyclic mark up to date.
+    def mutate_add_node(self, config):
+        known = _known_acyclic(self)
+        super().mutate_add_node(config)  # splits a link, or (no links) may call mutate_add_connection
+        self._acyclic_at = len(self.connections) if known and config.feed_forward else -1
+
+    def mutate_add_connection(self, config):
+        known = _known_acyclic(self)
+        super().mutate_add_connection(config)  # tests creates_cycle under feed_forward
+        self._acyclic_at = len(self.connections) if known and config.feed_forward else -1
+
+    def mutate_delete_node(self, config):
+        known = _known_acyclic(self)
+        result = super().mutate_delete_node(config)
+        self._acyclic_at = len(self.connections) if known else -1
+        return result
+
+    def mutate_delete_connection(self):
+        known = _known_acyclic(self)
+        super().mutate_delete_connection()
+        self._acyclic_at = len(self.connections) if known else -1
+
+    def add_connection(self, config, input_key, output_key, weight, enabled, innovation=None):
+        super().add_connection(config, input_key, output_key, weight, enabled, innovation)
+        self._acyclic_at = -1  # unchecked; mutate_add_node restores the mark after its split
+
+    # ------------------------------------------------------------ speciation
+    def distance(self, other, config):
+        """DefaultGenome.distance with the genes' distance written out, summed in the same order."""
+        weight_coefficient = config.compatibility_weight_coefficient
+        disjoint_coefficient = config.compatibility_disjoint_coefficient
+
+        nodes1, nodes2 = self.nodes, other.nodes
+        node_distance = 0.0
+        if nodes1 or nodes2:
+            get = nodes2.get
+            matched = 0
+            for k1, n1 in nodes1.items():
+                n2 = get(k1)
+                if n2 is not None:
+                    matched += 1
+                    d = abs(n1.bias - n2.bias) + abs(n1.response - n2.response)
+                    d += abs(n1.time_constant - n2.time_constant)
+                    if n1.activation != n2.activation:
+                        d += 1.0
+                    if n1.aggregation != n2.aggregation:
+                        d += 1.0
+                    node_distance += d * weight_coefficient
+            n, m = len(nodes1), len(nodes2)
+            disjoint_nodes = n + m - 2 * matched
+            node_distance = (node_distance + (disjoint_coefficient * disjoint_nodes)) / max(n, m)
+
+        conns1, conns2 = self.connections, other.connections
+        connection_distance = 0.0
+        if conns1 or conns2:
+            get = conns2.get
+            matched = 0
+            for k1, c1 in conns1.items():
+                c2 = get(k1)
+                if c2 is not None:
+                    matched += 1
+                    d = abs(c1.weight - c2.weight)
+                    if c1.enabled != c2.enabled:
+                        d += 1.0
+                    connection_distance += d * weight_coefficient
+            n, m = len(conns1), len(conns2)
+            disjoint_connections = n + m - 2 * matched
+            connection_distance = (connection_distance +
+                                   (disjoint_coefficient * disjoint_connections)) / max(n, m)
+
+        return node_distance + connection_distance
