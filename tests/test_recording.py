@@ -337,3 +337,25 @@ def test_replay_timeout_and_bad_paths(run, tmp_path, capsys):
     out = capsys.readouterr().out
     pid = int(re.search(r"viewer process (\d+)", out).group(1))
     assert time.monotonic() - t0 < 15 and not _alive(pid)
+
+
+EXAMPLES = sorted((ROOT / "recordings" / "examples").glob("*.rrd"))
+
+
+def test_the_shipped_examples_cover_both_arms_and_methods_within_20_mb():
+    names = {p.stem for p in EXAMPLES}
+    assert {f"{r}-{m}-s0" for r in ("planar", "scara") for m in ("cmaes", "neat")} <= names
+    assert sum(p.stat().st_size for p in EXAMPLES) <= 20 * 2**20
+
+
+@pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
+def test_a_shipped_example_is_a_complete_run_at_the_papers_budget_whose_controller_rebuilds(path):
+    rec = read_recording(path)
+    config = lab.TrainConfig(**rec.protocol["config"])
+    assert (config.generations, config.population, config.targets) == (1000, 50, 70) and not rec.salvaged
+    assert rec.summary["state"] == "finished" and rec.last_generation == 999
+    np.testing.assert_array_equal(rec.generations, np.arange(1000))
+    problem = build_problem(config)
+    controller = load_controller(path)
+    assert problem.controller_mse(controller) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
+    assert problem.controller_mse(controller, problem.test_goals) == pytest.approx(rec.summary["test_mse"], rel=0, abs=1e-9)
