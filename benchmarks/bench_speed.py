@@ -6,8 +6,9 @@ population with a trivial fitness, the sphere sum(x^2) (a constant fitness would
 lab: pycma then has a flat landscape and stops adapting its covariance, which is most of its
 cost). NEAT: `lab`'s backend against neat-python's own Population.run with the same
 configuration and a trivial fitness (uniform random numbers, so that selection and speciation
-have work to do, as in a real run) and neat-python's own DefaultGenome (lab's backend uses
-FastGenome: the same genomes, faster; lab/backends/neat_genome.py). Both are timed side by
+have work to do, as in a real run) and neat-python's own DefaultGenome and DefaultSpeciesSet (lab's
+backend uses FastGenome and FastSpeciesSet: the same genomes and species, faster;
+lab/backends/neat_genome.py, neat_species.py). Both are timed side by
 side, interleaved, in this run; the median of the rounds is reported. Targets: CMA-ES <= 1.25x,
 NEAT <= 1.5x.
 
@@ -60,7 +61,8 @@ def pycma_loop(dim: int, popsize: int, generations: int, sigma0: float, seed: in
 
 def neat_loop(config: TrainConfig, n_inputs: int, n_outputs: int) -> float:
     cfg = make_neat_config(n_inputs, n_outputs, config.population, config.hidden, config.seed,
-                           neat_parameters(config), genome_type=neat.DefaultGenome)  # neat-python's own genome
+                           neat_parameters(config), genome_type=neat.DefaultGenome,
+                           species_set_type=neat.DefaultSpeciesSet)  # neat-python's own classes
     saved = random.getstate()
     pop = neat.Population(cfg, seed=config.seed)
 

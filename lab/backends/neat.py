@@ -21,7 +21,8 @@ seed even when several run in threads of one process.
 Generations are advanced one at a time (the body of Population.run), so the runner can
 pause and stop between any two; all genomes of a generation are compiled to one program and
 evaluated in one compiled call. Genomes are FastGenome (neat_genome.py): the very genomes
-neat.DefaultGenome makes from the same random state, in about half the time.
+neat.DefaultGenome makes from the same random state, in about half the time; species are
+FastSpeciesSet's (neat_species.py): neat.DefaultSpeciesSet's species, with the distances compiled.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ import numpy as np
 from ..controllers import GraphController
 from .base import Backend, StepResult
 from .neat_genome import FastGenome
+from .neat_species import FastSpeciesSet
 
 _RANDOM_LOCK = threading.Lock()
 BAD_FITNESS = -1e30  # neat-python needs a finite float; NaN/inf outputs get this
@@ -64,8 +66,10 @@ def _gene_floats(name: str, p: dict) -> str:
 
 
 def neat_config_text(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int,
-                     params: dict = PAPER_NEAT, genome_section: str = "DefaultGenome") -> str:
-    """neat-python's config file; genome_section: the genome type's name (neat.Config reads that section)."""
+                     params: dict = PAPER_NEAT, genome_section: str = "DefaultGenome",
+                     species_section: str = "DefaultSpeciesSet") -> str:
+    """neat-python's config file; genome_section, species_section: the genome and species set types'
+    names (neat.Config reads the sections named after its types)."""
     p = params
     return f"""
 [NEAT]
@@ -110,7 +114,7 @@ node_delete_prob        = 0.0
 single_structural_mutation = False
 structural_mutation_surer  = default
 
-[DefaultSpeciesSet]
+[{species_section}]
 compatibility_threshold = 3.0
 
 [DefaultStagnation]
@@ -131,14 +135,18 @@ def textbook_tanh(z: float) -> float:
 
 
 def make_neat_config(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int,
-                     params: dict = PAPER_NEAT, genome_type=FastGenome) -> neat.Config:
+                     params: dict = PAPER_NEAT, genome_type=FastGenome,
+                     species_set_type=FastSpeciesSet) -> neat.Config:
     """A fresh neat.Config (never reuse one between runs) with the textbook tanh registered.
-    genome_type: FastGenome (the same genomes as neat.DefaultGenome, faster) or neat.DefaultGenome."""
+    genome_type: FastGenome (the same genomes as neat.DefaultGenome, faster) or neat.DefaultGenome;
+    species_set_type: FastSpeciesSet (the same species as neat.DefaultSpeciesSet, faster) or
+    neat.DefaultSpeciesSet."""
     fd, path = tempfile.mkstemp(suffix=".ini", prefix="neat-")
     try:
         with os.fdopen(fd, "w") as f:
-            f.write(neat_config_text(n_inputs, n_outputs, pop_size, hidden, seed, params, genome_type.__name__))
-        config = neat.Config(genome_type, neat.DefaultReproduction, neat.DefaultSpeciesSet,
+            f.write(neat_config_text(n_inputs, n_outputs, pop_size, hidden, seed, params, genome_type.__name__,
+                                     species_set_type.__name__))
+        config = neat.Config(genome_type, neat.DefaultReproduction, species_set_type,
                              neat.DefaultStagnation, path)
     finally:
         os.unlink(path)
@@ -222,6 +230,7 @@ def _topological(required: set, incoming: dict) -> list:
 class NEATBackend(Backend):
     method = "neat"
     genome_type = FastGenome  # neat.DefaultGenome gives the same runs, slower
+    species_set_type = FastSpeciesSet  # neat.DefaultSpeciesSet likewise
 
     def __init__(self, problem, config):
         super().__init__(problem, config)
@@ -229,7 +238,7 @@ class NEATBackend(Backend):
         self.params = neat_parameters(config)
         self._compiled: dict[int, GraphController] = {}
         self.neat_config = make_neat_config(enc.n_inputs, enc.n_outputs, config.population, config.hidden,
-                                            config.seed, self.params, self.genome_type)
+                                            config.seed, self.params, self.genome_type, self.species_set_type)
         with _RANDOM_LOCK:
             saved = random.getstate()
             self.population = neat.Population(self.neat_config, seed=config.seed)
