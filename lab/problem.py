@@ -55,9 +55,13 @@ class Problem:
 
     def graphs_mse(self, graphs, test: bool = False) -> np.ndarray:
         """MSE of every GraphController in graphs: (P,)."""
+        return self.program_mse(compile_programs(graphs), test)
+
+    def program_mse(self, program: tuple, test: bool = False) -> np.ndarray:
+        """MSE of every graph of a compiled program (lab.controllers.compile_programs): (P,)."""
         XT, goalsT = self._split(test)
-        out = np.empty(len(graphs))
-        kernels.graph_mse(XT, goalsT, self._axes, compile_programs(graphs), self._qmap, self._chain, out)
+        out = np.empty(len(program[0]))
+        kernels.graph_mse(XT, goalsT, self._axes, program, self._qmap, self._chain, out)
         return out
 
     def controller_mse(self, controller: Controller, goals: np.ndarray | None = None) -> float:

@@ -17,8 +17,8 @@ import pytest
 import lab
 import robots
 from lab.backends.cmaes import CMAESBackend
-from lab.backends.neat import NEATBackend, genome_to_controller
-from lab.controllers import GraphController, MLPController, controller_from_dict, mlp_size
+from lab.backends.neat import NEATBackend, compile_genomes, genome_program, genome_to_controller
+from lab.controllers import GraphController, MLPController, compile_programs, controller_from_dict, mlp_size
 from lab.encoding import Encoding
 from lab.problem import Problem, goal_errors
 from lab.runner import build_problem
@@ -281,6 +281,15 @@ def test_genome_to_controller_equals_neat_feed_forward_network(robot):
     assert sum(c.n_hidden > 0 for c in graphs) >= 10  # the structure was exercised
     cut = graphs[-2].outputs(goals)[:, 0]  # an output cut off from the inputs: constant, as in neat
     assert np.all(cut == cut[0])
+    # the backend's own path compiles genomes straight to compile_programs' arrays, bit for bit
+    programs = [genome_program(g, b.neat_config) for g in genomes]
+    for got, expected in zip(compile_genomes(programs), compile_programs(graphs)):
+        assert type(got) is type(expected)
+        if isinstance(got, np.ndarray):
+            assert got.dtype == expected.dtype and got.shape == expected.shape and np.array_equal(got, expected)
+        else:
+            assert got == expected
+    assert [p[0][5] for p in programs] == [c.n_hidden for c in graphs]
 
     for test, goals in ((False, prob.train_goals), (True, prob.test_goals)):
         got = prob.graphs_mse(graphs, test=test)

@@ -18,7 +18,7 @@ import pytest
 
 import lab
 from lab.backends.neat import PAPER_NEAT, NEATBackend, make_neat_config, neat_config_text, textbook_tanh
-from lab.backends.neat_genome import FastConnectionGene, FastGenome, FastNodeGene
+from lab.backends.neat_genome import FastConnectionGene, FastGenome, FastNodeGene, FastReproduction
 from lab.backends.neat_species import FastSpeciesSet
 from lab.runner import build_problem
 
@@ -46,12 +46,14 @@ VARIANTS = {
 # many species (3 to 12 at a time, about 40 over a run), stagnant ones removed
 VARIANTS["species"] = dict(VARIANTS["deletions"], weight_mutate_power=3.0, compatibility_threshold=3.0,
                            max_stagnation=6, species_elitism=1)
-DEFAULT_TYPES = (neat.DefaultGenome, neat.DefaultSpeciesSet)
-FAST_TYPES = (FastGenome, FastSpeciesSet)
+DEFAULT_TYPES = (neat.DefaultGenome, neat.DefaultSpeciesSet, neat.DefaultReproduction)
+FAST_TYPES = (FastGenome, FastSpeciesSet, FastReproduction)
 
 
-def neat_config(genome_type, variant, pop_size=50, seed=11, species_set_type=neat.DefaultSpeciesSet):
-    text = neat_config_text(4, 3, pop_size, 0, seed, STRUCTURAL, genome_type.__name__, species_set_type.__name__)
+def neat_config(genome_type, variant, pop_size=50, seed=11, species_set_type=neat.DefaultSpeciesSet,
+                reproduction_type=neat.DefaultReproduction):
+    text = neat_config_text(4, 3, pop_size, 0, seed, STRUCTURAL, genome_type.__name__, species_set_type.__name__,
+                            reproduction_type.__name__)
     for key, value in VARIANTS[variant].items():
         line = f"{key} = {value}"
         text, n = re.subn(rf"^{key}\s*=.*$", line, text, flags=re.M)
@@ -61,7 +63,7 @@ def neat_config(genome_type, variant, pop_size=50, seed=11, species_set_type=nea
     try:
         with os.fdopen(fd, "w") as f:
             f.write(text)
-        config = neat.Config(genome_type, neat.DefaultReproduction, species_set_type,
+        config = neat.Config(genome_type, reproduction_type, species_set_type,
                              neat.DefaultStagnation, path)
     finally:
         os.unlink(path)
@@ -95,13 +97,13 @@ def snapshot(genome):
              for k, c in genome.connections.items()])
 
 
-def evolve(genome_type, species_set_type, variant, fitness, generations):
+def evolve(genome_type, species_set_type, reproduction_type, variant, fitness, generations):
     """neat-python's own Population.run; per generation: every genome, the species, the genome
     type's distances between genomes, and neat's info lines."""
     saved = random.getstate()
-    config = neat_config(genome_type, variant, species_set_type=species_set_type)
+    config = neat_config(genome_type, variant, species_set_type=species_set_type, reproduction_type=reproduction_type)
     pop = neat.Population(config, seed=5)
-    assert type(pop.species) is species_set_type
+    assert type(pop.species) is species_set_type and type(pop.reproduction) is reproduction_type
     log = InfoLog()
     pop.add_reporter(log)
     rng = np.random.default_rng(3)
@@ -153,7 +155,8 @@ def neat_run(variant, fitness):
 @pytest.mark.parametrize("fitness", ["random", "genome"])
 @pytest.mark.parametrize("variant", list(VARIANTS))
 def test_fast_types_evolve_exactly_as_neat_types(variant, fitness, compiled_only):
-    """FastGenome with FastSpeciesSet against DefaultGenome with DefaultSpeciesSet."""
+    """FastGenome, FastSpeciesSet and FastReproduction against DefaultGenome, DefaultSpeciesSet and
+    DefaultReproduction."""
     expected, expected_end = neat_run(variant, fitness)
     got, got_end = evolve(*FAST_TYPES, variant, fitness, GENERATIONS)
     assert len(got) == len(expected)
@@ -273,9 +276,10 @@ def test_neat_backend_runs_as_with_neat_types(monkeypatch, compiled_only):
                 b.population.config.species_set_config.compatibility_threshold)
 
     fast = run()
-    assert (NEATBackend.genome_type, NEATBackend.species_set_type) == FAST_TYPES
+    assert (NEATBackend.genome_type, NEATBackend.species_set_type, NEATBackend.reproduction_type) == FAST_TYPES
     monkeypatch.setattr(NEATBackend, "genome_type", neat.DefaultGenome)
     monkeypatch.setattr(NEATBackend, "species_set_type", neat.DefaultSpeciesSet)
+    monkeypatch.setattr(NEATBackend, "reproduction_type", neat.DefaultReproduction)
     default = run()
     assert fast == default
     assert max(len(nodes) for _, nodes, _ in fast[2]) >= 5
@@ -285,9 +289,12 @@ def test_neat_backend_runs_as_with_neat_types(monkeypatch, compiled_only):
 def test_make_neat_config_builds_either_type():
     fast = make_neat_config(3, 2, 10, 0, 1)
     default = make_neat_config(3, 2, 10, 0, 1, genome_type=neat.DefaultGenome,
-                               species_set_type=neat.DefaultSpeciesSet)
+                               species_set_type=neat.DefaultSpeciesSet, reproduction_type=neat.DefaultReproduction)
     assert fast.genome_type is FastGenome and default.genome_type is neat.DefaultGenome
     assert fast.species_set_type is FastSpeciesSet and default.species_set_type is neat.DefaultSpeciesSet
+    assert fast.reproduction_type is FastReproduction and default.reproduction_type is neat.DefaultReproduction
+    for name in ("elitism", "survival_threshold", "min_species_size"):
+        assert getattr(fast.reproduction_config, name) == getattr(default.reproduction_config, name)
     assert fast.genome_config.connection_gene_type is FastConnectionGene
     assert vars(fast.genome_config).keys() == vars(default.genome_config).keys()
     for name in ("weight_mutate_rate", "bias_max_value", "conn_add_prob", "enabled_rate_to_true_add"):

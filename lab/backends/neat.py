@@ -22,7 +22,10 @@ Generations are advanced one at a time (the body of Population.run), so the runn
 pause and stop between any two; all genomes of a generation are compiled to one program and
 evaluated in one compiled call. Genomes are FastGenome (neat_genome.py): the very genomes
 neat.DefaultGenome makes from the same random state, in about half the time; species are
-FastSpeciesSet's (neat_species.py): neat.DefaultSpeciesSet's species, with the distances compiled.
+FastSpeciesSet's (neat_species.py): neat.DefaultSpeciesSet's species, with the distances compiled;
+reproduction is FastReproduction (neat_genome.py): neat's, with per-parent work done once per call.
+A generation's genomes compile straight to the arrays the fitness kernel walks (genome_program,
+compile_genomes: compile_programs' arrays without a GraphController per genome).
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ import numpy as np
 
 from ..controllers import GraphController
 from .base import Backend, StepResult
-from .neat_genome import FastGenome
+from .neat_genome import FastGenome, FastReproduction
 from .neat_species import FastSpeciesSet
 
 _RANDOM_LOCK = threading.Lock()
@@ -67,9 +70,10 @@ def _gene_floats(name: str, p: dict) -> str:
 
 def neat_config_text(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int,
                      params: dict = PAPER_NEAT, genome_section: str = "DefaultGenome",
-                     species_section: str = "DefaultSpeciesSet") -> str:
-    """neat-python's config file; genome_section, species_section: the genome and species set types'
-    names (neat.Config reads the sections named after its types)."""
+                     species_section: str = "DefaultSpeciesSet",
+                     reproduction_section: str = "DefaultReproduction") -> str:
+    """neat-python's config file; genome_section, species_section, reproduction_section: the genome,
+    species set and reproduction types' names (neat.Config reads the sections named after its types)."""
     p = params
     return f"""
 [NEAT]
@@ -122,7 +126,7 @@ species_fitness_func = max
 max_stagnation       = 20
 species_elitism      = 2
 
-[DefaultReproduction]
+[{reproduction_section}]
 elitism            = 2
 survival_threshold = 0.2
 min_species_size   = 2
@@ -136,17 +140,18 @@ def textbook_tanh(z: float) -> float:
 
 def make_neat_config(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, seed: int,
                      params: dict = PAPER_NEAT, genome_type=FastGenome,
-                     species_set_type=FastSpeciesSet) -> neat.Config:
+                     species_set_type=FastSpeciesSet, reproduction_type=FastReproduction) -> neat.Config:
     """A fresh neat.Config (never reuse one between runs) with the textbook tanh registered.
     genome_type: FastGenome (the same genomes as neat.DefaultGenome, faster) or neat.DefaultGenome;
     species_set_type: FastSpeciesSet (the same species as neat.DefaultSpeciesSet, faster) or
-    neat.DefaultSpeciesSet."""
+    neat.DefaultSpeciesSet; reproduction_type: FastReproduction (neat.DefaultReproduction, with a
+    cache FastGenome reads) or neat.DefaultReproduction."""
     fd, path = tempfile.mkstemp(suffix=".ini", prefix="neat-")
     try:
         with os.fdopen(fd, "w") as f:
             f.write(neat_config_text(n_inputs, n_outputs, pop_size, hidden, seed, params, genome_type.__name__,
-                                     species_set_type.__name__))
-        config = neat.Config(genome_type, neat.DefaultReproduction, species_set_type,
+                                     species_set_type.__name__, reproduction_type.__name__))
+        config = neat.Config(genome_type, reproduction_type, species_set_type,
                              neat.DefaultStagnation, path)
     finally:
         os.unlink(path)
@@ -205,6 +210,63 @@ def _wiring(enabled: tuple, input_keys: tuple, output_keys: tuple) -> tuple:
     return tuple((int(key), key, tuple(incoming.get(key, ()))) for key in _topological(required, incoming))
 
 
+@functools.lru_cache(maxsize=4096)
+def _layout(enabled: tuple, input_keys: tuple, output_keys: tuple) -> tuple:
+    """A wiring (_wiring) as compile_programs lays out its GraphController: the node genes' keys in
+    evaluation order, each link's source slot (inputs 0 .. ni-1, then the nodes in order) and index
+    in `enabled`, each node's end in the links, each output's slot (-1: absent), and the hidden nodes."""
+    wiring = _wiring(enabled, input_keys, output_keys)
+    ni = len(input_keys)
+    slot = {k: i for i, k in enumerate(input_keys)}
+    gene_keys, link_src, link_j, link_end = [], [], [], []
+    for k, (key, gene_key, links) in enumerate(wiring):
+        gene_keys.append(gene_key)
+        for src, j in links:
+            link_src.append(slot[src])
+            link_j.append(j)
+        link_end.append(len(link_src))
+        slot[key] = ni + k
+    out_slot = tuple(slot.get(key, -1) for key in output_keys)
+    n_hidden = sum(1 for key, _, _ in wiring if key not in output_keys)
+    return tuple(gene_keys), link_src, link_j, link_end, out_slot, n_hidden
+
+
+def genome_program(genome, config: neat.Config) -> tuple:
+    """What compile_programs takes from genome_to_controller(genome): (layout, biases, responses,
+    link weights); compile_genomes joins them (numpy's float64 conversion of each value is float()'s)."""
+    gc = config.genome_config
+    keys, weights = [], []
+    for cg in genome.connections.values():
+        if cg.enabled:
+            keys.append(cg.key)
+            weights.append(cg.weight)
+    layout = _layout(tuple(keys), tuple(gc.input_keys), tuple(gc.output_keys))
+    genes = genome.nodes
+    nodes = [genes[k] for k in layout[0]]
+    return layout, [n.bias for n in nodes], [n.response for n in nodes], [weights[j] for j in layout[2]]
+
+
+def compile_genomes(programs) -> tuple:
+    """compile_programs([genome_to_controller(g) for g in genomes]), the same arrays, from the
+    genomes' genome_program: no GraphController made."""
+    starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot = [], [], [], [], [0], [], [], []
+    for (gene_keys, src, _, end, out, _), b, r, w in programs:
+        starts.append(len(bias))
+        n_nodes.append(len(gene_keys))
+        bias += b
+        response += r
+        base = len(link_src)
+        link_start += [base + e for e in end]
+        link_src += src
+        link_w += w
+        out_slot += out
+    no = len(programs[0][0][4])
+    as_i = lambda x: np.asarray(x, dtype=np.int64)  # noqa: E731
+    as_f = lambda x: np.asarray(x, dtype=np.float64)  # noqa: E731
+    return (as_i(starts), as_i(n_nodes), as_f(bias), as_f(response), as_i(link_start),
+            as_i(link_src), as_f(link_w), as_i(out_slot).reshape(len(programs), no), no)
+
+
 def _topological(required: set, incoming: dict) -> list:
     """Required nodes ordered so that every node comes after the required nodes it reads (Kahn)."""
     waiting = {n: sum(1 for i, _ in incoming.get(n, ()) if i in required) for n in required}
@@ -231,14 +293,16 @@ class NEATBackend(Backend):
     method = "neat"
     genome_type = FastGenome  # neat.DefaultGenome gives the same runs, slower
     species_set_type = FastSpeciesSet  # neat.DefaultSpeciesSet likewise
+    reproduction_type = FastReproduction  # neat.DefaultReproduction likewise
 
     def __init__(self, problem, config):
         super().__init__(problem, config)
         enc = problem.encoding
         self.params = neat_parameters(config)
-        self._compiled: dict[int, GraphController] = {}
+        self._compiled: dict[int, tuple] = {}  # genome key -> genome_program
         self.neat_config = make_neat_config(enc.n_inputs, enc.n_outputs, config.population, config.hidden,
-                                            config.seed, self.params, self.genome_type, self.species_set_type)
+                                            config.seed, self.params, self.genome_type, self.species_set_type,
+                                            self.reproduction_type)
         with _RANDOM_LOCK:
             saved = random.getstate()
             self.population = neat.Population(self.neat_config, seed=config.seed)
@@ -267,13 +331,12 @@ class NEATBackend(Backend):
         genomes = list(pop.population.values())
         enc = self.problem.encoding
         # genomes are never changed once made, and elites live on: compile each genome once
-        cache = {g.key: self._compiled.get(g.key) or genome_to_controller(g, self.neat_config, enc, record=False)
-                 for g in genomes}
+        cache = {g.key: self._compiled.get(g.key) or genome_program(g, self.neat_config) for g in genomes}
         self._compiled = cache
-        graphs = [cache[g.key] for g in genomes]
-        mse = self.problem.graphs_mse(graphs)
-        for g, m in zip(genomes, mse):
-            g.fitness = -float(m) if np.isfinite(m) else BAD_FITNESS
+        programs = [cache[g.key] for g in genomes]
+        mse = self.problem.program_mse(compile_genomes(programs))
+        for g, m in zip(genomes, mse.tolist()):
+            g.fitness = -m if math.isfinite(m) else BAD_FITNESS
         i = int(np.argmin(mse))
         self._offer(mse[i], lambda: genome_to_controller(genomes[i], self.neat_config, enc))
         best = genomes[i]
@@ -283,7 +346,7 @@ class NEATBackend(Backend):
         extras = {
             "species": len(pop.species.species),
             "nodes": len(best.nodes), "connections": sum(c.enabled for c in best.connections.values()),
-            "hidden": graphs[i].n_hidden,
+            "hidden": programs[i][0][5],
         }
         pop.population = self._reproduce()
         if not pop.species.species:  # complete extinction: start afresh (reset_on_extinction)

@@ -29,7 +29,15 @@ count changed behind FastGenome's back) gets neat's exact per-gene test instead.
 `connections` in place must go through the genome's methods or reset `_acyclic_at` to -1.
 
 Distance has no per-genome cache: only about a quarter of the genome pairs speciation compares
-share their gene order, and a cached path measured no faster than the plain loop here.
+share their gene order, and a cached path measured no faster than the plain loop here (speciation
+is FastSpeciesSet's, neat_species.py, which computes distances compiled).
+
+FastReproduction is neat.DefaultReproduction, unchanged, except that while its reproduce runs the
+genome config carries a cache: FastGenome then builds each parent's {innovation: gene} dict and
+the set of its innovations once per call rather than once per child (parents do not change while
+their children are made), and reads the mutation rates from the config once. The union of the two
+parents' sets is still made from two set objects, as neat makes it: `s | s` only copies s, where
+the union of two equal sets resizes its table and can iterate in another order.
 
 The gene subclasses keep their attributes in __slots__ (no per-gene dict is made); they behave
 as, and are instances of, DefaultNodeGene and DefaultConnectionGene.
@@ -43,6 +51,7 @@ from random import choice, gauss, random
 from neat.genes import DefaultConnectionGene, DefaultNodeGene
 from neat.genome import DefaultGenome, DefaultGenomeConfig
 from neat.graphs import creates_cycle
+from neat.reproduction import DefaultReproduction
 
 _new = object.__new__
 
@@ -154,6 +163,33 @@ def _mutate_nodes(genes, config, plan):
             ng.time_constant = _TIME_CONSTANT.init_value(config)
 
 
+_REPRODUCING = "_fast_reproduction"  # genome config attribute while FastReproduction.reproduce runs
+_PLANS = "plans"
+
+
+def _innovations(cache: dict, parent):
+    """A parent's {innovation: gene} and the set of its keys, as configure_crossover builds them,
+    made once per reproduce call (parents do not change while their children are made)."""
+    entry = cache.get(id(parent))
+    if entry is None or entry[0] is not parent:
+        innovations = {cg.innovation: cg for cg in parent.connections.values()}
+        entry = cache[id(parent)] = (parent, innovations, set(innovations.keys()))
+    return entry[1], entry[2]
+
+
+class FastReproduction(DefaultReproduction):
+    """neat.DefaultReproduction, unchanged, with a cache that FastGenome reads while it runs: each
+    parent's innovation map and the mutation rates, made once per call instead of once per child."""
+
+    def reproduce(self, config, species, pop_size, generation):
+        gc = config.genome_config
+        setattr(gc, _REPRODUCING, {})
+        try:
+            return super().reproduce(config, species, pop_size, generation)
+        finally:
+            delattr(gc, _REPRODUCING)
+
+
 def _known_acyclic(genome) -> bool:
     """True when the genome's connection keys are known to form no cycle (see the module docstring)."""
     return getattr(genome, "_acyclic_at", -1) == len(genome.connections)
@@ -186,9 +222,17 @@ class FastGenome(DefaultGenome):
             parent1, parent2 = genome2, genome1
 
         # the same dicts and the same set, built the same way: the same iteration order
-        parent1_innovations = {cg.innovation: cg for cg in parent1.connections.values()}
-        parent2_innovations = {cg.innovation: cg for cg in parent2.connections.values()}
-        all_innovations = set(parent1_innovations.keys()) | set(parent2_innovations.keys())
+        parents = getattr(config, _REPRODUCING, None)
+        if parents is None:
+            parent1_innovations = {cg.innovation: cg for cg in parent1.connections.values()}
+            parent2_innovations = {cg.innovation: cg for cg in parent2.connections.values()}
+            all_innovations = set(parent1_innovations.keys()) | set(parent2_innovations.keys())
+        else:  # FastReproduction: each parent's dict and set made once per reproduce call
+            parent1_innovations, set1 = _innovations(parents, parent1)
+            parent2_innovations, set2 = _innovations(parents, parent2)
+            if set2 is set1:  # one parent twice: `s | s` only copies s, where two equal sets resize
+                set2 = set(parent2_innovations.keys())  # as neat's union of two sets does (another order)
+            all_innovations = set1 | set2
 
         feed_forward = config.feed_forward
         parent1_acyclic = _known_acyclic(parent1)
@@ -278,8 +322,14 @@ class FastGenome(DefaultGenome):
             if random() < config.conn_delete_prob:
                 self.mutate_delete_connection()
 
-        _mutate_connections(self.connections.values(), config, _connection_plan(config))
-        _mutate_nodes(self.nodes.values(), config, _node_plan(config))
+        plans = getattr(config, _REPRODUCING, None)
+        if plans is None:
+            connection_plan, node_plan = _connection_plan(config), _node_plan(config)
+        else:  # FastReproduction: read from the config once per reproduce call
+            connection_plan, node_plan = plans.get(_PLANS) or plans.setdefault(
+                _PLANS, (_connection_plan(config), _node_plan(config)))
+        _mutate_connections(self.connections.values(), config, connection_plan)
+        _mutate_nodes(self.nodes.values(), config, node_plan)
 
     # The structural mutations are neat-python's own; these keep the acyclic mark up to date.
     def mutate_add_node(self, config):
