@@ -5,11 +5,9 @@ distances and random state, generation after generation."""
 import copy
 import functools
 import itertools
-import os
 import pickle
 import random
 import re
-import tempfile
 import warnings
 
 import neat
@@ -17,7 +15,7 @@ import numpy as np
 import pytest
 
 import lab
-from lab.backends.neat import PAPER_NEAT, NEATBackend, make_neat_config, neat_config_text, textbook_tanh
+from lab.backends.neat import PAPER_NEAT, NEATBackend, config_from_text, make_neat_config, neat_config_text
 from lab.backends.neat_genome import FastConnectionGene, FastGenome, FastNodeGene, FastReproduction
 from lab.backends.neat_species import FastSpeciesSet
 from lab.runner import build_problem
@@ -59,16 +57,7 @@ def neat_config(genome_type, variant, pop_size=50, seed=11, species_set_type=nea
         text, n = re.subn(rf"^{key}\s*=.*$", line, text, flags=re.M)
         if n == 0:  # not in the project's text: add it to the genome section
             text = text.replace(f"[{genome_type.__name__}]\n", f"[{genome_type.__name__}]\n{line}\n")
-    fd, path = tempfile.mkstemp(suffix=".ini")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        config = neat.Config(genome_type, reproduction_type, species_set_type,
-                             neat.DefaultStagnation, path)
-    finally:
-        os.unlink(path)
-    config.genome_config.add_activation("tanh_", textbook_tanh)
-    return config
+    return config_from_text(text, genome_type, species_set_type, reproduction_type)
 
 
 class InfoLog(neat.reporting.BaseReporter):

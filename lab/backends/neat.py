@@ -146,13 +146,20 @@ def make_neat_config(n_inputs: int, n_outputs: int, pop_size: int, hidden: int, 
     species_set_type: FastSpeciesSet (the same species as neat.DefaultSpeciesSet, faster) or
     neat.DefaultSpeciesSet; reproduction_type: FastReproduction (neat.DefaultReproduction, with a
     cache FastGenome reads) or neat.DefaultReproduction."""
+    text = neat_config_text(n_inputs, n_outputs, pop_size, hidden, seed, params, genome_type.__name__,
+                            species_set_type.__name__, reproduction_type.__name__)
+    return config_from_text(text, genome_type, species_set_type, reproduction_type)
+
+
+def config_from_text(text: str, genome_type=FastGenome, species_set_type=FastSpeciesSet,
+                     reproduction_type=FastReproduction) -> neat.Config:
+    """A fresh neat.Config from the text of a config file (neat reads only files), with the textbook
+    tanh registered as "tanh_"."""
     fd, path = tempfile.mkstemp(suffix=".ini", prefix="neat-")
     try:
         with os.fdopen(fd, "w") as f:
-            f.write(neat_config_text(n_inputs, n_outputs, pop_size, hidden, seed, params, genome_type.__name__,
-                                     species_set_type.__name__, reproduction_type.__name__))
-        config = neat.Config(genome_type, reproduction_type, species_set_type,
-                             neat.DefaultStagnation, path)
+            f.write(text)
+        config = neat.Config(genome_type, reproduction_type, species_set_type, neat.DefaultStagnation, path)
     finally:
         os.unlink(path)
     config.genome_config.add_activation("tanh_", textbook_tanh)
@@ -169,14 +176,10 @@ def genome_to_controller(genome, config: neat.Config, encoding, record: bool = T
     record: also keep all the genome's nodes and connections (for logs and display).
     """
     gc = config.genome_config
-    keys, weights = [], []
-    for cg in genome.connections.values():
-        if cg.enabled:
-            keys.append(cg.key)
-            weights.append(cg.weight)
+    keys, weights = _enabled(genome)
     genes = genome.nodes
     nodes = []
-    for key, gene_key, links in _wiring(tuple(keys), tuple(gc.input_keys), tuple(gc.output_keys)):
+    for key, gene_key, links in _wiring(keys, tuple(gc.input_keys), tuple(gc.output_keys)):
         ng = genes[gene_key]
         links = tuple([(i, float(weights[j])) for i, j in links])
         nodes.append((key, float(ng.bias), float(ng.response), links))
@@ -185,6 +188,16 @@ def genome_to_controller(genome, config: neat.Config, encoding, record: bool = T
         "connections": [[int(i), int(o), float(c.weight), bool(c.enabled)] for (i, o), c in sorted(genome.connections.items())],
     } if record else {}
     return GraphController(encoding, tuple(nodes), tuple(gc.input_keys), tuple(gc.output_keys), record)
+
+
+def _enabled(genome) -> tuple[tuple, list]:
+    """The keys (a tuple: the wiring caches' key) and weights of a genome's enabled connections, in its order."""
+    keys, weights = [], []
+    for cg in genome.connections.values():
+        if cg.enabled:
+            keys.append(cg.key)
+            weights.append(cg.weight)
+    return tuple(keys), weights
 
 
 @functools.lru_cache(maxsize=4096)
@@ -235,12 +248,8 @@ def genome_program(genome, config: neat.Config) -> tuple:
     """What compile_programs takes from genome_to_controller(genome): (layout, biases, responses,
     link weights); compile_genomes joins them (numpy's float64 conversion of each value is float()'s)."""
     gc = config.genome_config
-    keys, weights = [], []
-    for cg in genome.connections.values():
-        if cg.enabled:
-            keys.append(cg.key)
-            weights.append(cg.weight)
-    layout = _layout(tuple(keys), tuple(gc.input_keys), tuple(gc.output_keys))
+    keys, weights = _enabled(genome)
+    layout = _layout(keys, tuple(gc.input_keys), tuple(gc.output_keys))
     genes = genome.nodes
     nodes = [genes[k] for k in layout[0]]
     return layout, [n.bias for n in nodes], [n.response for n in nodes], [weights[j] for j in layout[2]]

@@ -99,20 +99,27 @@ def _connection_plan(config):
             rate + getattr(config, _ENABLED.rate_to_true_add_name))
 
 
+def _mutated(v, plan, attr, config):
+    """FloatAttribute.mutate_value with its config values read once (plan: _float_plan)."""
+    rate, replace, power, lo, hi = plan
+    r = random()
+    if r < rate:
+        v = v + gauss(0.0, power)
+        if hi < v:  # max(min(v, hi), lo), as min and max compare
+            v = hi
+        if lo > v:
+            v = lo
+        return v
+    if r < replace:
+        return attr.init_value(config)
+    return v
+
+
 def _mutate_connections(genes, config, plan):
     """Each gene's BaseGene.mutate: weight (FloatAttribute), then enabled (BoolAttribute)."""
-    (w_rate, w_replace, w_power, w_min, w_max), e_true, e_false = plan
+    w_plan, e_true, e_false = plan
     for cg in genes:
-        r = random()
-        if r < w_rate:
-            v = cg.weight + gauss(0.0, w_power)
-            if w_max < v:  # max(min(v, w_max), w_min), as min and max compare
-                v = w_max
-            if w_min > v:
-                v = w_min
-            cg.weight = v
-        elif r < w_replace:
-            cg.weight = _WEIGHT.init_value(config)
+        cg.weight = _mutated(cg.weight, w_plan, _WEIGHT, config)
         rate = e_true if cg.enabled else e_false
         if rate > 0:
             if random() < rate:
@@ -122,45 +129,17 @@ def _mutate_connections(genes, config, plan):
 def _mutate_nodes(genes, config, plan):
     """Each gene's BaseGene.mutate: bias, response (floats), activation, aggregation (strings),
     time_constant (float)."""
-    ((b_rate, b_replace, b_power, b_min, b_max), (r_rate, r_replace, r_power, r_min, r_max),
-     act_rate, agg_rate, (t_rate, t_replace, t_power, t_min, t_max)) = plan
+    b_plan, r_plan, act_rate, agg_rate, t_plan = plan
     for ng in genes:
-        r = random()
-        if r < b_rate:
-            v = ng.bias + gauss(0.0, b_power)
-            if b_max < v:
-                v = b_max
-            if b_min > v:
-                v = b_min
-            ng.bias = v
-        elif r < b_replace:
-            ng.bias = _BIAS.init_value(config)
-        r = random()
-        if r < r_rate:
-            v = ng.response + gauss(0.0, r_power)
-            if r_max < v:
-                v = r_max
-            if r_min > v:
-                v = r_min
-            ng.response = v
-        elif r < r_replace:
-            ng.response = _RESPONSE.init_value(config)
+        ng.bias = _mutated(ng.bias, b_plan, _BIAS, config)
+        ng.response = _mutated(ng.response, r_plan, _RESPONSE, config)
         if act_rate > 0:
             if random() < act_rate:
                 ng.activation = choice(getattr(config, _ACTIVATION.options_name))
         if agg_rate > 0:
             if random() < agg_rate:
                 ng.aggregation = choice(getattr(config, _AGGREGATION.options_name))
-        r = random()
-        if r < t_rate:
-            v = ng.time_constant + gauss(0.0, t_power)
-            if t_max < v:
-                v = t_max
-            if t_min > v:
-                v = t_min
-            ng.time_constant = v
-        elif r < t_replace:
-            ng.time_constant = _TIME_CONSTANT.init_value(config)
+        ng.time_constant = _mutated(ng.time_constant, t_plan, _TIME_CONSTANT, config)
 
 
 _REPRODUCING = "_fast_reproduction"  # genome config attribute while FastReproduction.reproduce runs

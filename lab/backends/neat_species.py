@@ -103,6 +103,17 @@ def _distance(a, b, c_off, c_id, c_w, c_en, n_off, n_id, n_b, n_r, n_t, n_act, n
 
 
 @numba.njit(**_JIT)
+def _remember(r, g, d, cache, known, miss_a, miss_b, miss_d, n_miss):
+    """GenomeDistanceCache: d stands for both orders of the pair, recorded as the n_miss-th computed."""
+    cache[r, g] = d
+    cache[g, r] = d
+    known[r, g] = True
+    known[g, r] = True
+    miss_a[n_miss], miss_b[n_miss], miss_d[n_miss] = r, g, d
+    return n_miss + 1
+
+
+@numba.njit(**_JIT)
 def _speciate(n_pop, old_reps, threshold, c_off, c_id, c_w, c_en, n_off, n_id, n_b, n_r, n_t, n_act, n_agg,
               n_cids, n_nids, wc, dc):
     """DefaultSpeciesSet.speciate's two loops over genome indices (0 .. n_pop-1: the population in
@@ -140,12 +151,7 @@ def _speciate(n_pop, old_reps, threshold, c_off, c_id, c_w, c_en, n_off, n_id, n
             else:
                 d = _distance(r, g, c_off, c_id, c_w, c_en, n_off, n_id, n_b, n_r, n_t, n_act, n_agg, wc, dc,
                               c_pos, n_pos)
-                cache[r, g] = d
-                cache[g, r] = d
-                known[r, g] = True
-                known[g, r] = True
-                miss_a[n_miss], miss_b[n_miss], miss_d[n_miss] = r, g, d
-                n_miss += 1
+                n_miss = _remember(r, g, d, cache, known, miss_a, miss_b, miss_d, n_miss)
             if best < 0 or d < best_d:  # min(): the first of equal keys
                 best, best_d = g, d
         if best < 0:
@@ -167,12 +173,7 @@ def _speciate(n_pop, old_reps, threshold, c_off, c_id, c_w, c_en, n_off, n_id, n
             else:
                 d = _distance(r, g, c_off, c_id, c_w, c_en, n_off, n_id, n_b, n_r, n_t, n_act, n_agg, wc, dc,
                               c_pos, n_pos)
-                cache[r, g] = d
-                cache[g, r] = d
-                known[r, g] = True
-                known[g, r] = True
-                miss_a[n_miss], miss_b[n_miss], miss_d[n_miss] = r, g, d
-                n_miss += 1
+                n_miss = _remember(r, g, d, cache, known, miss_a, miss_b, miss_d, n_miss)
             if d < threshold:
                 if best < 0 or d < best_d:
                     best, best_d = s, d
