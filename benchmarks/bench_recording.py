@@ -4,9 +4,9 @@ Times a planar CMA-ES run (default 1000 generations, population 50, 70 goals) wi
 lab.recording.RerunLogger, interleaved (A B, B A, ...) with the same seed in each pair so that
 load from other processes hits both alike. Prints the median wall times of `runner.run()`
 (which includes writing and closing the recording) and their ratio (target <= 1.10); the CPU time
-ratio (less sensitive to other processes on a shared machine, and including the compaction of the
-file, which runs in the background after the run); the time spent before the run (creating the
-logger) and the recording's size.
+ratio (less sensitive to other processes on a shared machine; it includes the writer process,
+whose work runs beside the optimizer on the other core, and its compaction of the file after
+the run); the time spent before the run (creating the logger) and the recording's size.
 
     .venv/bin/python benchmarks/bench_recording.py [--repeats 5] [--generations 1000]
 """
@@ -39,7 +39,7 @@ def one_run(config: TrainConfig, path: Path | None, **logger_options) -> dict:
     summary = runner.run()
     t_run = time.perf_counter() - t0
     if logger is not None:
-        logger.wait()  # compaction, in the background after the run: waited for here, timed apart
+        logger.wait()  # compaction, by the writer process after the run: waited for here, timed apart
     t_compact, c_run = time.perf_counter() - t0 - t_run, _cpu() - c0
     assert summary.state == "finished", summary.error
     size = path.stat().st_size if path is not None else 0
@@ -48,7 +48,8 @@ def one_run(config: TrainConfig, path: Path | None, **logger_options) -> dict:
 
 
 def _cpu() -> float:
-    """CPU seconds of this process and its finished children (the compaction runs `rerun rrd optimize`)."""
+    """CPU seconds of this process and its finished children (the writer process, which runs `rerun rrd
+    optimize` for the compaction)."""
     me, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return me.ru_utime + me.ru_stime + children.ru_utime + children.ru_stime
 
@@ -60,11 +61,10 @@ def main(argv=None) -> None:
     ap.add_argument("--population", type=int, default=50)
     ap.add_argument("--robot", default="planar")
     ap.add_argument("--method", default="cmaes")
-    ap.add_argument("--flush-interval", type=float, default=None, help="seconds (default: the logger's)")
     ap.add_argument("--pose-every", type=int, default=None)
     ap.add_argument("--no-compact", action="store_true")
     args = ap.parse_args(argv)
-    options = {k: v for k, v in dict(flush_interval=args.flush_interval, pose_every=args.pose_every).items()
+    options = {k: v for k, v in dict(pose_every=args.pose_every).items()
                if v is not None}
     if args.no_compact:
         options["compact"] = False
@@ -93,7 +93,7 @@ def main(argv=None) -> None:
     c1 = statistics.median(r["cpu"] for r in logged)
     print(f"CPU time          without logger {c0:.3f} s   with logger {c1:.3f} s   ratio {c1 / c0:.3f}")
     print(f"compaction        {statistics.median(r['compact'] for r in logged) * 1e3:.0f} ms after the run "
-          f"(background thread; in the CPU time, not in the run time)")
+          f"(by the writer process; in the CPU time, not in the run time)")
     print(f"logger creation   {statistics.median(r['setup'] for r in logged) * 1e3:.1f} ms (before the run, not counted)")
     print(f"recording size    {statistics.median(r['size'] for r in logged) / 1024:.0f} KiB (median)")
 

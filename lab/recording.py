@@ -1,4 +1,4 @@
-"""The Rerun logger: one .rrd recording per training run, written off the optimizer's thread.
+"""The Rerun logger: one .rrd recording per training run, written by a process of its own.
 
     runner = Runner(TrainConfig(robot="planar", method="cmaes"))
     logger = RerunLogger(runner)              # or RerunLogger(config, problem, path="run.rrd")
@@ -18,41 +18,34 @@ Contract of the file (lab/replay.py reads it back):
   improvement, at most every max(pose_every, generation / 5) generations, and at the end) and, for
   NEAT, /network (GraphNodes and GraphEdges of the best genome, inputs left, outputs right);
 - static: /protocol (JSON: robot, limits, goals, seed, hyperparameters, config, versions),
-  /world/goals, /about (what the views show), /summary (written when the run ends).
+  /world/goals, /about (what the views show), /summary (written when the run ends cleanly).
 
-Cost: __call__ only queues the event. The logger's own thread drains the queue at most every
-`flush_interval` seconds (20 ms): the new controllers and the /mse rows of all queued generations,
-each as one column batch (rr.send_columns), then a flush; the display-only series (/log10_mse,
-/search) go out every 0.1 s the same way. A process killed with SIGKILL therefore loses at most
-the last 20 ms of generations (0.1 s of the display series). Every chunk and flush costs ~0.3 ms
-of CPU whatever it holds: with 2 ms generations the logger uses ~35% of a core when it flushes
-after every generation (flush_interval=0), ~11% at 20 ms (benchmarks/bench_recording.py). The
-closed file is compacted in a background thread (`rerun rrd optimize`: about 2.5x smaller).
+Cost and durability: __call__ pickles the generation's numbers (and the best controller when it
+changed) and writes them into a pipe, ~20 us in the optimizer's thread; the writer process
+(lab/recording_writer.py) does all of Rerun's work on the other core and writes and flushes the
+file each time it reads the pipe. Once __call__ has returned, the generation is in the kernel's
+pipe buffer: a training process killed with SIGKILL loses at most the generation in flight,
+and the writer then closes the file with its footer. The pipe holds about a thousand
+generations (1 MiB), so training never waits for the writer's start (~1 s). After a clean close
+the writer compacts the file (`rerun rrd optimize`: about 2.5x smaller) and exits.
 """
 
 from __future__ import annotations
 
 import atexit
-import json
 import logging
-import math
 import os
-import queue
 import subprocess
+import sys
 import tempfile
 import threading
-import time
 import uuid
 import weakref
-from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
-import rerun as rr
 
-from . import recording_views as views
 from .config import TrainConfig
 from .problem import Problem
 
@@ -60,14 +53,8 @@ log = logging.getLogger(__name__)
 
 APPLICATION_ID = "neuro-ik-lab"
 FORMAT_VERSION = 1
-DISPLAY_INTERVAL = 0.1  # seconds between writes of the display-only series (log10 MSE, search state)
-
-
-@dataclass(frozen=True)
-class _End:
-    """Queued by close(): write the summary and end the logger's thread."""
-
-    summary: object = None
+PIPE_BYTES = 1 << 20  # F_SETPIPE_SZ: Linux's default limit for unprivileged processes
+_F_SETPIPE_SZ = 1031
 
 
 def default_path(config: TrainConfig, folder: str | os.PathLike = "recordings", now: datetime | None = None) -> Path:
@@ -113,84 +100,95 @@ class RerunLogger:
     source: a Runner, or a TrainConfig with `problem`, or a (config, problem) pair.
     pose_every: at least this many generations between 3D poses, and generation / 5 later on
         (scalars and controllers: all).
-    flush_interval: seconds between writes to the file (0: after every generation; see Cost above).
-    compact: compact the file after closing it (in a background thread; see close()).
+    compact: compact the file after closing it (the writer process does, after close() returns).
     """
 
     def __init__(self, source, problem: Problem | None = None, path: str | os.PathLike | None = None, *,
-                 pose_every: int = 10, flush_interval: float = 0.02, compact: bool = True,
-                 hyperparameters: dict | None = None):
+                 pose_every: int = 10, compact: bool = True, hyperparameters: dict | None = None):
+        from .recording_writer import encode
+
         config, problem, backend, run_id = _resolve_source(source, problem)
         if not (isinstance(pose_every, int) and pose_every >= 1):
             raise ValueError(f"pose_every must be an integer >= 1, got {pose_every!r}")
-        if not flush_interval >= 0:
-            raise ValueError(f"flush_interval must be >= 0 seconds, got {flush_interval!r}")
         self.path = prepare_path(path, config)
-        self.config, self.problem = config, problem
-        self.pose_every, self.flush_interval, self.compact = pose_every, float(flush_interval), compact
+        self.config, self.problem, self.pose_every, self.compact = config, problem, pose_every, compact
         if hyperparameters is None:
             hyperparameters = _hyperparameters(backend, problem, config)
-        self._geometry = views.Geometry(problem.arm, problem.train_goals)
-        self._rec = rr.RecordingStream(APPLICATION_ID, recording_id=run_id)
-        self._rec.save(str(self.path), default_blueprint=views.blueprint(config.method, self._geometry))
-        self._rec.send_recording_name(f"{config.robot} {config.method} seed {config.seed}")
-        self._log_static(run_id, hyperparameters)
-        self._rec.flush()
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
-        self._error: BaseException | None = None
+        self._encode = encode
+        self._lock = threading.Lock()
         self._closed = False
-        self._close_lock = threading.Lock()
-        self._logged = None  # the last controller written
-        self._posed = (None, -(10**9))  # (controller, generation) of the last pose written
-        self._search_keys: list | None = None  # the backend's numeric extras, in a fixed order
-        self._last_event = None
-        self._display: list = []  # events whose display-only series are not written yet
-        self._display_sent = time.monotonic()
-        self._compactor: threading.Thread | None = None
-        self._thread = threading.Thread(target=self._drain, name=f"rerun-logger-{run_id}", daemon=True)
-        self._thread.start()
+        self._sent = None  # the last controller sent
+        self._error: str | None = None
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+            [str(Path(__file__).resolve().parents[1])] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+        self._proc = subprocess.Popen([sys.executable, "-m", "lab.recording_writer"], stdin=subprocess.PIPE,
+                                      stdout=subprocess.PIPE, bufsize=0, env=env)
+        self._fd = self._proc.stdin.fileno()
+        try:
+            import fcntl
+
+            fcntl.fcntl(self._fd, _F_SETPIPE_SZ, PIPE_BYTES)
+        except (ImportError, OSError):  # a smaller pipe only means waiting for the writer's start
+            pass
+        self._send(("start", {
+            "path": str(self.path), "config": config, "run_id": run_id, "robot": problem.arm.name,
+            "train_goals": np.asarray(problem.train_goals), "goal_seed": problem.goal_seed,
+            "hyperparameters": hyperparameters, "pose_every": pose_every, "compact": compact}))
         atexit.register(_close_at_exit, weakref.ref(self))
+
+    @property
+    def pid(self) -> int:
+        """The writer process's id."""
+        return self._proc.pid
 
     # ------------------------------------------------------------------ subscriber API
     def __call__(self, event) -> None:
-        if self._error is not None:
-            raise RuntimeError(f"the Rerun logger of {self.path} failed: {self._error}") from self._error
         if self._closed:
             raise RuntimeError(f"the recording {self.path} is closed")
-        self._queue.put(event)
+        controller = event.controller if event.controller is not self._sent else None
+        self._sent = event.controller
+        self._send(("event", (event.index, event.best, event.gen_best, event.median, event.worst,
+                              event.evaluations, event.seconds, event.improved, event.extras, controller)))
 
     def on_end(self, summary) -> None:
         self.close(summary)
 
     def close(self, summary=None, wait: bool = False) -> None:
-        """Write what is queued (and the summary), then close the file (with its footer). Idempotent.
-
-        The file is complete and readable when this returns; compaction (compact=True) then goes
-        on in a background thread, off the optimizer's path, and replaces the file atomically
-        with the same data in fewer chunks. wait=True (or wait()) waits for it; so does the
-        interpreter before it exits."""
-        with self._close_lock:
+        """Write the summary, then wait until the writer has closed the file (with its footer).
+        Idempotent. The file is complete and readable when this returns; the writer then
+        compacts it (compact=True), replacing it atomically with the same data in fewer chunks.
+        wait=True (or wait()) waits for that too."""
+        with self._lock:
             if self._closed:
                 if wait:
                     self.wait()
                 return
             self._closed = True
-        self._queue.put(_End(summary))
-        self._thread.join()
+        doc = None if summary is None else {
+            "state": summary.state, "generations": summary.generations, "evaluations": summary.evaluations,
+            "seconds": summary.seconds, "train_mse": summary.train_mse, "test_mse": summary.test_mse,
+            "error": summary.error}
         try:
-            self._rec.flush()
-        finally:
-            self._rec.disconnect()
-        if self.compact:
-            self._compactor = threading.Thread(target=compact, args=(self.path,), name=f"rerun-compact-{self.path.name}")
-            self._compactor.start()  # not a daemon: the interpreter waits for it at exit
+            self._send(("end", doc))  # "end" even without a summary: a clean close, which is compacted
+        except RuntimeError:
+            pass  # the writer is gone: reported below
+        self._proc.stdin.close()
+        closed = self._proc.stdout.read(1) == b"C"
+        self._proc.stdout.close()
+        if not closed:
+            code = self._proc.wait()
+            raise RuntimeError(f"the Rerun writer of {self.path} failed (exit code {code}; its error is above)")
         if wait:
             self.wait()
+        else:  # reaps the writer when it is done compacting
+            threading.Thread(target=self._proc.wait, name=f"rerun-writer-{self.path.name}", daemon=True).start()
 
     def wait(self, timeout: float | None = None) -> None:
-        """Wait until the closed recording has been compacted."""
-        if self._compactor is not None:
-            self._compactor.join(timeout)
+        """Wait until the closed recording has been compacted (the writer has exited)."""
+        try:
+            self._proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            pass
 
     def __enter__(self) -> "RerunLogger":
         return self
@@ -198,121 +196,17 @@ class RerunLogger:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    # ------------------------------------------------------------------ the logger's thread
-    def _drain(self) -> None:
-        while True:
-            items = [self._queue.get()]
-            t0 = time.monotonic()
-            while True:
-                try:
-                    items.append(self._queue.get_nowait())
-                except queue.Empty:
-                    break
-            end = next((item for item in items if isinstance(item, _End)), None)
-            events = [item for item in items if not isinstance(item, _End)]
+    def _send(self, message) -> None:
+        data = memoryview(self._encode(message))
+        with self._lock:
+            if self._error is not None:
+                raise RuntimeError(self._error)
             try:
-                if events and self._error is None:
-                    self._write(events)
-                if end is not None and self._error is None:
-                    self._write_end(end.summary)
-                self._rec.flush()
-            except Exception as e:  # never take the run down; __call__ reports it (and is unsubscribed)
-                log.exception("Rerun logger of %s failed", self.path)
-                self._error = e
-            if end is not None:
-                return
-            wait = self.flush_interval - (time.monotonic() - t0)
-            if wait > 0:
-                time.sleep(wait)
-
-    def _write(self, events: list) -> None:
-        """Controllers first, then /mse: a file cut anywhere holds the controller of every generation
-        whose /mse row it holds. The display-only series follow every DISPLAY_INTERVAL (fewer chunks:
-        each costs ~0.3 ms of CPU); no row of any series is ever dropped."""
-        self._write_controllers(events)
-        self._send_rows("mse", events, [_mse_row(e) for e in events])
-        self._display += events
-        if time.monotonic() - self._display_sent >= DISPLAY_INTERVAL:
-            self._write_display()
-        self._last_event = events[-1]
-        self._write_pose(events[-1])
-
-    def _write_display(self) -> None:
-        events, self._display, self._display_sent = self._display, [], time.monotonic()
-        if not events:
-            return
-        self._send_rows("log10_mse", events, [[_log10(v) for v in _mse_row(e)] for e in events])
-        if self._search_keys is None:
-            self._search_keys = sorted(k for k, v in events[0].extras.items() if _is_number(v))
-            self._rec.log("search", rr.SeriesLines(names=self._search_keys, widths=2,
-                                                   colors=views.palette(len(self._search_keys))), static=True)
-        if self._search_keys:
-            self._send_rows("search", events, [[_number(e.extras.get(k)) for k in self._search_keys] for e in events])
-
-    def _send_rows(self, entity: str, events: list, rows: list) -> None:
-        index = _indexes([e.index for e in events], [e.seconds for e in events])
-        self._rec.send_columns(entity, indexes=index, columns=[_Column(_Column.SCALARS, rows, pa.float64())])
-
-    def _write_controllers(self, events: list) -> None:
-        rows = []
-        for e in events:
-            if e.controller is not None and e.controller is not self._logged:
-                doc = {"generation": e.index, "best_mse": e.best, "controller": e.controller.to_dict()}
-                rows.append((e, json.dumps(doc, separators=(",", ":"))))
-                self._logged = e.controller
-        if not rows:
-            return
-        self._rec.send_columns(
-            "controller", indexes=_indexes([e.index for e, _ in rows], [e.seconds for e, _ in rows]),
-            columns=[_Column(_Column.TEXT, [[t] for _, t in rows], pa.string())])
-        e = rows[-1][0]
-        if getattr(e.controller, "genome", None):
-            self._set_time(e)
-            self._rec.log("network", *views.network(e.controller))
-
-    def _write_pose(self, e, final: bool = False) -> None:
-        """The pose of a new best controller, at most every max(pose_every, generation / 5)
-        generations: frequent early, ~12 per tenfold of generations later (bounded files)."""
-        posed, at = self._posed
-        if e.controller is None or e.controller is posed:
-            return
-        if not final and e.index - at < max(self.pose_every, e.index // 5):
-            return
-        self._set_time(e)
-        for entity, archetype in views.pose(self._geometry, e.controller).items():
-            self._rec.log(entity, archetype)
-        self._posed = (e.controller, e.index)
-
-    def _write_end(self, summary) -> None:
-        self._write_display()
-        if self._last_event is not None:
-            self._write_pose(self._last_event, final=True)
-        if summary is None:
-            return
-        doc = {"state": summary.state, "generations": summary.generations, "evaluations": summary.evaluations,
-               "seconds": summary.seconds, "train_mse": summary.train_mse, "test_mse": summary.test_mse,
-               "error": summary.error}
-        self._rec.log("summary", rr.TextDocument(json.dumps(doc, indent=1)), static=True)
-
-    def _set_time(self, e) -> None:
-        self._rec.set_time("generation", sequence=e.index)
-        self._rec.set_time("run_time", duration=e.seconds)
-
-    # ------------------------------------------------------------------ static data
-    def _log_static(self, run_id: str, hyperparameters: dict) -> None:
-        c, arm = self.config, self.problem.arm
-        protocol = {
-            "format": FORMAT_VERSION, "run_id": run_id, "robot": c.robot, "method": c.method, "seed": c.seed,
-            "joint_names": list(arm.joint_names), "lower": arm.lower.tolist(), "upper": arm.upper.tolist(),
-            "task_axes": list(arm.task_axes), "goal_seed": self.problem.goal_seed,
-            "train_goals": np.asarray(self.problem.train_goals).tolist(),
-            "hyperparameters": hyperparameters, "config": c.to_dict(), "versions": views.versions(),
-        }
-        rec = self._rec
-        rec.log("protocol", rr.TextDocument(json.dumps(protocol, indent=1, default=_jsonable)), static=True)
-        rec.log("about", rr.TextDocument(views.about(c), media_type=rr.MediaType.MARKDOWN), static=True)
-        for entity, archetype in views.static_scene(self._geometry, c.method):
-            rec.log(entity, archetype, static=True)
+                while data:
+                    data = data[os.write(self._fd, data):]
+            except OSError as e:  # BrokenPipeError: the writer is gone
+                self._error = f"the Rerun writer of {self.path} stopped ({e.strerror or e}; its error is above)"
+                raise RuntimeError(self._error) from e
 
 
 def rerun_binary() -> str:
@@ -363,55 +257,6 @@ def _hyperparameters(backend, problem, config) -> dict:
 
         backend = make_backend(problem, config)
     return backend.hyperparameters()
-
-
-class _Column:
-    """A component column built straight in Arrow, one list of values per row: the ComponentBatchLike
-    protocol that send_columns takes (rr.Scalars.columns(...).partition(...) costs ~45 us a call)."""
-
-    SCALARS = next(iter(rr.Scalars.columns(scalars=[0.0]))).component_descriptor()
-    TEXT = next(iter(rr.TextDocument.columns(text=[""]))).component_descriptor()
-
-    def __init__(self, descriptor, rows: list, kind: pa.DataType):
-        self.descriptor = descriptor
-        self.offsets = np.cumsum([0] + [len(row) for row in rows], dtype=np.int32)
-        self.values = pa.array([v for row in rows for v in row], kind)
-
-    def component_descriptor(self):
-        return self.descriptor
-
-    def as_arrow_array(self) -> pa.Array:
-        return pa.ListArray.from_arrays(pa.array(self.offsets, pa.int32()), self.values)
-
-
-def _indexes(gens, secs) -> list:
-    return [rr.TimeColumn("generation", sequence=np.asarray(gens, dtype=np.int64)),
-            rr.TimeColumn("run_time", duration=np.asarray(secs, dtype=np.float64))]
-
-
-def _mse_row(e) -> list:
-    """[best so far, median, worst]; worst only when finite."""
-    return [e.best, e.median] + ([e.worst] if math.isfinite(e.worst) else [])
-
-
-def _log10(v: float) -> float:
-    return math.log10(v) if v > 0 and math.isfinite(v) else (-300.0 if v == 0 else math.nan)
-
-
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating))
-
-
-def _number(v) -> float:
-    return float(v) if _is_number(v) else math.nan
-
-
-def _jsonable(x):
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, (np.integer, np.floating, np.bool_)):
-        return x.item()
-    return repr(x)
 
 
 def _close_at_exit(ref) -> None:

@@ -232,18 +232,86 @@ def test_ctrl_c_stops_the_cli_run_and_closes_its_recording(tmp_path):
     RrdReader(path).store()  # closed with its footer
 
 
+def _writer_of(pid: int) -> int:
+    """The recording's writer process started by process `pid`."""
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            cmdline = (stat.parent / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and b"lab.recording_writer" in cmdline:
+            return int(stat.parent.name)
+    pytest.fail(f"process {pid} has no writer process")
+
+
+def _wait_gone(pid: int, timeout: float = 60.0) -> None:
+    """Wait until a process that is not our child has ended (a zombie counts as ended)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            if Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z":
+                return
+        except OSError:
+            return
+        time.sleep(0.05)
+    pytest.fail(f"process {pid} is still running")
+
+
 @pytest.fixture(scope="module")
 def killed(tmp_path_factory):
-    """A `python -m lab train` process killed with SIGKILL while it writes its recording."""
+    """A `python -m lab train` process killed with SIGKILL while it writes its recording; returns once
+    its writer process, which outlives it, has closed the file."""
     path = tmp_path_factory.mktemp("killed") / "killed.rrd"
     proc, first_size = _train_until(path, 30)
     deadline = time.monotonic() + 60
     while path.stat().st_size < 1.5 * first_size and time.monotonic() < deadline:  # room to cut past first_size
         time.sleep(0.05)
+    writer = _writer_of(proc.pid)
     os.kill(proc.pid, signal.SIGKILL)
     proc.communicate()
     assert proc.returncode == -signal.SIGKILL
+    _wait_gone(writer)
     return path, first_size
+
+
+KILLED_SCRIPT = """
+import sys
+import lab
+from lab.recording import RerunLogger
+
+runner = lab.Runner(lab.TrainConfig(method=sys.argv[2], generations=100000, population=10, targets=15, test_goals=10))
+logger = RerunLogger(runner, path=sys.argv[1])
+print(logger.pid, flush=True)
+runner.subscribe(logger)
+runner.subscribe(lambda event: print(event.index, flush=True))  # after the logger has the generation
+runner.run()
+"""
+
+
+@pytest.mark.parametrize("method", ["cmaes", "neat"])
+def test_a_killed_run_loses_at_most_the_generation_in_flight(tmp_path, method):
+    """SIGKILL right after the training process has printed generation n (which it does once the
+    logger has returned from that generation): the file holds every generation up to n, and
+    the writer, which outlives the killed process, closes it with its footer."""
+    path = tmp_path / "killed.rrd"
+    proc = subprocess.Popen([sys.executable, "-c", KILLED_SCRIPT, str(path), method], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    writer = int(proc.stdout.readline())
+    for line in proc.stdout:
+        if int(line) >= 200:
+            break
+    os.kill(proc.pid, signal.SIGKILL)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == -signal.SIGKILL, err
+    printed = int(out.split()[-1]) if out.split() else int(line)
+    _wait_gone(writer)
+    RrdReader(path).store()  # closed with its footer, by the writer
+    rec = read_recording(path)
+    assert rec.summary is None and rec.last_generation >= printed
+    np.testing.assert_array_equal(rec.generations, np.arange(rec.last_generation + 1))
+    config = lab.TrainConfig(**rec.protocol["config"])
+    assert build_problem(config).controller_mse(load_controller(path)) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
 
 
 def test_a_killed_run_leaves_a_file_that_loads(killed):
