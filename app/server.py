@@ -7,8 +7,9 @@
 Shared by all tabs (server.scene / server.gui): the floor grid, the training goals, the error
 map, the training panel, the network drawing and the runs list; one training run at a time.
 Per tab (client.scene / client.gui): goal markers, arms and the IK ghost. Callbacks run in
-viser's thread pool, training in the lab Runner's thread; the render loop (30 Hz) redraws
-tabs when the shown controller changes and refreshes progress, plot, map and network.
+viser's thread pool, training in a worker process (lab.worker.ProcessRunner) whose events a
+reader thread takes in; the render loop (30 Hz) redraws tabs when the shown controller changes
+and refreshes progress, plot, map and network.
 """
 
 from __future__ import annotations
@@ -21,6 +22,8 @@ from collections import deque
 
 import numpy as np
 import viser
+
+import lab.worker as lab_worker
 
 from .goals import TabSession, fmt_len
 from .notebook import DEFAULT_PATH, Notebook
@@ -35,9 +38,9 @@ log = logging.getLogger(__name__)
 FPS = 30.0
 PANEL_PERIOD = 0.25  # s: progress, plot and status
 VIEWS_PERIOD = 1.0  # s: error map and network drawing (each a few ms and a few kB per tab)
-# Python hands the GIL over every 5 ms by default: a marker callback waiting behind the training
-# thread's Python (pycma, neat-python) would wait that long. 1 ms keeps drags under 5 ms (see
-# benchmarks/bench_app.py) at no measurable cost to training, whose kernels release the GIL.
+# Python hands the GIL over every 5 ms by default: a marker callback waiting behind another thread
+# (the render loop redrawing ten tabs, the run's reader thread) would wait that long. 1 ms keeps
+# drags under 5 ms (see benchmarks/bench_app.py); training, in its own process, is not affected.
 SWITCH_INTERVAL = 0.001
 
 
@@ -68,6 +71,7 @@ class LabApp:
             startup, self.startup_note = startup_controller()
         else:
             self.startup_note = "given" if startup is not None else "none"
+        lab_worker.prestart()  # a warmed-up training process, so that Start trains at once
         self.state = LabState(robot, Notebook(notebook), startup=startup,
                               recorder=rerun_recorder(recordings) if record else None)
         self.recordings = recordings

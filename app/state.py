@@ -3,9 +3,10 @@
 Nothing here knows about viser; the panels call these methods and show what they return.
 Methods that can be refused return a message (str) and change nothing, or None when done.
 
-The runner's subscriber (`_Tap`) runs in the training thread and only appends numbers and
-swaps a reference under a lock, so training speed does not depend on the GUI. The render
-loop polls `version` and redraws when the shown controller has changed.
+Training runs in a process of its own (lab.worker.ProcessRunner): the server's threads and the
+optimizer do not share a GIL, so neither slows the other down. The runner's subscriber (`_Tap`)
+runs in its reader thread and only appends numbers and swaps a reference under a lock. The
+render loop polls `version` and redraws when the shown controller has changed.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 
 import lab
 import robots
+from lab.worker import ProcessRunner
 
 from .notebook import Notebook, entry_from_summary
 
@@ -38,7 +40,7 @@ class Shown:
 class _Tap:
     """Runner subscriber: records each generation; on_end writes the notebook entry."""
 
-    def __init__(self, state: "LabState", runner: lab.Runner, recording: str | None):
+    def __init__(self, state: "LabState", runner: ProcessRunner, recording: str | None):
         self.state, self.runner, self.recording = state, runner, recording
         self.started = time.time()
 
@@ -57,7 +59,7 @@ class LabState:
         self._lock = threading.RLock()
         self.notebook = notebook or Notebook()
         self.recorder = recorder
-        self.runner: lab.Runner | None = None
+        self.runner: ProcessRunner | None = None
         self.recording: str | None = None
         self.replaying = False  # the arms show a replayed controller, not the run's best
         self._startup = startup
@@ -140,7 +142,7 @@ class LabState:
                 if msg:
                     return msg
             try:
-                runner = lab.Runner(config)
+                runner = ProcessRunner(config)
             except Exception as e:
                 return f"refused: cannot build this run: {e}"
             recording = None
@@ -185,7 +187,7 @@ class LabState:
         self._best, self._median = [], []
         self._evals, self._seconds = 0, 0.0
 
-    def _on_generation(self, runner: lab.Runner, event: lab.GenerationEvent) -> None:
+    def _on_generation(self, runner: ProcessRunner, event: lab.GenerationEvent) -> None:
         with self._lock:
             if runner is not self.runner:  # a run that was reset away
                 return

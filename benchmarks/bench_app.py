@@ -13,8 +13,9 @@ Two numbers, measured side by side in rounds (headless then app, app then headle
    its handler list) to the new pose being flushed to the sender, in the marker callback.
    Target: server side p95 <= 5 ms.
 2. Training throughput (evaluations per second over the same window) with the app serving
-   those tabs, over headless training (the same lab Runner, nothing else running; each with
-   the GIL switch interval it runs with: Python's default 5 ms headless, the app's 1 ms).
+   those tabs, over headless training (lab.Runner in this process's thread, as `python -m lab
+   train` runs, nothing else running). The app trains in its worker process
+   (lab.worker.ProcessRunner), started from the panel's code path (app.state.start).
    Target: >= 80 %.
 
 The clients share the machine's cores with the server (a classroom's browsers would not), so
@@ -46,13 +47,23 @@ CONFIG = dict(robot="planar", method="cmaes", generations=10**7, population=50, 
 
 
 class Meter:
-    """Runner subscriber: (wall time, the runner thread's CPU time, evaluations) per generation."""
+    """Runner subscriber: (wall time, the optimizer's CPU time, evaluations) per generation. The
+    optimizer's CPU time: this thread's (lab.Runner calls subscribers in its training thread), or
+    the worker process's (`pid`: lab.worker.ProcessRunner)."""
 
-    def __init__(self):
+    def __init__(self, pid: int | None = None):
         self.points = []
+        self.stat = f"/proc/{pid}/stat" if pid else None
 
     def __call__(self, event):
-        self.points.append((time.perf_counter(), time.thread_time(), event.evaluations))
+        self.points.append((time.perf_counter(), self.cpu(), event.evaluations))
+
+    def cpu(self) -> float:
+        if self.stat is None:
+            return time.thread_time()
+        with open(self.stat) as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
 
     def window(self, t0: float, t1: float):
         pts = [p for p in self.points if t0 <= p[0] <= t1]
@@ -64,7 +75,7 @@ class Meter:
         return (b[2] - a[2]) / (b[0] - a[0])
 
     def cores(self, t0: float, t1: float) -> float:
-        """CPU the runner thread got, in cores (the machine's other load shows here)."""
+        """CPU the optimizer got, in cores (the machine's other load shows here)."""
         a, b = self.window(t0, t1)
         return (b[1] - a[1]) / (b[0] - a[0])
 
@@ -100,7 +111,6 @@ def with_app(app, clients: int, dragging: int, seconds: float, hz: float) -> dic
     from app.server import SWITCH_INTERVAL
 
     sys.setswitchinterval(SWITCH_INTERVAL)
-    meter = Meter()
     proc = subprocess.Popen([sys.executable, __file__, "--serve-clients", app.url, str(clients), str(dragging),
                              str(seconds), str(hz)],
                             stdout=subprocess.PIPE, text=True)
@@ -109,6 +119,7 @@ def with_app(app, clients: int, dragging: int, seconds: float, hz: float) -> dic
     while len(app.sessions) < clients and time.monotonic() < deadline:
         time.sleep(0.05)
     assert app.state.start(lab.TrainConfig.preset(**CONFIG)) is None
+    meter = Meter(app.state.runner.pid)
     app.state.runner.subscribe(meter)
     time.sleep(1.0)  # warm-up: training and the redraws it causes
     app.latency.clear()
@@ -129,7 +140,7 @@ def with_app(app, clients: int, dragging: int, seconds: float, hz: float) -> dic
     app.state.reset()
     runner_cpu = meter.cores(t0, t1)
     return dict(rate=meter.rate(t0, t1), rtt=out["rtt"], server=server, work=work, runner_cpu=runner_cpu,
-                app_cpu=(cpu1 - cpu0) / (t1 - t0) - runner_cpu, client_cpu=client_cpu / (t1 - t0))
+                app_cpu=(cpu1 - cpu0) / (t1 - t0), client_cpu=client_cpu / (t1 - t0))
 
 
 def serve_clients(url: str, clients: int, dragging: int, seconds: float, hz: float) -> None:
@@ -198,8 +209,8 @@ def main() -> None:
                 apps.append(with_app(app, args.clients, args.dragging, args.seconds, args.hz))
                 heads.append(headless(args.seconds))
             a, h = apps[-1], heads[-1]
-            print(f"round {r + 1}: headless {h['rate']:,.0f} eval/s (runner {h['runner_cpu']:.2f} cores), "
-                  f"app {a['rate']:,.0f} eval/s (runner {a['runner_cpu']:.2f} cores, app threads "
+            print(f"round {r + 1}: headless {h['rate']:,.0f} eval/s (optimizer {h['runner_cpu']:.2f} cores), "
+                  f"app {a['rate']:,.0f} eval/s (optimizer {a['runner_cpu']:.2f} cores, app process "
                   f"{a['app_cpu']:.2f}, client process {a['client_cpu']:.2f}; {len(a['rtt'])} drags)", flush=True)
     finally:
         app.stop()
@@ -220,8 +231,8 @@ def main() -> None:
           f"p95 {pct(server, 95):.2f} ms; of which in the callback: p50 {pct(work, 50):.2f} ms, p95 {pct(work, 95):.2f} ms")
     print(f"training throughput with the app: {100 * rate_a / rate_h:.0f} % of headless "
           f"({rate_a:,.0f} vs {rate_h:,.0f} evaluations/s; round by round {', '.join(f'{100 * p:.0f}' for p in pairs)} %)")
-    print(f"  per CPU-second of the runner thread: {100 * per_cpu_a / per_cpu_h:.0f} % "
-          f"({per_cpu_a:,.0f} vs {per_cpu_h:,.0f}); the app's own threads used "
+    print(f"  per CPU-second of the optimizer: {100 * per_cpu_a / per_cpu_h:.0f} % "
+          f"({per_cpu_a:,.0f} vs {per_cpu_h:,.0f}); the app's process used "
           f"{np.mean([a['app_cpu'] for a in apps]):.2f} cores, the client process {np.mean([a['client_cpu'] for a in apps]):.2f}")
 
 

@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import pipes
 from .config import TrainConfig
 from .problem import Problem
 
@@ -53,8 +54,6 @@ log = logging.getLogger(__name__)
 
 APPLICATION_ID = "neuro-ik-lab"
 FORMAT_VERSION = 1
-PIPE_BYTES = 1 << 20  # F_SETPIPE_SZ: Linux's default limit for unprivileged processes
-_F_SETPIPE_SZ = 1031
 
 
 def default_path(config: TrainConfig, folder: str | os.PathLike = "recordings", now: datetime | None = None) -> Path:
@@ -105,8 +104,6 @@ class RerunLogger:
 
     def __init__(self, source, problem: Problem | None = None, path: str | os.PathLike | None = None, *,
                  pose_every: int = 10, compact: bool = True, hyperparameters: dict | None = None):
-        from .recording_writer import encode
-
         config, problem, backend, run_id = _resolve_source(source, problem)
         if not (isinstance(pose_every, int) and pose_every >= 1):
             raise ValueError(f"pose_every must be an integer >= 1, got {pose_every!r}")
@@ -114,22 +111,16 @@ class RerunLogger:
         self.config, self.problem, self.pose_every, self.compact = config, problem, pose_every, compact
         if hyperparameters is None:
             hyperparameters = _hyperparameters(backend, problem, config)
-        self._encode = encode
+        self._rows = pipes.EventEncoder()
         self._lock = threading.Lock()
         self._closed = False
-        self._sent = None  # the last controller sent
         self._error: str | None = None
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(
             [str(Path(__file__).resolve().parents[1])] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
         self._proc = subprocess.Popen([sys.executable, "-m", "lab.recording_writer"], stdin=subprocess.PIPE,
                                       stdout=subprocess.PIPE, bufsize=0, env=env)
         self._fd = self._proc.stdin.fileno()
-        try:
-            import fcntl
-
-            fcntl.fcntl(self._fd, _F_SETPIPE_SZ, PIPE_BYTES)
-        except (ImportError, OSError):  # a smaller pipe only means waiting for the writer's start
-            pass
+        pipes.grow(self._fd)
         self._send(("start", {
             "path": str(self.path), "config": config, "run_id": run_id, "robot": problem.arm.name,
             "train_goals": np.asarray(problem.train_goals), "goal_seed": problem.goal_seed,
@@ -145,10 +136,7 @@ class RerunLogger:
     def __call__(self, event) -> None:
         if self._closed:
             raise RuntimeError(f"the recording {self.path} is closed")
-        controller = event.controller if event.controller is not self._sent else None
-        self._sent = event.controller
-        self._send(("event", (event.index, event.best, event.gen_best, event.median, event.worst,
-                              event.evaluations, event.seconds, event.improved, event.extras, controller)))
+        self._send(("event", self._rows(event)))
 
     def on_end(self, summary) -> None:
         self.close(summary)
@@ -197,13 +185,11 @@ class RerunLogger:
         self.close()
 
     def _send(self, message) -> None:
-        data = memoryview(self._encode(message))
         with self._lock:
             if self._error is not None:
                 raise RuntimeError(self._error)
             try:
-                while data:
-                    data = data[os.write(self._fd, data):]
+                pipes.send(self._fd, message)
             except OSError as e:  # BrokenPipeError: the writer is gone
                 self._error = f"the Rerun writer of {self.path} stopped ({e.strerror or e}; its error is above)"
                 raise RuntimeError(self._error) from e

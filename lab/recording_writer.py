@@ -19,9 +19,7 @@ from __future__ import annotations
 import json
 import math
 import os
-import pickle
 import signal
-import struct
 import sys
 import time
 
@@ -32,11 +30,10 @@ import rerun as rr
 import robots
 
 from . import recording_views as views
+from .pipes import EventDecoder, messages
 from .recording import APPLICATION_ID, FORMAT_VERSION, compact
-from .runner import GenerationEvent
 
 DISPLAY_INTERVAL = 0.1  # seconds between writes of the display-only series (log10 MSE, search state)
-HEADER = struct.Struct("<I")  # the length of each pickled message
 
 
 class Writer:
@@ -158,37 +155,6 @@ class Writer:
             rec.log(entity, archetype, static=True)
 
 
-def event_row(e: GenerationEvent, controller) -> tuple:
-    """What the training process sends per generation (controller: None when unchanged)."""
-    return (e.index, e.best, e.gen_best, e.median, e.worst, e.evaluations, e.seconds, e.improved, e.extras,
-            controller)
-
-
-def encode(message) -> bytes:
-    data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
-    return HEADER.pack(len(data)) + data
-
-
-def messages(fd: int):
-    """Yield lists of the messages available on fd, one list per read, until end of input."""
-    buf = bytearray()
-    while True:
-        data = os.read(fd, 1 << 20)
-        if not data:
-            return
-        buf += data
-        batch, at = [], 0
-        while len(buf) - at >= HEADER.size:
-            (n,) = HEADER.unpack_from(buf, at)
-            if len(buf) - at - HEADER.size < n:
-                break
-            batch.append(pickle.loads(memoryview(buf)[at + HEADER.size:at + HEADER.size + n]))
-            at += HEADER.size + n
-        del buf[:at]
-        if batch:
-            yield batch
-
-
 def main() -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     stream = messages(sys.stdin.fileno())
@@ -198,15 +164,13 @@ def main() -> int:
         return 2
     header = first[0][1]
     writer = Writer(header)
-    controller, summary, clean, batch = None, None, False, first[1:]
+    decode, summary, clean, batch = EventDecoder(header["run_id"]), None, False, first[1:]
     try:
         while batch is not None:  # None: end of input without "end" (the training process was killed)
             events = []
             for kind, body in batch:
                 if kind == "event":
-                    controller = body[-1] if body[-1] is not None else controller
-                    events.append(GenerationEvent("", *body[:7], controller=controller, improved=body[7],
-                                                  extras=body[8]))
+                    events.append(decode(body))
                 elif kind == "end":
                     summary, clean = body, True
             writer.write(events)

@@ -86,19 +86,17 @@ def build_problem(config: TrainConfig) -> Problem:
     return Problem(arm, enc, targets=config.targets, test_goals=config.test_goals, goal_seed=config.goal_seed)
 
 
-class Runner:
-    def __init__(self, config: TrainConfig, problem: Problem | None = None, blas_threads: int | None = 1):
+class RunBase:
+    """What every runner shares: subscribers, state, history, snapshot, join. The training itself is
+    the subclass's: Runner trains in a thread of this process, lab.worker.ProcessRunner in a process
+    of its own; subscribers cannot tell them apart."""
+
+    def __init__(self, config: TrainConfig, problem: Problem | None = None):
         self.config = config
         self.problem = problem or build_problem(config)
-        self.backend: Backend = make_backend(self.problem, config)
         self.run_id = uuid.uuid4().hex[:12]
-        self.blas_threads = blas_threads
         self._subscribers: list = []
         self._lock = threading.Lock()
-        self._resume = threading.Event()
-        self._resume.set()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self._state = "idle"
         self._history: list[float] = []
         self._best: tuple[float, Controller | None] = (float("inf"), None)  # updated with the history
@@ -119,48 +117,10 @@ class Runner:
             if callback in self._subscribers:
                 self._subscribers.remove(callback)
 
-    # ------------------------------------------------------------------ control
+    # ------------------------------------------------------------------ reading
     @property
     def state(self) -> str:
         return self._state
-
-    def start(self) -> "Runner":
-        """Run in a background thread; returns at once."""
-        with self._lock:
-            if self._state != "idle":
-                raise RuntimeError(f"this run was already started (state: {self._state})")
-            self._state = "running"
-        self._thread = threading.Thread(target=self._run, name=f"lab-runner-{self.run_id}", daemon=True)
-        self._thread.start()
-        return self
-
-    def run(self) -> RunSummary:
-        """Run in the calling thread until done; returns the summary."""
-        with self._lock:
-            if self._state != "idle":
-                raise RuntimeError(f"this run was already started (state: {self._state})")
-            self._state = "running"
-        self._run()
-        return self._summary
-
-    def pause(self) -> None:
-        with self._lock:
-            if self._state == "running":
-                self._state = "paused"
-                self._resume.clear()
-
-    def resume(self) -> None:
-        with self._lock:
-            if self._state == "paused":
-                self._state = "running"
-                self._resume.set()
-
-    def stop(self, wait: bool = True, timeout: float | None = None) -> None:
-        """Ask the run to end after the generation in flight; with wait, block until it has."""
-        self._stop.set()
-        self._resume.set()
-        if wait and self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout)
 
     def join(self, timeout: float | None = None) -> RunSummary | None:
         self._done.wait(timeout)
@@ -173,6 +133,91 @@ class Runner:
     def snapshot(self) -> Snapshot:
         with self._lock:
             return Snapshot(self._state, len(self._history), *self._best, np.array(self._history))
+
+    # ------------------------------------------------------------------ for the subclasses
+    def _claim(self) -> None:
+        """idle -> running, once."""
+        with self._lock:
+            if self._state != "idle":
+                raise RuntimeError(f"this run was already started (state: {self._state})")
+            self._state = "running"
+
+    def _set_state(self, old: str, new: str) -> bool:
+        with self._lock:
+            if self._state != old:
+                return False
+            self._state = new
+            return True
+
+    def _publish(self, event: GenerationEvent) -> None:
+        """Record a generation, then hand it to every subscriber, in subscription order."""
+        with self._lock:
+            self._best = (event.best, event.controller)
+            self._history.append(event.best)
+            self._median.append(event.median)
+            self._seconds = event.seconds
+            subscribers = list(self._subscribers)
+        for callback in subscribers:
+            try:
+                callback(event)
+            except Exception:
+                log.exception("subscriber %r failed; unsubscribed", callback)
+                self.unsubscribe(callback)
+
+    def _conclude(self, summary: RunSummary) -> None:
+        """The run has ended: keep its summary, call every subscriber's on_end, release join()."""
+        with self._lock:
+            self._summary = summary
+            self._state = summary.state
+            subscribers = list(self._subscribers)
+        for callback in subscribers:
+            on_end = getattr(callback, "on_end", None)
+            if on_end is not None:
+                try:
+                    on_end(summary)
+                except Exception:
+                    log.exception("subscriber %r failed at the end of the run", callback)
+        self._done.set()
+
+
+class Runner(RunBase):
+    def __init__(self, config: TrainConfig, problem: Problem | None = None, blas_threads: int | None = 1):
+        super().__init__(config, problem)
+        self.backend: Backend = make_backend(self.problem, config)
+        self.blas_threads = blas_threads
+        self._resume = threading.Event()
+        self._resume.set()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ control
+    def start(self) -> "Runner":
+        """Run in a background thread; returns at once."""
+        self._claim()
+        self._thread = threading.Thread(target=self._run, name=f"lab-runner-{self.run_id}", daemon=True)
+        self._thread.start()
+        return self
+
+    def run(self) -> RunSummary:
+        """Run in the calling thread until done; returns the summary."""
+        self._claim()
+        self._run()
+        return self._summary
+
+    def pause(self) -> None:
+        if self._set_state("running", "paused"):
+            self._resume.clear()
+
+    def resume(self) -> None:
+        if self._set_state("paused", "running"):
+            self._resume.set()
+
+    def stop(self, wait: bool = True, timeout: float | None = None) -> None:
+        """Ask the run to end after the generation in flight; with wait, block until it has."""
+        self._stop.set()
+        self._resume.set()
+        if wait and self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout)
 
     # ------------------------------------------------------------------ the loop
     def _run(self) -> None:
@@ -203,46 +248,19 @@ class Runner:
             result = backend.step()
             t_run += time.perf_counter() - t0
             f = result.fitness
-            event = GenerationEvent(
+            self._publish(GenerationEvent(
                 run_id=self.run_id, index=index, best=backend.best_mse, gen_best=float(np.min(f)),
                 median=float(np.median(f)), worst=float(np.max(f)), evaluations=backend.evaluations,
                 seconds=t_run, controller=backend.best, improved=backend.best_mse < before, extras=result.extras,
-            )
-            with self._lock:
-                self._best = (backend.best_mse, backend.best)
-                self._history.append(backend.best_mse)
-                self._median.append(event.median)
-                self._seconds = t_run
-                subscribers = list(self._subscribers)
-            for callback in subscribers:
-                self._notify(callback, event)
-
-    def _notify(self, callback, event) -> None:
-        try:
-            callback(event)
-        except Exception:
-            log.exception("subscriber %r failed; unsubscribed", callback)
-            self.unsubscribe(callback)
+            ))
 
     def _finish(self, state: str, error: str | None) -> None:
         b = self.backend
         test = b.best is not None
-        summary = RunSummary(
+        self._conclude(RunSummary(
             run_id=self.run_id, config=self.config, state=state, generations=len(self._history),
             evaluations=b.evaluations, seconds=self._seconds, controller=b.best,
             train_mse=self.problem.controller_mse(b.best) if test else float("inf"),
             test_mse=self.problem.controller_mse(b.best, self.problem.test_goals) if test else float("inf"),
             history=np.array(self._history), median_history=np.array(self._median), error=error,
-        )
-        with self._lock:
-            self._summary = summary
-            self._state = state
-            subscribers = list(self._subscribers)
-        for callback in subscribers:
-            on_end = getattr(callback, "on_end", None)
-            if on_end is not None:
-                try:
-                    on_end(summary)
-                except Exception:
-                    log.exception("subscriber %r failed at the end of the run", callback)
-        self._done.set()
+        ))

@@ -4,6 +4,7 @@ the runner obeys its controls, and bad input is refused before any work."""
 import copy
 import json
 import logging
+import os
 import random
 import subprocess
 import sys
@@ -645,3 +646,111 @@ def test_controllers_rebuild_from_dict_with_identical_outputs():
         assert again.to_dict() == d
     with pytest.raises(ValueError, match="kind"):
         controller_from_dict({**mlp.to_dict(), "kind": "svm"})
+
+
+# ---------------------------------------------------------------- 5b. training in a worker process
+def process_runner(method="cmaes", **changes):
+    from lab.worker import ProcessRunner
+
+    config = dict(method=method, generations=100_000, population=20, targets=20, test_goals=20)
+    return ProcessRunner(lab.TrainConfig(**{**config, **changes}))
+
+
+@pytest.mark.parametrize("method", ["cmaes", "neat"])
+def test_a_run_in_a_worker_process_is_the_same_run(method):
+    """Same seed, same generations, same controllers: only where the optimizer runs differs."""
+    cfg = dict(generations=25, population=12)
+    here, there = Recorder(), Recorder()
+    r = lab.Runner(lab.TrainConfig(method=method, targets=20, test_goals=20, **cfg))
+    r.subscribe(here)
+    local = r.run()
+    p = process_runner(method, **cfg)
+    p.subscribe(there)
+    remote = p.run()
+    assert remote.state == "finished" and p.state == "finished" and there.ends == [remote]
+    assert remote.run_id == p.run_id and remote.generations == 25 and remote.evaluations == local.evaluations
+    np.testing.assert_array_equal(remote.history, local.history)
+    np.testing.assert_array_equal(remote.median_history, local.median_history)
+    assert (remote.train_mse, remote.test_mse) == (local.train_mse, local.test_mse)
+    for a, b in zip(here.events, there.events, strict=True):
+        assert (a.index, a.best, a.median, a.worst, a.evaluations, a.improved) == \
+               (b.index, b.best, b.median, b.worst, b.evaluations, b.improved)
+        assert b.run_id == p.run_id and a.controller.to_dict() == b.controller.to_dict()
+        assert p.problem.controller_mse(b.controller) == pytest.approx(b.best, rel=0, abs=1e-9)
+    # a controller crosses the pipe only when it changes: the same objects repeat as in the local run
+    same = lambda events: [x.controller is y.controller for x, y in zip(events, events[1:])]  # noqa: E731
+    assert same(there.events) == same(here.events)
+    s = p.snapshot()
+    assert s.generation == 25 and s.best == remote.history[-1]
+
+
+def test_a_worker_process_pauses_resumes_and_stops():
+    r = process_runner("neat").start()
+    rec = Recorder()
+    r.subscribe(rec)
+    try:
+        assert wait_for(lambda: r.snapshot().generation >= 5, timeout=30)
+        r.pause()
+        assert r.state == "paused"
+        time.sleep(0.3)  # the generation in flight, and the pipe, drain
+        g0 = r.snapshot().generation
+        time.sleep(0.4)
+        assert r.snapshot().generation == g0
+        r.resume()
+        assert r.state == "running" and wait_for(lambda: r.snapshot().generation > g0 + 3)
+        t0 = time.monotonic()
+        r.stop()
+        assert time.monotonic() - t0 < 2.0
+    finally:
+        r.stop(timeout=5)
+    summary = r.join(2.0)
+    assert summary.state == "stopped" and r.state == "stopped" and rec.ends == [summary]
+    assert summary.generations == r.snapshot().generation and len(summary.history) == summary.generations
+    assert [e.index for e in rec.events] == list(range(rec.events[0].index, summary.generations))
+    with pytest.raises(RuntimeError):
+        r.start()
+
+
+def test_a_killed_worker_process_fails_the_run_with_its_exit_code():
+    import signal
+
+    r = process_runner()
+    rec = Recorder()
+    r.subscribe(rec)
+    r.start()
+    assert wait_for(lambda: len(rec.events) >= 3, timeout=30)
+    os.kill(r.pid, signal.SIGKILL)
+    summary = r.join(10)
+    assert summary is not None and summary.state == "failed" and r.state == "failed"
+    assert "exited with code -9" in summary.error and rec.ends == [summary]
+    assert summary.generations == len(rec.events) and summary.train_mse == pytest.approx(rec.events[-1].best, abs=1e-9)
+
+
+def test_a_worker_process_ends_with_its_parent():
+    """The parent killed outright: its worker stops training and exits (no orphan keeps a core)."""
+    script = ("import time, lab\nfrom lab.worker import ProcessRunner\n"
+              "r = ProcessRunner(lab.TrainConfig(generations=10**6, population=10, targets=10, test_goals=10))\n"
+              "r.start()\nwhile r.snapshot().generation < 3: time.sleep(0.01)\n"
+              "print(r.pid, flush=True)\ntime.sleep(60)\n")
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    worker = int(parent.stdout.readline())
+    parent.kill()
+    parent.wait()
+    assert wait_for(lambda: _ended(worker), timeout=10)
+
+
+def _ended(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
+
+
+def test_a_prestarted_worker_takes_the_next_run():
+    import lab.worker
+
+    lab.worker.prestart()
+    spare = lab.worker._spare.pid
+    r = process_runner(generations=5).start()
+    assert r.pid == spare and r.join(30).state == "finished"

@@ -1,0 +1,90 @@
+"""Messages between lab's processes: length-prefixed pickles over a pipe (no heavy imports).
+
+Used by the Rerun writer process (lab/recording_writer.py) and the training process
+(lab/worker.py). A message written with `send` is in the kernel's pipe buffer when it returns,
+so it outlives the sender: a process killed right after still has it delivered.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import struct
+
+HEADER = struct.Struct("<I")  # the length of each pickled message
+PIPE_BYTES = 1 << 20  # F_SETPIPE_SZ: Linux's default limit for unprivileged processes
+_F_SETPIPE_SZ = 1031
+
+
+def encode(message) -> bytes:
+    data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+    return HEADER.pack(len(data)) + data
+
+
+def send(fd: int, message) -> None:
+    """Write one message to fd, all of it (raises OSError, e.g. BrokenPipeError, when the reader is gone)."""
+    data = memoryview(encode(message))
+    while data:
+        data = data[os.write(fd, data):]
+
+
+def messages(fd: int):
+    """Yield lists of the messages available on fd, one list per read, until end of input."""
+    buf = bytearray()
+    while True:
+        data = os.read(fd, 1 << 20)
+        if not data:
+            return
+        buf += data
+        batch, at = [], 0
+        while len(buf) - at >= HEADER.size:
+            (n,) = HEADER.unpack_from(buf, at)
+            if len(buf) - at - HEADER.size < n:
+                break
+            batch.append(pickle.loads(memoryview(buf)[at + HEADER.size:at + HEADER.size + n]))
+            at += HEADER.size + n
+        del buf[:at]
+        if batch:
+            yield batch
+
+
+def grow(fd: int) -> None:
+    """Let the pipe hold PIPE_BYTES (about a thousand generations), where the system allows it."""
+    try:
+        import fcntl
+
+        fcntl.fcntl(fd, _F_SETPIPE_SZ, PIPE_BYTES)
+    except (ImportError, OSError):  # a smaller pipe only means the writer waits sooner
+        pass
+
+
+def event_row(event, controller) -> tuple:
+    """A GenerationEvent as sent between processes (controller: None when unchanged)."""
+    return (event.index, event.best, event.gen_best, event.median, event.worst, event.evaluations,
+            event.seconds, event.improved, event.extras, controller)
+
+
+class EventDecoder:
+    """Rows back into GenerationEvents, with the last controller sent where a row has None."""
+
+    def __init__(self, run_id: str = ""):
+        self.run_id, self.controller = run_id, None
+
+    def __call__(self, row: tuple):
+        from .runner import GenerationEvent
+
+        if row[-1] is not None:
+            self.controller = row[-1]
+        return GenerationEvent(self.run_id, *row[:7], controller=self.controller, improved=row[7], extras=row[8])
+
+
+class EventEncoder:
+    """GenerationEvents into rows, each controller sent once (when it changes)."""
+
+    def __init__(self):
+        self.sent = None
+
+    def __call__(self, event) -> tuple:
+        controller = event.controller if event.controller is not self.sent else None
+        self.sent = event.controller
+        return event_row(event, controller)

@@ -1,0 +1,209 @@
+"""Training in a process of its own: ProcessRunner, a Runner whose generations run elsewhere.
+
+    runner = ProcessRunner(TrainConfig(robot="planar", method="cmaes"))
+    runner.subscribe(callback)       # called here, in a reader thread, once per generation
+    runner.start(); runner.pause(); runner.resume(); runner.stop(); summary = runner.join()
+
+The same interface and events as lab.runner.Runner (both are RunBase), so subscribers (the
+Rerun logger, the app) cannot tell them apart. What differs is where the optimizer runs: in
+`python -m lab.worker`, with an interpreter and a GIL of its own, so a busy process beside it
+(the app's server, its tabs, its redraws) no longer slows it down, and it cannot slow them.
+The worker sends each generation through a pipe (lab/pipes.py: its numbers, and the best
+controller when it changed); pause, resume and stop go the other way. A worker whose parent
+goes away stops its run and exits.
+
+prestart() keeps one worker started and warmed up (modules imported, numba kernels loaded)
+for the next start(), so a click on Start trains at once instead of after ~2 s.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+from itertools import chain
+from pathlib import Path
+
+import numpy as np
+
+from . import pipes
+from .config import TrainConfig
+from .runner import RunBase, RunSummary
+
+log = logging.getLogger(__name__)
+
+_spare: subprocess.Popen | None = None  # a started worker waiting for its run (see prestart)
+_keep_spare = False
+_spare_lock = threading.Lock()
+
+
+class ProcessRunner(RunBase):
+    """A Runner (see lab.runner) that trains in a worker process. `backend` is None here: the
+    backend lives in the worker."""
+
+    backend = None
+
+    def __init__(self, config: TrainConfig, blas_threads: int | None = 1):
+        super().__init__(config)
+        self.blas_threads = blas_threads
+        self._proc: subprocess.Popen | None = None
+        self._send_lock = threading.Lock()
+        self._stop_asked = False
+
+    @property
+    def pid(self) -> int | None:
+        """The worker's process id (None before start)."""
+        return self._proc.pid if self._proc is not None else None
+
+    # ------------------------------------------------------------------ control
+    def start(self) -> "ProcessRunner":
+        """Hand the run to a worker process; returns at once."""
+        self._claim()
+        self._proc = _take_worker()
+        self._command("run", self.config, self.run_id, self.blas_threads)
+        if self._stop_asked:
+            self._command("stop")
+        threading.Thread(target=self._read, name=f"lab-worker-{self.run_id}", daemon=True).start()
+        return self
+
+    def run(self) -> RunSummary:
+        """Run until done; returns the summary."""
+        return self.start().join()
+
+    def pause(self) -> None:
+        if self._set_state("running", "paused"):
+            self._command("pause")
+
+    def resume(self) -> None:
+        if self._set_state("paused", "running"):
+            self._command("resume")
+
+    def stop(self, wait: bool = True, timeout: float | None = None) -> None:
+        """Ask the run to end after the generation in flight; with wait, block until it has."""
+        self._stop_asked = True
+        if self._proc is None:
+            return
+        self._command("stop")
+        if wait:
+            self._done.wait(timeout)
+
+    def _command(self, *message) -> None:
+        with self._send_lock:
+            try:
+                pipes.send(self._proc.stdin.fileno(), message)
+            except (OSError, ValueError):  # the worker is gone: the reader reports how
+                pass
+
+    # ------------------------------------------------------------------ the reader thread
+    def _read(self) -> None:
+        decode, summary, error = pipes.EventDecoder(self.run_id), None, None
+        for batch in pipes.messages(self._proc.stdout.fileno()):
+            for kind, body in batch:
+                if kind == "event":
+                    self._publish(decode(body))
+                elif kind == "end":
+                    summary = body
+                elif kind == "failed":
+                    error = body
+        self._proc.stdin.close()
+        self._proc.stdout.close()
+        code = self._proc.wait()
+        if summary is None:
+            self._conclude(self._failed(error or f"the training process exited with code {code}", decode.controller))
+        else:
+            self._conclude(summary)
+        if _keep_spare:
+            prestart()
+
+    def _failed(self, error: str, controller) -> RunSummary:
+        p = self.problem
+        with self._lock:
+            history, median, seconds = np.array(self._history), np.array(self._median), self._seconds
+        return RunSummary(
+            run_id=self.run_id, config=self.config, state="failed", generations=len(history),
+            evaluations=len(history) * self.config.population, seconds=seconds, controller=controller,
+            train_mse=p.controller_mse(controller) if controller is not None else float("inf"),
+            test_mse=p.controller_mse(controller, p.test_goals) if controller is not None else float("inf"),
+            history=history, median_history=median, error=error)
+
+
+def prestart() -> None:
+    """Keep a warmed-up worker ready for the next start(), now and after every run."""
+    global _spare, _keep_spare
+    with _spare_lock:
+        _keep_spare = True
+        if _spare is None or _spare.poll() is not None:
+            _spare = _spawn(spare=True)
+
+
+def _take_worker() -> subprocess.Popen:
+    global _spare
+    with _spare_lock:
+        proc, _spare = _spare, None
+    if proc is not None and proc.poll() is None:
+        return proc
+    return _spawn(spare=False)
+
+
+def _spawn(spare: bool) -> subprocess.Popen:
+    root = str(Path(__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([root] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(var, "1")
+    proc = subprocess.Popen([sys.executable, "-m", "lab.worker"] + (["--spare"] if spare else []),
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0, env=env)
+    pipes.grow(proc.stdout.fileno())
+    return proc
+
+
+# ---------------------------------------------------------------------- the worker process
+def main(argv: list[str]) -> int:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which stops the run
+    if "--spare" in argv:
+        from .warmup import compile_kernels
+
+        compile_kernels()
+    from .runner import Runner
+
+    stream = pipes.messages(sys.stdin.fileno())
+    first = next(stream, None)
+    if not first:
+        return 0  # a spare whose parent ended without using it
+    (_, config, run_id, blas_threads), pending = first[0], first[1:]
+    out = sys.stdout.fileno()
+    try:
+        runner = Runner(config, blas_threads=blas_threads)
+    except Exception as e:
+        pipes.send(out, ("failed", f"{type(e).__name__}: {e}"))
+        return 1
+    runner.run_id = run_id
+    rows = pipes.EventEncoder()
+
+    def forward(event) -> None:
+        try:
+            pipes.send(out, ("event", rows(event)))
+        except OSError:  # the parent is gone
+            runner.stop(wait=False)
+
+    def commands() -> None:
+        actions = {"pause": runner.pause, "resume": runner.resume, "stop": lambda: runner.stop(wait=False)}
+        for batch in chain([pending], stream):
+            for message in batch:
+                actions[message[0]]()
+        runner.stop(wait=False)  # end of input: the parent is gone
+
+    runner.subscribe(forward)
+    threading.Thread(target=commands, name="lab-worker-commands", daemon=True).start()
+    summary = runner.run()
+    try:
+        pipes.send(out, ("end", summary))
+    except OSError:
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
