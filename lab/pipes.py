@@ -10,10 +10,24 @@ from __future__ import annotations
 import os
 import pickle
 import struct
+import subprocess
+import sys
+from pathlib import Path
 
 HEADER = struct.Struct("<I")  # the length of each pickled message
 PIPE_BYTES = 1 << 20  # F_SETPIPE_SZ: Linux's default limit for unprivileged processes
 _F_SETPIPE_SZ = 1031
+
+
+def start(module: str, *args: str) -> subprocess.Popen:
+    """`python -m module args` with pipes on stdin and stdout (unbuffered), this checkout first on
+    its path and one BLAS thread (unless set): a process that works beside this one."""
+    root = str(Path(__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([root] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(var, "1")
+    return subprocess.Popen([sys.executable, "-m", module, *args], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            bufsize=0, env=env)
 
 
 def encode(message) -> bytes:

@@ -36,7 +36,6 @@ import atexit
 import logging
 import os
 import subprocess
-import sys
 import tempfile
 import threading
 import uuid
@@ -115,10 +114,7 @@ class RerunLogger:
         self._lock = threading.Lock()
         self._closed = False
         self._error: str | None = None
-        env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-            [str(Path(__file__).resolve().parents[1])] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
-        self._proc = subprocess.Popen([sys.executable, "-m", "lab.recording_writer"], stdin=subprocess.PIPE,
-                                      stdout=subprocess.PIPE, bufsize=0, env=env)
+        self._proc = pipes.start("lab.recording_writer")
         self._fd = self._proc.stdin.fileno()
         pipes.grow(self._fd)
         self._send(("start", {

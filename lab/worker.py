@@ -19,13 +19,11 @@ for the next start(), so a click on Start trains at once instead of after ~2 s.
 from __future__ import annotations
 
 import logging
-import os
 import signal
 import subprocess
 import sys
 import threading
 from itertools import chain
-from pathlib import Path
 
 import numpy as np
 
@@ -149,12 +147,7 @@ def _take_worker() -> subprocess.Popen:
 
 
 def _spawn(spare: bool) -> subprocess.Popen:
-    root = str(Path(__file__).resolve().parents[1])
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([root] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        env.setdefault(var, "1")
-    proc = subprocess.Popen([sys.executable, "-m", "lab.worker"] + (["--spare"] if spare else []),
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0, env=env)
+    proc = pipes.start("lab.worker", *(["--spare"] if spare else []))
     pipes.grow(proc.stdout.fileno())
     return proc
 

@@ -372,6 +372,18 @@ def wait_for(pred, timeout=5.0):
     return True
 
 
+def resume_then_stop(r, g0: int):
+    """Resume a paused run, see it pass generation g0 + 3, stop it (within 2 s); its summary."""
+    r.resume()
+    assert r.state == "running" and wait_for(lambda: r.snapshot().generation > g0 + 3, timeout=2.0)
+    t0 = time.monotonic()
+    r.stop()
+    assert time.monotonic() - t0 < 2.0
+    summary = r.join(2.0)
+    assert summary is not None and summary.state == "stopped" and r.state == "stopped"
+    return summary
+
+
 def test_pause_resume_stop():
     r = long_runner()
     events = []
@@ -399,16 +411,10 @@ def test_pause_resume_stop():
         while time.monotonic() - t < 0.4:
             assert r.snapshot().generation <= g0 + 1
             time.sleep(0.01)
-        r.resume()
-        assert wait_for(lambda: r.snapshot().generation > g0 + 3, timeout=2.0)
-        t0 = time.monotonic()
-        r.stop()
-        assert time.monotonic() - t0 < 2.0
+        summary = resume_then_stop(r, g0)
     finally:
         r.stop(timeout=5)
-    summary = r.join(2.0)
-    assert summary is not None and r.done
-    assert summary.state == "stopped" and r.state == "stopped"
+    assert r.done
     assert g0 + 3 < summary.generations < 100_000
     assert events == list(range(summary.generations))
     assert len(summary.history) == summary.generations
@@ -696,15 +702,10 @@ def test_a_worker_process_pauses_resumes_and_stops():
         g0 = r.snapshot().generation
         time.sleep(0.4)
         assert r.snapshot().generation == g0
-        r.resume()
-        assert r.state == "running" and wait_for(lambda: r.snapshot().generation > g0 + 3)
-        t0 = time.monotonic()
-        r.stop()
-        assert time.monotonic() - t0 < 2.0
+        summary = resume_then_stop(r, g0)
     finally:
         r.stop(timeout=5)
-    summary = r.join(2.0)
-    assert summary.state == "stopped" and r.state == "stopped" and rec.ends == [summary]
+    assert rec.ends == [summary]
     assert summary.generations == r.snapshot().generation and len(summary.history) == summary.generations
     assert [e.index for e in rec.events] == list(range(rec.events[0].index, summary.generations))
     with pytest.raises(RuntimeError):
