@@ -30,6 +30,15 @@ def start(module: str, *args: str) -> subprocess.Popen:
                             bufsize=0, env=env)
 
 
+def claim_stdout() -> int:
+    """In a process started by start(): a descriptor for its stdout pipe, with fd 1 (and so print,
+    and any library's chatter) sent to stderr instead, where it cannot corrupt the messages."""
+    fd = os.dup(sys.stdout.fileno())
+    sys.stdout.flush()
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
+    return fd
+
+
 def encode(message) -> bytes:
     data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
     return HEADER.pack(len(data)) + data

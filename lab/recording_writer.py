@@ -30,7 +30,7 @@ import rerun as rr
 import robots
 
 from . import recording_views as views
-from .pipes import EventDecoder, messages
+from .pipes import EventDecoder, claim_stdout, messages
 from .recording import APPLICATION_ID, FORMAT_VERSION, compact
 
 DISPLAY_INTERVAL = 0.1  # seconds between writes of the display-only series (log10 MSE, search state)
@@ -157,6 +157,7 @@ class Writer:
 
 def main() -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    ack = claim_stdout()
     stream = messages(sys.stdin.fileno())
     first = next(stream, None)
     if not first or first[0][0] != "start":
@@ -181,7 +182,7 @@ def main() -> int:
         writer.end(summary)
     finally:
         writer.close()
-        os.write(sys.stdout.fileno(), b"C")
+        os.write(ack, b"C")
     if clean and header["compact"]:
         compact(writer.path)
     return 0

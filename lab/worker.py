@@ -155,6 +155,7 @@ def _spawn(spare: bool) -> subprocess.Popen:
 # ---------------------------------------------------------------------- the worker process
 def main(argv: list[str]) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which stops the run
+    out = pipes.claim_stdout()
     if "--spare" in argv:
         from .warmup import compile_kernels
 
@@ -166,7 +167,6 @@ def main(argv: list[str]) -> int:
     if not first:
         return 0  # a spare whose parent ended without using it
     (_, config, run_id, blas_threads), pending = first[0], first[1:]
-    out = sys.stdout.fileno()
     try:
         runner = Runner(config, blas_threads=blas_threads)
     except Exception as e:

@@ -755,3 +755,15 @@ def test_a_prestarted_worker_takes_the_next_run():
     spare = lab.worker._spare.pid
     r = process_runner(generations=5).start()
     assert r.pid == spare and r.join(30).state == "finished"
+
+
+def test_chatter_on_a_workers_stdout_cannot_corrupt_its_messages():
+    """print() in a process started by lab.pipes.start goes to stderr; the pipe carries only messages."""
+    from lab import pipes
+
+    script = ("from lab import pipes\nfd = pipes.claim_stdout()\nprint('some library talking', flush=True)\n"
+              "pipes.send(fd, ('event', [1.5, None]))\nprint('more talk')\n")
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    got = [m for batch in pipes.messages(proc.stdout.fileno()) for m in batch]
+    assert got == [("event", [1.5, None])]
+    assert proc.wait() == 0 and b"some library talking" in proc.stderr.read()

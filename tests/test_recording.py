@@ -197,6 +197,38 @@ def test_a_stopped_run_closes_its_recording(tmp_path):
     assert runner.problem.controller_mse(c) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
 
 
+def test_a_writer_that_dies_does_not_take_the_run_down(tmp_path, caplog):
+    config = lab.TrainConfig(method="cmaes", **{**SHORT, "generations": 100000})
+    runner = Runner(config)
+    logger = RerunLogger(runner, path=tmp_path / "orphan.rrd")
+    runner.subscribe(logger)
+    runner.start()
+    try:
+        assert _wait(lambda: (read_recording(logger.path).last_generation or 0) >= 10)
+        os.kill(logger.pid, signal.SIGKILL)
+        g = runner.snapshot().generation
+        assert _wait(lambda: runner.snapshot().generation > g + 100)  # the run goes on without it
+    finally:
+        runner.stop()
+    assert runner.join(30).state == "stopped"
+    assert "failed; unsubscribed" in caplog.text and "Rerun writer of" in caplog.text
+    with pytest.raises(RuntimeError, match=f"Rerun writer of {logger.path}"):
+        logger.close()
+    assert read_recording(logger.path).last_generation >= 10  # what it had written still loads
+
+
+def _wait(predicate, timeout: float = 60.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            if predicate():
+                return True
+        except (OSError, ValueError):  # the file is not there yet
+            pass
+        time.sleep(0.05)
+    return False
+
+
 def _train_until(path, generations: int, timeout: float = 60.0) -> tuple[subprocess.Popen, int]:
     """Start `python -m lab train` (endless) recording to `path`; return once it has logged `generations`,
     with the file's size when it first held a complete generation (the file only grows while it is written,
