@@ -5,6 +5,7 @@
     run.controller(goals)        # (n, len(task_axes)) -> (n, nq) within the joint limits
     run.train_mse, run.test_mse  # final best on the training and held-out goals
     lab.load_controller("recordings/....rrd", generation=None)  # a controller back from a Rerun recording
+    lab.Runner(config) / lab.ProcessRunner(config)  # a run in a background thread / in a worker process
 
 Nothing here knows about the GUI.
 """
@@ -13,10 +14,11 @@ from .config import TrainConfig
 from .controllers import Controller, GraphController, MLPController, controller_from_dict
 from .evolve import Run, evolve
 from .runner import GenerationEvent, Runner, RunSummary
+from .worker import ProcessRunner
 
 __all__ = [
-    "Controller", "GenerationEvent", "GraphController", "MLPController", "RerunLogger", "Run", "RunSummary",
-    "Runner", "TrainConfig", "controller_from_dict", "evolve", "load_controller",
+    "Controller", "GenerationEvent", "GraphController", "MLPController", "ProcessRunner", "RerunLogger", "Run",
+    "RunSummary", "Runner", "TrainConfig", "controller_from_dict", "evolve", "load_controller",
 ]
 
 

@@ -161,7 +161,7 @@ class RerunLogger:
         self._proc.stdout.close()
         if not closed:
             code = self._proc.wait()
-            raise RuntimeError(f"the Rerun writer of {self.path} failed (exit code {code}; its error is above)")
+            raise RuntimeError(f"the Rerun writer of {self.path} failed (exit code {code}; any error it printed is on stderr)")
         if wait:
             self.wait()
         else:  # reaps the writer when it is done compacting
@@ -187,7 +187,7 @@ class RerunLogger:
             try:
                 pipes.send(self._fd, message)
             except OSError as e:  # BrokenPipeError: the writer is gone
-                self._error = f"the Rerun writer of {self.path} stopped ({e.strerror or e}; its error is above)"
+                self._error = f"the Rerun writer of {self.path} stopped ({e.strerror or e}; any error it printed is on stderr)"
                 raise RuntimeError(self._error) from e
 
 
