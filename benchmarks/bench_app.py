@@ -19,7 +19,9 @@ Two numbers, measured side by side in rounds (headless then app, app then headle
    Target: >= 80 %.
 
 The clients share the machine's cores with the server (a classroom's browsers would not), so
-both numbers are pessimistic. No Rerun recording in either case.
+both numbers are pessimistic. No Rerun recording in either case, unless --record: then both
+record (headless with lab.recording.RerunLogger, as `python -m lab train` does by default; the
+app with its recorder, as `make app` does).
 """
 
 from __future__ import annotations
@@ -80,9 +82,15 @@ class Meter:
         return (b[1] - a[1]) / (b[0] - a[0])
 
 
-def headless(seconds: float) -> float:
+def headless(seconds: float, record: str | None = None) -> float:
     sys.setswitchinterval(0.005)
     runner, meter = lab.Runner(lab.TrainConfig.preset(**CONFIG)), Meter()
+    logger = None
+    if record:
+        from lab.recording import RerunLogger
+
+        logger = RerunLogger(runner, path=record + "/")
+        runner.subscribe(logger)
     runner.subscribe(meter)
     runner.start()
     time.sleep(1.0)  # warm-up
@@ -90,6 +98,8 @@ def headless(seconds: float) -> float:
     time.sleep(seconds)
     t1 = time.perf_counter()
     runner.stop()
+    if logger is not None:
+        logger.wait()  # its compaction, before the next round
     return dict(rate=meter.rate(t0, t1), runner_cpu=meter.cores(t0, t1))
 
 
@@ -138,6 +148,8 @@ def with_app(app, clients: int, dragging: int, seconds: float, hz: float) -> dic
             work.append(flushed - start)
     app.state.stop()
     app.state.reset()
+    if app.state.recorder is not None:
+        time.sleep(3.0)  # the recording's compaction (by its writer process), before the next round
     runner_cpu = meter.cores(t0, t1)
     return dict(rate=meter.rate(t0, t1), rtt=out["rtt"], server=server, work=work, runner_cpu=runner_cpu,
                 app_cpu=(cpu1 - cpu0) / (t1 - t0), client_cpu=client_cpu / (t1 - t0))
@@ -191,23 +203,24 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=6.0)
     ap.add_argument("--rounds", type=int, default=4)
     ap.add_argument("--dragging", type=int, default=1, help="how many of the tabs drag their marker")
+    ap.add_argument("--record", action="store_true", help="both sides write a Rerun recording")
     ap.add_argument("--hz", type=float, default=30.0, help="marker updates per second per dragging tab")
     args = ap.parse_args()
     from app.server import LabApp
 
     folder = tempfile.mkdtemp(prefix="bench-app-")
-    app = LabApp(port=0, notebook=os.path.join(folder, "notebook.json"), recordings=folder, record=False)
+    app = LabApp(port=0, notebook=os.path.join(folder, "notebook.json"), recordings=folder, record=args.record)
     record_arrivals(app)
     heads, apps = [], []
     load = os.getloadavg()
     try:
         for r in range(args.rounds):
             if r % 2 == 0:  # alternate which goes first, so a trend in the machine's load cancels out
-                heads.append(headless(args.seconds))
+                heads.append(headless(args.seconds, folder if args.record else None))
                 apps.append(with_app(app, args.clients, args.dragging, args.seconds, args.hz))
             else:
                 apps.append(with_app(app, args.clients, args.dragging, args.seconds, args.hz))
-                heads.append(headless(args.seconds))
+                heads.append(headless(args.seconds, folder if args.record else None))
             a, h = apps[-1], heads[-1]
             print(f"round {r + 1}: headless {h['rate']:,.0f} eval/s (optimizer {h['runner_cpu']:.2f} cores), "
                   f"app {a['rate']:,.0f} eval/s (optimizer {a['runner_cpu']:.2f} cores, app process "
@@ -222,7 +235,7 @@ def main() -> None:
     per_cpu_h = np.mean([h["rate"] / h["runner_cpu"] for h in heads])
     per_cpu_a = np.mean([a["rate"] / a["runner_cpu"] for a in apps])
     print(f"\n{args.clients} tabs connected, {args.dragging} dragging at {args.hz:g} Hz, while planar CMA-ES "
-          f"(population 50) trains, "
+          f"(population 50) trains{', both recording' if args.record else ''}, "
           f"{args.rounds} x {args.seconds:g} s, {os.cpu_count()} cores, load average before {load[0]:.1f}, "
           f"after {os.getloadavg()[0]:.1f}")
     print(f"marker -> pose, loopback round trip: p50 {pct(rtt, 50):.2f} ms, p95 {pct(rtt, 95):.2f} ms, "

@@ -14,7 +14,6 @@ from .config import TrainConfig
 from .controllers import Controller, GraphController, MLPController, controller_from_dict
 from .evolve import Run, evolve
 from .runner import GenerationEvent, Runner, RunSummary
-from .worker import ProcessRunner
 
 __all__ = [
     "Controller", "GenerationEvent", "GraphController", "MLPController", "ProcessRunner", "RerunLogger", "Run",
@@ -24,6 +23,10 @@ __all__ = [
 
 def __getattr__(name: str):
     """RerunLogger and load_controller import rerun (~0.7 s) only when first used."""
+    if name == "ProcessRunner":  # not imported above: `python -m lab.worker` must be its first import
+        from .worker import ProcessRunner
+
+        return ProcessRunner
     if name == "RerunLogger":
         from .recording import RerunLogger
 
