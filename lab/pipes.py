@@ -84,7 +84,7 @@ def grow(fd: int) -> None:
 def event_row(event, controller) -> tuple:
     """A GenerationEvent as sent between processes (controller: None when unchanged)."""
     return (event.index, event.best, event.gen_best, event.median, event.worst, event.evaluations,
-            event.seconds, event.improved, event.extras, controller)
+            event.seconds, event.improved, event.extras, event.wall_time, controller)
 
 
 class EventDecoder:
@@ -98,7 +98,8 @@ class EventDecoder:
 
         if row[-1] is not None:
             self.controller = row[-1]
-        return GenerationEvent(self.run_id, *row[:7], controller=self.controller, improved=row[7], extras=row[8])
+        return GenerationEvent(self.run_id, *row[:7], controller=self.controller, improved=row[7], extras=row[8],
+                               wall_time=row[9])
 
 
 class EventEncoder:

@@ -6,8 +6,9 @@
     runner.run(); print(logger.path)
 
 Contract of the file (lab/replay.py reads it back):
-- timelines: `generation` (sequence) and `run_time` (duration: optimizer time, pauses excluded);
-  rows logged one by one (poses, network) also get Rerun's wall-clock `log_time`;
+- timelines: `generation` (sequence), `run_time` (duration: optimizer time, pauses excluded) and
+  `wall_time` (timestamp: when the generation ended in the training process, pauses included);
+  rows logged one by one (poses, network) also get Rerun's `log_time` (when the writer logged them);
 - every generation: /mse, three series [best so far, median, worst] (worst only when finite), the
   same as /log10_mse (the viewer has no log axis in 0.41), /search: the backend's numeric extras
   (CMA-ES sigma and restarts; NEAT species, nodes, connections, hidden), names in its SeriesLines;

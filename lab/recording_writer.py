@@ -102,8 +102,7 @@ class Writer:
             self._send_rows("search", events, [[_number(e.extras.get(k)) for k in self._search_keys] for e in events])
 
     def _send_rows(self, entity: str, events: list, rows: list) -> None:
-        index = _indexes([e.index for e in events], [e.seconds for e in events])
-        self._rec.send_columns(entity, indexes=index, columns=[_Column(_Column.SCALARS, rows, pa.float64())])
+        self._rec.send_columns(entity, indexes=_indexes(events), columns=[_Column(_Column.SCALARS, rows, pa.float64())])
 
     def _write_controllers(self, events: list) -> None:
         rows = []
@@ -115,7 +114,7 @@ class Writer:
         if not rows:
             return
         self._rec.send_columns(
-            "controller", indexes=_indexes([e.index for e, _ in rows], [e.seconds for e, _ in rows]),
+            "controller", indexes=_indexes([e for e, _ in rows]),
             columns=[_Column(_Column.TEXT, [[t] for _, t in rows], pa.string())])
         e = rows[-1][0]
         if getattr(e.controller, "genome", None):
@@ -138,6 +137,7 @@ class Writer:
     def _set_time(self, e) -> None:
         self._rec.set_time("generation", sequence=e.index)
         self._rec.set_time("run_time", duration=e.seconds)
+        self._rec.set_time("wall_time", timestamp=e.wall_time)
 
     def _log_static(self, header: dict) -> None:
         c, arm = self.config, self._geometry.arm
@@ -207,9 +207,10 @@ class _Column:
         return pa.ListArray.from_arrays(pa.array(self.offsets, pa.int32()), self.values)
 
 
-def _indexes(gens, secs) -> list:
-    return [rr.TimeColumn("generation", sequence=np.asarray(gens, dtype=np.int64)),
-            rr.TimeColumn("run_time", duration=np.asarray(secs, dtype=np.float64))]
+def _indexes(events) -> list:
+    return [rr.TimeColumn("generation", sequence=np.array([e.index for e in events], dtype=np.int64)),
+            rr.TimeColumn("run_time", duration=np.array([e.seconds for e in events], dtype=np.float64)),
+            rr.TimeColumn("wall_time", timestamp=np.array([e.wall_time for e in events], dtype=np.float64))]
 
 
 def _mse_row(e) -> list:

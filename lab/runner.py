@@ -40,7 +40,7 @@ log = logging.getLogger(__name__)
 class GenerationEvent:
     """One generation: index from 0; best = best training MSE so far (of `controller`);
     gen_best/median/worst over this generation's population; evaluations so far; seconds of
-    run time so far (pauses excluded)."""
+    run time so far (pauses excluded); wall_time: when the generation ended (Unix time)."""
 
     run_id: str
     index: int
@@ -53,6 +53,7 @@ class GenerationEvent:
     controller: Controller
     improved: bool
     extras: dict = field(default_factory=dict)
+    wall_time: float = field(default_factory=time.time)
 
 
 @dataclass(frozen=True)

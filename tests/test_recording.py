@@ -13,6 +13,7 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
@@ -88,13 +89,20 @@ def test_views_and_blueprint(run):
 
 def test_mse_series_and_search_extras(run):
     runner, logger, _, events = run
-    rows = {}
+    rows, times = {}, {}
     for ch in RrdReader(logger.path).stream():
         if ch.entity_path in ("/mse", "/log10_mse", "/search") and not ch.is_static:
             rb = ch.to_record_batch()
-            for g, v in zip(rb.column("generation").to_pylist(), rb.column("Scalars:scalars").to_pylist()):
+            wall = rb.column("wall_time").cast(pa.int64()).to_pylist()  # ns since the epoch
+            run_time = rb.column("run_time").cast(pa.int64()).to_pylist()  # ns
+            for g, v, w, t in zip(rb.column("generation").to_pylist(), rb.column("Scalars:scalars").to_pylist(),
+                                  wall, run_time):
                 rows[ch.entity_path, g] = v
-    for e in events:
+                times[ch.entity_path, g] = (w, t)
+    for e in events:  # three timelines on every row: generation, run time and the wall clock
+        for entity in ("/mse", "/log10_mse", "/search"):
+            wall, run_time = times[entity, e.index]  # in ns, as Rerun stores them (to the float's precision)
+            assert abs(wall - e.wall_time * 1e9) < 1e3 and abs(run_time - e.seconds * 1e9) <= 1
         mse = rows["/mse", e.index]
         expected = [e.best, e.median] + ([e.worst] if np.isfinite(e.worst) else [])
         assert mse == expected  # worst only when finite
