@@ -157,6 +157,7 @@ class Writer:
 
 def main() -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    os.nice(10)  # the optimizer (and the app) first when the two cores are busy; the pipe waits
     ack = claim_stdout()
     stream = messages(sys.stdin.fileno())
     first = next(stream, None)
