@@ -214,6 +214,7 @@ def test_a_writer_that_dies_does_not_take_the_run_down(tmp_path, caplog):
     try:
         assert _wait(lambda: (read_recording(logger.path).last_generation or 0) >= 10)
         os.kill(logger.pid, signal.SIGKILL)
+        logger.wait(10)  # gone: the pipe has no reader any more
         g = runner.snapshot().generation
         assert _wait(lambda: runner.snapshot().generation > g + 100)  # the run goes on without it
     finally:
