@@ -23,8 +23,8 @@ Contract of the file (lab/replay.py reads it back):
 
 Cost and durability: __call__ pickles the generation's numbers (and the best controller when it
 changed) and writes them into a pipe, ~20 us in the optimizer's thread; the writer process
-(lab/recording_writer.py) does all of Rerun's work on the other core and writes and flushes the
-file each time it reads the pipe. Once __call__ has returned, the generation is in the kernel's
+(lab/recording_writer.py) does all of Rerun's work on the other core and writes and flushes
+what the pipe holds every 20 ms. Once __call__ has returned, the generation is in the kernel's
 pipe buffer: a training process killed with SIGKILL loses at most the generation in flight,
 and the writer then closes the file with its footer. The pipe holds about a thousand
 generations (1 MiB), so training never waits for the writer's start (~1 s). After a clean close

@@ -3,8 +3,9 @@
 It reads length-prefixed pickles from stdin, the pipe the training process writes into:
 ("start", header) first, then ("event", row) per generation, then ("end", summary) on a clean
 close. It owns the Rerun RecordingStream, so none of Rerun's work (Arrow columns, chunking,
-encoding, the file's writes) runs in the training process or holds its GIL; it writes and
-flushes whatever the pipe holds each time it reads, so the file trails the run by one read.
+encoding, the file's writes) runs in the training process or holds its GIL. It writes and
+flushes whatever the pipe holds, at most every WRITE_INTERVAL (20 ms), so the file trails the
+run by about that much; what waits is in the kernel's pipe buffer, not in a process's memory.
 The pipe outlives the training process: after a SIGKILL of that process, whatever it had handed
 over is still written, and the file is closed with its footer (end of input without "end").
 
@@ -33,6 +34,8 @@ from . import recording_views as views
 from .pipes import EventDecoder, claim_stdout, messages
 from .recording import APPLICATION_ID, FORMAT_VERSION, compact
 
+WRITE_INTERVAL = 0.02  # seconds: at most this often a write and flush of what the pipe holds (each costs
+# ~0.3 ms of CPU whatever it holds; the pipe keeps what waits, even if the training process is killed)
 DISPLAY_INTERVAL = 0.1  # seconds between writes of the display-only series (log10 MSE, search state)
 
 
@@ -167,6 +170,7 @@ def main() -> int:
     header = first[0][1]
     writer = Writer(header)
     decode, summary, clean, batch = EventDecoder(header["run_id"]), None, False, first[1:]
+    t0 = time.monotonic()
     try:
         while batch is not None:  # None: end of input without "end" (the training process was killed)
             events = []
@@ -179,6 +183,8 @@ def main() -> int:
             if clean:
                 break
             writer.flush()
+            time.sleep(max(0.0, WRITE_INTERVAL - (time.monotonic() - t0)))  # what arrives meanwhile waits in the pipe
+            t0 = time.monotonic()
             batch = next(stream, None)
         writer.end(summary)
     finally:
