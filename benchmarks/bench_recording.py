@@ -8,7 +8,7 @@ ratio (less sensitive to other processes on a shared machine; it includes the wr
 whose work runs beside the optimizer on the other core, and its compaction of the file after
 the run); the time spent before the run (creating the logger) and the recording's size.
 
-    .venv/bin/python benchmarks/bench_recording.py [--repeats 5] [--generations 1000]
+    .venv/bin/python benchmarks/bench_recording.py [--repeats 10] [--generations 1000] [--method neat]
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def _cpu() -> float:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=5, help="pairs of runs")
+    ap.add_argument("--repeats", type=int, default=10, help="pairs of runs (the box is noisy: runs vary by 10-15 %%)")
     ap.add_argument("--generations", type=int, default=1000)
     ap.add_argument("--population", type=int, default=50)
     ap.add_argument("--robot", default="planar")
