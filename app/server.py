@@ -18,6 +18,7 @@ import logging
 import sys
 import threading
 import time
+import warnings
 from collections import deque
 
 import numpy as np
@@ -42,6 +43,10 @@ VIEWS_PERIOD = 1.0  # s: error map and network drawing (each a few ms and a few 
 # (the render loop redrawing ten tabs, the run's reader thread) would wait that long. 1 ms keeps
 # drags under 5 ms (see benchmarks/bench_app.py); training, in its own process, is not affected.
 SWITCH_INTERVAL = 0.001
+# A tab that closes while the render loop redraws it gets that redraw's last messages after its
+# connection is gone; viser warns once per tab. Benign here (the session is dropped on disconnect),
+# and a classroom's terminal would fill with it as students close their tabs.
+warnings.filterwarnings("ignore", message="Queued a .* on a closed connection", category=UserWarning)
 
 
 def rerun_recorder(folder: str):
