@@ -727,7 +727,7 @@ def test_a_killed_worker_process_fails_the_run_with_its_exit_code():
     assert summary.generations == len(rec.events) and summary.train_mse == pytest.approx(rec.events[-1].best, abs=1e-9)
 
 
-def test_a_worker_process_ends_with_its_parent():
+def test_a_worker_process_ends_with_its_parent(wait_ended):
     """The parent killed outright: its worker stops training and exits (no orphan keeps a core)."""
     script = ("import time, lab\nfrom lab.worker import ProcessRunner\n"
               "r = ProcessRunner(lab.TrainConfig(generations=10**6, population=10, targets=10, test_goals=10))\n"
@@ -737,15 +737,7 @@ def test_a_worker_process_ends_with_its_parent():
     worker = int(parent.stdout.readline())
     parent.kill()
     parent.wait()
-    assert wait_for(lambda: _ended(worker), timeout=10)
-
-
-def _ended(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] == "Z"
-    except OSError:
-        return True
+    wait_ended(worker, timeout=10)
 
 
 def test_a_prestarted_worker_takes_the_next_run():

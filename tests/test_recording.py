@@ -286,21 +286,8 @@ def _writer_of(pid: int) -> int:
     pytest.fail(f"process {pid} has no writer process")
 
 
-def _wait_gone(pid: int, timeout: float = 60.0) -> None:
-    """Wait until a process that is not our child has ended (a zombie counts as ended)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            if Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z":
-                return
-        except OSError:
-            return
-        time.sleep(0.05)
-    pytest.fail(f"process {pid} is still running")
-
-
 @pytest.fixture(scope="module")
-def killed(tmp_path_factory):
+def killed(tmp_path_factory, wait_ended):
     """A `python -m lab train` process killed with SIGKILL while it writes its recording; returns once
     its writer process, which outlives it, has closed the file."""
     path = tmp_path_factory.mktemp("killed") / "killed.rrd"
@@ -312,7 +299,7 @@ def killed(tmp_path_factory):
     os.kill(proc.pid, signal.SIGKILL)
     proc.communicate()
     assert proc.returncode == -signal.SIGKILL
-    _wait_gone(writer)
+    wait_ended(writer)
     return path, first_size
 
 
@@ -331,7 +318,7 @@ runner.run()
 
 
 @pytest.mark.parametrize("method", ["cmaes", "neat"])
-def test_a_killed_run_loses_at_most_the_generation_in_flight(tmp_path, method):
+def test_a_killed_run_loses_at_most_the_generation_in_flight(tmp_path, method, wait_ended):
     """SIGKILL right after the training process has printed generation n (which it does once the
     logger has returned from that generation): the file holds every generation up to n, and
     the writer, which outlives the killed process, closes it with its footer."""
@@ -346,7 +333,7 @@ def test_a_killed_run_loses_at_most_the_generation_in_flight(tmp_path, method):
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == -signal.SIGKILL, err
     printed = int(out.split()[-1]) if out.split() else int(line)
-    _wait_gone(writer)
+    wait_ended(writer)
     RrdReader(path).store()  # closed with its footer, by the writer
     rec = read_recording(path)
     assert rec.summary is None and rec.last_generation >= printed

@@ -1,0 +1,28 @@
+"""Helpers shared by the test modules."""
+
+import time
+from pathlib import Path
+
+import pytest
+
+
+def process_ended(pid: int) -> bool:
+    """Whether a process (our child or not) has ended; a zombie counts as ended."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
+
+
+@pytest.fixture(scope="session")
+def wait_ended():
+    """wait_ended(pid, timeout=60): wait until process pid has ended; fails the test if it has not."""
+
+    def wait(pid: int, timeout: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout
+        while not process_ended(pid):
+            if time.monotonic() > deadline:
+                pytest.fail(f"process {pid} is still running after {timeout:g} s")
+            time.sleep(0.05)
+
+    return wait
