@@ -133,7 +133,7 @@ def _eye(geo: Geometry) -> rrb.EyeControls3D:
     lo, hi = (to_3d(b[None, :], geo.arm.task_axes)[0] for b in geo.arm.workspace_bounds)
     center, size = (lo + hi) / 2, float(np.max(hi - lo))
     planar = len(geo.arm.task_axes) == 2
-    offset = np.array([0.0, -0.35, 1.3]) if planar else np.array([1.1, -1.1, 0.8])
+    offset = np.array([0.0, -0.35, 1.3]) if planar else np.array([0.7, -0.7, 0.55])
     return rrb.EyeControls3D(position=center + size * offset, look_target=center, eye_up=[0.0, 0.0, 1.0])
 
 
