@@ -100,7 +100,9 @@ class LabApp:
             self.runs = RunsPanel(gui, self)
         self.show_map.on_update(lambda e: setattr(self._map, "visible", self.show_map.value))
         self._drawn = (-1, None)  # (shown version, arm) of the map and the network
-        self._views_lock = threading.Lock()  # the render loop and callers must not interleave draws
+        # the render loop and callers must not interleave draws, nor rebuilds of the shared scene (two
+        # threads adding /floor at once make viser remove the handle the other is still setting up)
+        self._views_lock = threading.RLock()
         self._build_shared()
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
@@ -143,6 +145,10 @@ class LabApp:
         return msg
 
     def _build_shared(self) -> None:
+        with self._views_lock:
+            self._build_shared_locked()
+
+    def _build_shared_locked(self) -> None:
         arm = self.state.arm
         ws = frame_workspace(arm)
         scene = self.server.scene
@@ -156,7 +162,7 @@ class LabApp:
                               point_size=0.008 * size, point_shape="circle")
         self._map_z = -0.05 * size  # just under the planar arm (its visuals reach z = -0.04 size)
         self._map = scene.add_image("/error_map", np.zeros((1, 1, 4), np.uint8), 1.0, 1.0, visible=False)
-        self._drawn = (-1, None)
+        self._drawn = (-1, arm)  # built for this arm: the render loop draws the views, without a second build
 
     def training_goals(self) -> np.ndarray:
         """3D points of the goals the current (or the next default) run trains on."""

@@ -9,6 +9,7 @@ pause holds them, refusals are shown); the notebook keeps runs across restarts.
 from __future__ import annotations
 
 import os
+import threading
 import time
 import urllib.request
 
@@ -245,6 +246,29 @@ def test_changing_the_robot_rebuilds_every_tab(app, tab):
     finally:
         app.panel.robot.value = "planar"
     assert wait_until(lambda: session.arm.name == "planar") and app.state.shown.source == "startup controller"
+
+
+def test_robot_switches_from_several_threads_at_once_rebuild_the_scene_cleanly(app):
+    """Panel callbacks (viser's thread pool) and the render loop rebuild the shared scene; at the
+    same time they must not meet inside viser (a node added twice at once loses its handle)."""
+    errors = []
+
+    def switch(names):
+        for name in names:
+            try:
+                app.switch_robot(name)
+                app._draw_views()
+            except Exception as e:  # noqa: BLE001 - collected and reported below
+                errors.append(e)
+
+    threads = [threading.Thread(target=switch, args=(["scara", "planar"] * 6,)) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    app.switch_robot("planar")
+    assert not errors, errors[:3]
+    assert app.state.arm.name == "planar" and wait_until(lambda: app._drawn[1] is app.state.arm)
 
 
 def test_neat_from_the_panel_draws_the_growing_network(app):
