@@ -1,5 +1,6 @@
 """Helpers shared by the test modules."""
 
+import random
 import time
 from pathlib import Path
 
@@ -26,3 +27,11 @@ def wait_ended():
             time.sleep(0.05)
 
     return wait
+
+
+@pytest.fixture
+def keep_random_state():
+    """Python's global random state (neat-python draws from it) is put back after the test."""
+    state = random.getstate()
+    yield
+    random.setstate(state)

@@ -175,81 +175,69 @@ def fresh_genome(config, key, connections, nodes=(0, 1, 2, 5, 6), innovations=No
     return g
 
 
-def test_crossover_tests_cycles_for_parents_not_known_acyclic():
+def test_crossover_tests_cycles_for_parents_not_known_acyclic(keep_random_state):
     config = neat_config(FastGenome, "project")
     gc = config.genome_config
-    state = random.getstate()
-    try:
-        random.seed(1)
-        p1 = fresh_genome(config, 1, [(-1, 5), (5, 6), (6, 5), (6, 0), (-2, 6), (5, 1)])
-        p2 = fresh_genome(config, 2, [(-1, 5), (5, 6), (6, 0), (-3, 2)])
-        p1.fitness, p2.fitness = 1.0, 0.5
-        assert p1._acyclic_at == -1  # add_connection does not check
-        children = []
-        for method in (neat.DefaultGenome.configure_crossover, FastGenome.configure_crossover):
-            random.seed(2)
-            child = FastGenome(3)
+    random.seed(1)
+    p1 = fresh_genome(config, 1, [(-1, 5), (5, 6), (6, 5), (6, 0), (-2, 6), (5, 1)])
+    p2 = fresh_genome(config, 2, [(-1, 5), (5, 6), (6, 0), (-3, 2)])
+    p1.fitness, p2.fitness = 1.0, 0.5
+    assert p1._acyclic_at == -1  # add_connection does not check
+    children = []
+    for method in (neat.DefaultGenome.configure_crossover, FastGenome.configure_crossover):
+        random.seed(2)
+        child = FastGenome(3)
+        method(child, p1, p2, gc)
+        children.append((snapshot(child), random.getstate()))
+    assert children[0] == children[1]
+    keys = {k for k, *_ in children[1][0][2]}
+    assert len(keys & {(5, 6), (6, 5)}) == 1  # the cycle was cut
+
+
+def test_crossover_warns_on_innovation_collisions_as_neat_does(keep_random_state):
+    config = neat_config(FastGenome, "project")
+    gc = config.genome_config
+    random.seed(1)
+    p1 = fresh_genome(config, 1, [(-1, 5), (5, 0), (-2, 1)], innovations={(5, 0): 7})
+    p2 = fresh_genome(config, 2, [(-1, 5), (-3, 2), (-2, 1)], innovations={(-3, 2): 7})
+    p1.fitness, p2.fitness = 0.5, 1.0
+    p2._acyclic_at = len(p2.connections)
+    children = []
+    for method in (neat.DefaultGenome.configure_crossover, FastGenome.configure_crossover):
+        random.seed(3)
+        child = FastGenome(3)
+        with pytest.warns(RuntimeWarning, match="Innovation number collision"):
             method(child, p1, p2, gc)
-            children.append((snapshot(child), random.getstate()))
-        assert children[0] == children[1]
-        keys = {k for k, *_ in children[1][0][2]}
-        assert len(keys & {(5, 6), (6, 5)}) == 1  # the cycle was cut
-    finally:
-        random.setstate(state)
+        children.append((snapshot(child), random.getstate()))
+    assert children[0] == children[1]
 
 
-def test_crossover_warns_on_innovation_collisions_as_neat_does():
-    config = neat_config(FastGenome, "project")
-    gc = config.genome_config
-    state = random.getstate()
-    try:
-        random.seed(1)
-        p1 = fresh_genome(config, 1, [(-1, 5), (5, 0), (-2, 1)], innovations={(5, 0): 7})
-        p2 = fresh_genome(config, 2, [(-1, 5), (-3, 2), (-2, 1)], innovations={(-3, 2): 7})
-        p1.fitness, p2.fitness = 0.5, 1.0
-        p2._acyclic_at = len(p2.connections)
-        children = []
-        for method in (neat.DefaultGenome.configure_crossover, FastGenome.configure_crossover):
-            random.seed(3)
-            child = FastGenome(3)
-            with pytest.warns(RuntimeWarning, match="Innovation number collision"):
-                method(child, p1, p2, gc)
-            children.append((snapshot(child), random.getstate()))
-        assert children[0] == children[1]
-    finally:
-        random.setstate(state)
-
-
-def test_fast_genes_mutate_as_neat_genes_and_copy_pickle():
+def test_fast_genes_mutate_as_neat_genes_and_copy_pickle(keep_random_state):
     config = neat_config(FastGenome, "deletions")
     gc = config.genome_config
-    state = random.getstate()
-    try:
-        random.seed(4)
-        gc.innovation_tracker = neat.innovation.InnovationTracker()
-        g = FastGenome(1)
-        g.configure_new(gc)
-        for _ in range(30):
-            g.mutate(gc)
-        assert isinstance(g.nodes[0], FastNodeGene)
-        assert isinstance(next(iter(g.connections.values())), FastConnectionGene)
-        results = []
-        for node_mutate, conn_mutate in ((neat.DefaultNodeGene.mutate, neat.DefaultConnectionGene.mutate),
-                                         (FastNodeGene.mutate, FastConnectionGene.mutate)):
-            h = copy.deepcopy(g)
-            random.seed(5)
-            for _ in range(50):
-                for n in h.nodes.values():
-                    node_mutate(n, gc)
-                for c in h.connections.values():
-                    conn_mutate(c, gc)
-            results.append((snapshot(h), random.getstate()))
-        assert results[0] == results[1]
-        again = pickle.loads(pickle.dumps(g))
-        assert snapshot(again) == snapshot(g) and again._acyclic_at == g._acyclic_at
-        assert vars(g.nodes[0]) == {} and vars(next(iter(g.connections.values()))) == {}  # all in slots
-    finally:
-        random.setstate(state)
+    random.seed(4)
+    gc.innovation_tracker = neat.innovation.InnovationTracker()
+    g = FastGenome(1)
+    g.configure_new(gc)
+    for _ in range(30):
+        g.mutate(gc)
+    assert isinstance(g.nodes[0], FastNodeGene)
+    assert isinstance(next(iter(g.connections.values())), FastConnectionGene)
+    results = []
+    for node_mutate, conn_mutate in ((neat.DefaultNodeGene.mutate, neat.DefaultConnectionGene.mutate),
+                                     (FastNodeGene.mutate, FastConnectionGene.mutate)):
+        h = copy.deepcopy(g)
+        random.seed(5)
+        for _ in range(50):
+            for n in h.nodes.values():
+                node_mutate(n, gc)
+            for c in h.connections.values():
+                conn_mutate(c, gc)
+        results.append((snapshot(h), random.getstate()))
+    assert results[0] == results[1]
+    again = pickle.loads(pickle.dumps(g))
+    assert snapshot(again) == snapshot(g) and again._acyclic_at == g._acyclic_at
+    assert vars(g.nodes[0]) == {} and vars(next(iter(g.connections.values()))) == {}  # all in slots
 
 
 def test_neat_backend_runs_as_with_neat_types(monkeypatch, compiled_only):

@@ -339,45 +339,42 @@ class FastGenome(DefaultGenome):
     # ------------------------------------------------------------ speciation
     def distance(self, other, config):
         """DefaultGenome.distance with the genes' distance written out, summed in the same order."""
-        weight_coefficient = config.compatibility_weight_coefficient
-        disjoint_coefficient = config.compatibility_disjoint_coefficient
+        wc, dc = config.compatibility_weight_coefficient, config.compatibility_disjoint_coefficient
+        return (_genes_distance(self.nodes, other.nodes, _node_distance, wc, dc)
+                + _genes_distance(self.connections, other.connections, _connection_distance, wc, dc))
 
-        nodes1, nodes2 = self.nodes, other.nodes
-        node_distance = 0.0
-        if nodes1 or nodes2:
-            get = nodes2.get
-            matched = 0
-            for k1, n1 in nodes1.items():
-                n2 = get(k1)
-                if n2 is not None:
-                    matched += 1
-                    d = abs(n1.bias - n2.bias) + abs(n1.response - n2.response)
-                    d += abs(n1.time_constant - n2.time_constant)
-                    if n1.activation != n2.activation:
-                        d += 1.0
-                    if n1.aggregation != n2.aggregation:
-                        d += 1.0
-                    node_distance += d * weight_coefficient
-            n, m = len(nodes1), len(nodes2)
-            disjoint_nodes = n + m - 2 * matched
-            node_distance = (node_distance + (disjoint_coefficient * disjoint_nodes)) / max(n, m)
 
-        conns1, conns2 = self.connections, other.connections
-        connection_distance = 0.0
-        if conns1 or conns2:
-            get = conns2.get
-            matched = 0
-            for k1, c1 in conns1.items():
-                c2 = get(k1)
-                if c2 is not None:
-                    matched += 1
-                    d = abs(c1.weight - c2.weight)
-                    if c1.enabled != c2.enabled:
-                        d += 1.0
-                    connection_distance += d * weight_coefficient
-            n, m = len(conns1), len(conns2)
-            disjoint_connections = n + m - 2 * matched
-            connection_distance = (connection_distance +
-                                   (disjoint_coefficient * disjoint_connections)) / max(n, m)
+def _genes_distance(genes1: dict, genes2: dict, gene_distance, weight_coefficient: float,
+                    disjoint_coefficient: float) -> float:
+    """One half of DefaultGenome.distance (node or connection genes): the homologous genes' distances
+    in genes1's order, then the disjoint genes, normalised by the larger genome."""
+    if not (genes1 or genes2):
+        return 0.0
+    get = genes2.get
+    total, matched = 0.0, 0
+    for k1, g1 in genes1.items():
+        g2 = get(k1)
+        if g2 is not None:
+            matched += 1
+            total += gene_distance(g1, g2) * weight_coefficient
+    n, m = len(genes1), len(genes2)
+    return (total + (disjoint_coefficient * (n + m - 2 * matched))) / max(n, m)
 
-        return node_distance + connection_distance
+
+def _node_distance(n1, n2) -> float:
+    """DefaultNodeGene.distance without its compatibility_weight_coefficient."""
+    d = abs(n1.bias - n2.bias) + abs(n1.response - n2.response)
+    d += abs(n1.time_constant - n2.time_constant)
+    if n1.activation != n2.activation:
+        d += 1.0
+    if n1.aggregation != n2.aggregation:
+        d += 1.0
+    return d
+
+
+def _connection_distance(c1, c2) -> float:
+    """DefaultConnectionGene.distance without its compatibility_weight_coefficient."""
+    d = abs(c1.weight - c2.weight)
+    if c1.enabled != c2.enabled:
+        d += 1.0
+    return d
