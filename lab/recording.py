@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from . import pipes
+from .backends import backend_type
 from .config import TrainConfig
 from .problem import Problem
 
@@ -104,13 +105,13 @@ class RerunLogger:
 
     def __init__(self, source, problem: Problem | None = None, path: str | os.PathLike | None = None, *,
                  pose_every: int = 10, compact: bool = True, hyperparameters: dict | None = None):
-        config, problem, backend, run_id = _resolve_source(source, problem)
+        config, problem, run_id = _resolve_source(source, problem)
         if not (isinstance(pose_every, int) and pose_every >= 1):
             raise ValueError(f"pose_every must be an integer >= 1, got {pose_every!r}")
         self.path = prepare_path(path, config)
         self.config, self.problem, self.pose_every, self.compact = config, problem, pose_every, compact
         if hyperparameters is None:
-            hyperparameters = _hyperparameters(backend, problem, config)
+            hyperparameters = backend_type(config.method).settings(problem, config)  # builds no backend
         self._rows = pipes.EventEncoder()
         self._lock = threading.Lock()
         self._closed = False
@@ -220,7 +221,7 @@ def compact(path: str | os.PathLike, timeout: float = 60.0) -> bool:
 
 
 def _resolve_source(source, problem):
-    """(config, problem, backend or None, recording id) from a Runner, a config or a pair."""
+    """(config, problem, recording id) from a Runner, a config or a pair."""
     if isinstance(source, tuple) and len(source) == 2 and problem is None:
         source, problem = source
     if isinstance(source, TrainConfig):
@@ -228,18 +229,10 @@ def _resolve_source(source, problem):
             from .runner import build_problem
 
             problem = build_problem(source)
-        return source, problem, None, uuid.uuid4().hex[:12]
-    if hasattr(source, "config") and hasattr(source, "problem") and hasattr(source, "backend"):
-        return source.config, source.problem, source.backend, source.run_id
+        return source, problem, uuid.uuid4().hex[:12]
+    if hasattr(source, "config") and hasattr(source, "problem") and hasattr(source, "run_id"):
+        return source.config, source.problem, source.run_id
     raise TypeError(f"RerunLogger needs a Runner, a TrainConfig or (config, problem), got {type(source).__name__}")
-
-
-def _hyperparameters(backend, problem, config) -> dict:
-    if backend is None:
-        from .backends import make_backend
-
-        backend = make_backend(problem, config)
-    return backend.hyperparameters()
 
 
 def _close_at_exit(ref) -> None:

@@ -300,6 +300,26 @@ def test_genome_to_controller_equals_neat_feed_forward_network(robot):
             assert m == pytest.approx(np_mse(arm, goals, np_joints(arm, a, enc.margin)), rel=0, abs=1e-9)
 
 
+@pytest.mark.parametrize("method", ["cmaes", "neat"])
+def test_logged_hyperparameters_are_the_ones_the_optimizer_runs_with(method):
+    """Backend.settings(problem, config) builds no backend (a recording of a run in a worker
+    process logs it from the app's side), so check it against the optimizer a backend builds."""
+    config = lab.TrainConfig(robot="scara", method=method, population=20, hidden=4, mutation_power=0.7, **SMALL)
+    problem = build_problem(config)
+    backend = (CMAESBackend if method == "cmaes" else NEATBackend)(problem, config)
+    settings = type(backend).settings(problem, config)
+    assert settings == backend.hyperparameters()
+    if method == "cmaes":
+        es = backend.es
+        assert (settings["dim"], settings["popsize"], settings["sigma0"]) == (es.N, es.popsize, es.sigma0)
+    else:
+        genome, pop = backend.neat_config.genome_config, backend.neat_config
+        assert settings["pop_size"] == pop.pop_size == len(backend.population.population)
+        assert settings["weight_mutate_power"] == genome.weight_mutate_power == 0.7
+        assert (settings["node_add_prob"], settings["conn_add_prob"]) == (genome.node_add_prob, genome.conn_add_prob)
+        assert settings["initial_hidden"] == genome.num_hidden == 4
+
+
 # ---------------------------------------------------------------- 4. determinism
 # diagonal=10: CMA-ES switches from its diagonal to its full sampler mid-run (pycma's new sampler
 # would draw from numpy's global generator if the backend did not hand it the run's own)

@@ -3,6 +3,7 @@
     backend = make_backend(problem, config)     # CMA-ES or NEAT, by config.method
     result = backend.step()                     # evaluates and updates one generation
     backend.best, backend.best_mse              # best controller so far and its training MSE
+    backend_type(method).settings(problem, config)   # its hyperparameters, without building one
 
 Backends never start threads; `lab.runner.Runner` drives them.
 """
@@ -14,16 +15,21 @@ from ..problem import Problem
 from .base import Backend, StepResult
 
 
-def make_backend(problem: Problem, config: TrainConfig) -> Backend:
-    if config.method == "cmaes":
+def backend_type(method: str) -> type[Backend]:
+    """The Backend class of one method ("cmaes" or "neat"), imported on first use."""
+    if method == "cmaes":
         from .cmaes import CMAESBackend
 
-        return CMAESBackend(problem, config)
-    if config.method == "neat":
+        return CMAESBackend
+    if method == "neat":
         from .neat import NEATBackend
 
-        return NEATBackend(problem, config)
-    raise ValueError(f"unknown method {config.method!r}")
+        return NEATBackend
+    raise ValueError(f"unknown method {method!r}")
 
 
-__all__ = ["Backend", "StepResult", "make_backend"]
+def make_backend(problem: Problem, config: TrainConfig) -> Backend:
+    return backend_type(config.method)(problem, config)
+
+
+__all__ = ["Backend", "StepResult", "backend_type", "make_backend"]

@@ -47,9 +47,15 @@ class Backend(ABC):
         self.evaluations += len(result.fitness)
         return result
 
-    def hyperparameters(self) -> dict:
-        """The settings this backend runs with (logged with the recording)."""
+    @classmethod
+    def settings(cls, problem: Problem, config: TrainConfig) -> dict:
+        """The hyperparameters a backend of this class runs with on (problem, config); logged
+        with the recording. A function of its arguments alone, so no backend has to be built."""
         return {}
+
+    def hyperparameters(self) -> dict:
+        """This backend's settings(problem, config)."""
+        return self.settings(self.problem, self.config)
 
     def _offer(self, mse: float, make_controller) -> None:
         """Keep the best controller so far (make_controller is only called on improvement)."""

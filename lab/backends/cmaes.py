@@ -52,10 +52,12 @@ class CMAESBackend(Backend):
         self._start_best = np.inf
         self._start_best_gen = self.generation
 
-    def hyperparameters(self) -> dict:
-        return {"dim": self.dim, "hidden": self.config.hidden, "sigma0": self.config.sigma0, "diagonal": self.config.diagonal,
-                "popsize": self.config.population, "restarts": self.config.restarts,
-                "stall_generations": STALL, "cma": cma.__version__}
+    @classmethod
+    def settings(cls, problem, config) -> dict:
+        enc = problem.encoding
+        return {"dim": mlp_size(enc.n_inputs, config.hidden, enc.n_outputs), "hidden": config.hidden,
+                "sigma0": config.sigma0, "diagonal": config.diagonal, "popsize": config.population,
+                "restarts": config.restarts, "stall_generations": STALL, "cma": cma.__version__}
 
     def _step(self) -> StepResult:
         X = np.asarray(self.es.ask())

@@ -319,8 +319,9 @@ class NEATBackend(Backend):
             self._random_state = random.getstate()
             random.setstate(saved)
 
-    def hyperparameters(self) -> dict:
-        return {**self.params, "initial_hidden": self.config.hidden, "pop_size": self.config.population,
+    @classmethod
+    def settings(cls, problem, config) -> dict:
+        return {**neat_parameters(config), "initial_hidden": config.hidden, "pop_size": config.population,
                 "activation": "tanh", "neat-python": getattr(neat, "__version__", "2.0")}
 
     def _step(self) -> StepResult:
