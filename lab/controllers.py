@@ -129,30 +129,53 @@ class GraphController:
         }
 
 
-def compile_programs(graphs) -> tuple:
-    """Flatten graphs into the arrays `kernels.graph_forward` walks (see its docstring)."""
-    ni = len(graphs[0].input_keys)
-    no = len(graphs[0].output_keys)
-    starts, n_nodes, bias, response, link_start, link_src, link_w = [], [], [], [], [0], [], []
-    out_slot = np.full((len(graphs), no), -1, dtype=np.int64)
-    for p, g in enumerate(graphs):
-        slot = {k: i for i, k in enumerate(g.input_keys)}
+def lay_out(nodes, input_keys, output_keys) -> tuple:
+    """Slots of one feed-forward graph, as `kernels.graph_forward` reads them.
+
+    nodes: (key, links) in evaluation order, links ((source key, x), ...). Slots 0 .. ni-1 hold
+    the inputs, ni + k the k-th node. Returns (link_src, link_x, link_end, out_slot): each link's
+    source slot and its x, where each node's links end, each output's slot (-1: not expressed).
+    """
+    ni = len(input_keys)
+    slot = {k: i for i, k in enumerate(input_keys)}
+    link_src, link_x, link_end = [], [], []
+    for k, (key, links) in enumerate(nodes):
+        for src, x in links:
+            link_src.append(slot[src])
+            link_x.append(x)
+        link_end.append(len(link_src))
+        slot[key] = ni + k
+    return link_src, link_x, link_end, [slot.get(key, -1) for key in output_keys]
+
+
+def join_programs(parts) -> tuple:
+    """The arrays `kernels.graph_forward` walks, from each graph's (bias, response, link_src, link_w,
+    link_end, out_slot) lists (see lay_out): the graphs' nodes and links laid end to end."""
+    starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot = [], [], [], [], [0], [], [], []
+    for b, r, src, w, end, out in parts:
         starts.append(len(bias))
-        n_nodes.append(len(g.nodes))
-        for k, (key, b, r, links) in enumerate(g.nodes):
-            bias.append(b)
-            response.append(r)
-            for src, w in links:
-                link_src.append(slot[src])
-                link_w.append(w)
-            link_start.append(len(link_src))
-            slot[key] = ni + k
-        for o, key in enumerate(g.output_keys):
-            out_slot[p, o] = slot.get(key, -1)
+        n_nodes.append(len(b))
+        bias += b
+        response += r
+        base = len(link_src)
+        link_start += [base + e for e in end]
+        link_src += src
+        link_w += w
+        out_slot += out
+    no = len(out)
     as_i = lambda x: np.asarray(x, dtype=np.int64)  # noqa: E731
     as_f = lambda x: np.asarray(x, dtype=np.float64)  # noqa: E731
     return (as_i(starts), as_i(n_nodes), as_f(bias), as_f(response), as_i(link_start),
-            as_i(link_src), as_f(link_w), out_slot, no)
+            as_i(link_src), as_f(link_w), as_i(out_slot).reshape(len(starts), no), no)
+
+
+def compile_programs(graphs) -> tuple:
+    """Flatten graphs into the arrays `kernels.graph_forward` walks (see its docstring)."""
+    parts = []
+    for g in graphs:
+        src, w, end, out = lay_out([(key, links) for key, _, _, links in g.nodes], g.input_keys, g.output_keys)
+        parts.append(([b for _, b, _, _ in g.nodes], [r for _, _, r, _ in g.nodes], src, w, end, out))
+    return join_programs(parts)
 
 
 def run_programs(program: tuple, X: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ import pytest
 import lab
 import robots
 from lab.backends.cmaes import CMAESBackend
-from lab.backends.neat import NEATBackend, compile_genomes, genome_program, genome_to_controller
+from lab.backends.neat import NEATBackend, compile_genomes, genome_program, genome_to_controller, program_hidden
 from lab.controllers import GraphController, MLPController, compile_programs, controller_from_dict, mlp_size
 from lab.encoding import Encoding
 from lab.problem import Problem, goal_errors
@@ -290,7 +290,7 @@ def test_genome_to_controller_equals_neat_feed_forward_network(robot):
             assert got.dtype == expected.dtype and got.shape == expected.shape and np.array_equal(got, expected)
         else:
             assert got == expected
-    assert [p[0][5] for p in programs] == [c.n_hidden for c in graphs]
+    assert [program_hidden(p) for p in programs] == [c.n_hidden for c in graphs]
 
     for test, goals in ((False, prob.train_goals), (True, prob.test_goals)):
         got = prob.graphs_mse(graphs, test=test)

@@ -40,7 +40,7 @@ import threading
 import neat
 import numpy as np
 
-from ..controllers import GraphController
+from ..controllers import GraphController, join_programs, lay_out
 from .base import Backend, StepResult
 from .neat_genome import FastGenome, FastReproduction
 from .neat_species import FastSpeciesSet
@@ -225,55 +225,35 @@ def _wiring(enabled: tuple, input_keys: tuple, output_keys: tuple) -> tuple:
 
 @functools.lru_cache(maxsize=4096)
 def _layout(enabled: tuple, input_keys: tuple, output_keys: tuple) -> tuple:
-    """A wiring (_wiring) as compile_programs lays out its GraphController: the node genes' keys in
-    evaluation order, each link's source slot (inputs 0 .. ni-1, then the nodes in order) and index
-    in `enabled`, each node's end in the links, each output's slot (-1: absent), and the hidden nodes."""
+    """A wiring (_wiring) as compile_programs lays out its GraphController (controllers.lay_out):
+    the node genes' keys in evaluation order, each link's source slot and index in `enabled`,
+    each node's end in the links, each output's slot (-1: absent)."""
     wiring = _wiring(enabled, input_keys, output_keys)
-    ni = len(input_keys)
-    slot = {k: i for i, k in enumerate(input_keys)}
-    gene_keys, link_src, link_j, link_end = [], [], [], []
-    for k, (key, gene_key, links) in enumerate(wiring):
-        gene_keys.append(gene_key)
-        for src, j in links:
-            link_src.append(slot[src])
-            link_j.append(j)
-        link_end.append(len(link_src))
-        slot[key] = ni + k
-    out_slot = tuple(slot.get(key, -1) for key in output_keys)
-    n_hidden = sum(1 for key, _, _ in wiring if key not in output_keys)
-    return tuple(gene_keys), link_src, link_j, link_end, out_slot, n_hidden
+    link_src, link_j, link_end, out_slot = lay_out([(key, links) for key, _, links in wiring], input_keys, output_keys)
+    return tuple(gene_key for _, gene_key, _ in wiring), link_src, link_j, link_end, out_slot
 
 
 def genome_program(genome, config: neat.Config) -> tuple:
-    """What compile_programs takes from genome_to_controller(genome): (layout, biases, responses,
-    link weights); compile_genomes joins them (numpy's float64 conversion of each value is float()'s)."""
+    """What compile_programs takes from genome_to_controller(genome), as join_programs reads it:
+    (biases, responses, link sources, link weights, node ends, output slots)."""
     gc = config.genome_config
     keys, weights = _enabled(genome)
-    layout = _layout(keys, tuple(gc.input_keys), tuple(gc.output_keys))
+    gene_keys, link_src, link_j, link_end, out_slot = _layout(keys, tuple(gc.input_keys), tuple(gc.output_keys))
     genes = genome.nodes
-    nodes = [genes[k] for k in layout[0]]
-    return layout, [n.bias for n in nodes], [n.response for n in nodes], [weights[j] for j in layout[2]]
+    nodes = [genes[k] for k in gene_keys]
+    return [n.bias for n in nodes], [n.response for n in nodes], link_src, [weights[j] for j in link_j], link_end, out_slot
+
+
+def program_hidden(program: tuple) -> int:
+    """Hidden nodes of a genome_program's network: its nodes less the outputs it expresses."""
+    bias, out_slot = program[0], program[5]
+    return len(bias) - sum(1 for s in out_slot if s >= 0)
 
 
 def compile_genomes(programs) -> tuple:
     """compile_programs([genome_to_controller(g) for g in genomes]), the same arrays, from the
-    genomes' genome_program: no GraphController made."""
-    starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot = [], [], [], [], [0], [], [], []
-    for (gene_keys, src, _, end, out, _), b, r, w in programs:
-        starts.append(len(bias))
-        n_nodes.append(len(gene_keys))
-        bias += b
-        response += r
-        base = len(link_src)
-        link_start += [base + e for e in end]
-        link_src += src
-        link_w += w
-        out_slot += out
-    no = len(programs[0][0][4])
-    as_i = lambda x: np.asarray(x, dtype=np.int64)  # noqa: E731
-    as_f = lambda x: np.asarray(x, dtype=np.float64)  # noqa: E731
-    return (as_i(starts), as_i(n_nodes), as_f(bias), as_f(response), as_i(link_start),
-            as_i(link_src), as_f(link_w), as_i(out_slot).reshape(len(programs), no), no)
+    genomes' genome_program: no GraphController made (numpy's float64 of each value is float()'s)."""
+    return join_programs(programs)
 
 
 def _topological(required: set, incoming: dict) -> list:
@@ -356,7 +336,7 @@ class NEATBackend(Backend):
         extras = {
             "species": len(pop.species.species),
             "nodes": len(best.nodes), "connections": sum(c.enabled for c in best.connections.values()),
-            "hidden": programs[i][0][5],
+            "hidden": program_hidden(programs[i]),
         }
         pop.population = self._reproduce()
         if not pop.species.species:  # complete extinction: start afresh (reset_on_extinction)
