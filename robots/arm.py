@@ -96,15 +96,7 @@ class Arm:
 
     def from_pinocchio(self, q_pin) -> np.ndarray:
         """Pinocchio configurations (..., model.nq) -> angle vectors (..., nq)."""
-        q_pin = np.asarray(q_pin, dtype=np.float64)
-        cols = []
-        for k in range(self.nq):
-            i = self.chain.idx_q[k]
-            if self.chain.continuous[k]:
-                cols.append(np.arctan2(q_pin[..., i + 1], q_pin[..., i]))
-            else:
-                cols.append(q_pin[..., i])
-        return np.stack(cols, axis=-1)
+        return self.chain.from_pinocchio(q_pin)
 
     # ---------------------------------------------------------------- sampling
     def sample_q(self, n: int, seed: int | None = None) -> np.ndarray:
@@ -191,7 +183,7 @@ def from_urdf(
     q_ref = pin.neutral(model)
     joint_names = tuple(model.names[int(j)] for j in chain.joint_ids)
     arm_q_ref = _reduce_reference(full, model, q_full)
-    rest = np.clip(_angles(chain, arm_q_ref), lower, upper)
+    rest = np.clip(chain.from_pinocchio(arm_q_ref), lower, upper)
     dirs = tuple(package_dirs)
     ee_name = model.frames[frame_id].name
 
@@ -248,11 +240,3 @@ def _reduce_reference(full: pin.Model, model: pin.Model, q_full: np.ndarray) -> 
         jm, jfm = model.joints[j], full.joints[jf]
         q[jm.idx_q : jm.idx_q + jm.nq] = q_full[jfm.idx_q : jfm.idx_q + jfm.nq]
     return q
-
-
-def _angles(chain: ChainKinematics, q_pin: np.ndarray) -> np.ndarray:
-    out = np.empty(chain.n)
-    for k in range(chain.n):
-        i = chain.idx_q[k]
-        out[k] = np.arctan2(q_pin[i + 1], q_pin[i]) if chain.continuous[k] else q_pin[i]
-    return out

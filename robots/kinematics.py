@@ -130,6 +130,19 @@ class ChainKinematics:
                 out[:, i] = q[:, k]
         return out
 
+    def from_pinocchio(self, q_pin: np.ndarray) -> np.ndarray:
+        """Pinocchio configurations (..., model.nq) -> angle vectors (..., n): a continuous
+        joint's (cos, sin) becomes its angle in [-pi, pi]."""
+        q_pin = np.asarray(q_pin, dtype=np.float64)
+        cols = []
+        for k in range(self.n):
+            i = self.idx_q[k]
+            if self.continuous[k]:
+                cols.append(np.arctan2(q_pin[..., i + 1], q_pin[..., i]))
+            else:
+                cols.append(q_pin[..., i])
+        return np.stack(cols, axis=-1)
+
 
 _NO_JOINTS = np.empty((0, 0, 3))
 
