@@ -23,25 +23,24 @@ import pinocchio as pin
 
 REVOLUTE, PRISMATIC = 0, 1
 
-_AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
-
 
 def _joint_kind(jm: pin.JointModel) -> tuple[int, np.ndarray, bool]:
-    """(REVOLUTE or PRISMATIC, unit axis in the joint frame, continuous?) of one joint."""
+    """(REVOLUTE or PRISMATIC, unit axis in the joint frame, continuous?) of one joint.
+
+    Read off the joint's motion subspace S = (linear; angular), so every one-axis joint type
+    (RX.., RUBX.., PX.., and the unaligned ones, whose axis the JointModel variant hides) is one
+    case: a revolute joint moves along its angular part, a prismatic one along its linear part.
+    """
     short = jm.shortname()  # e.g. JointModelRZ, JointModelRUBY, JointModelPrismaticUnaligned
-    name = short.removeprefix("JointModel")
-    if name in ("RX", "RY", "RZ"):
-        return REVOLUTE, np.array(_AXES[name[1]]), False
-    if name in ("RUBX", "RUBY", "RUBZ"):
-        return REVOLUTE, np.array(_AXES[name[3]]), True
-    if name in ("PX", "PY", "PZ"):
-        return PRISMATIC, np.array(_AXES[name[1]]), False
-    if name == "RevoluteUnaligned":
-        return REVOLUTE, np.asarray(jm.axis, dtype=float).copy(), False
-    if name == "RevoluteUnboundedUnaligned":
-        return REVOLUTE, np.asarray(jm.axis, dtype=float).copy(), True
-    if name == "PrismaticUnaligned":
-        return PRISMATIC, np.asarray(jm.axis, dtype=float).copy(), False
+    if jm.nv == 1 and jm.nq in (1, 2):  # nq 2: a continuous joint, stored as (cos, sin)
+        data = jm.createData()
+        jm.calc(data, np.array([1.0, 0.0]) if jm.nq == 2 else np.zeros(1))
+        S = np.asarray(data.S, dtype=float).reshape(6)
+        lin, ang = np.linalg.norm(S[:3]), np.linalg.norm(S[3:])
+        if lin < 1e-12 < ang:
+            return REVOLUTE, S[3:] / ang, jm.nq == 2
+        if ang < 1e-12 < lin and jm.nq == 1:
+            return PRISMATIC, S[:3] / lin, False
     raise ValueError(
         f"joint type {short} is not supported by the batched kinematics "
         "(serial chains of revolute, continuous and prismatic joints only)"

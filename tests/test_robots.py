@@ -38,6 +38,47 @@ def test_fk_equals_pinocchio(name):
     np.testing.assert_allclose(arm.fk(q), expected, rtol=0, atol=1e-9)
 
 
+def random_chain_urdf(seed: int) -> str:
+    """A serial chain of 7 joints, each revolute, continuous or prismatic about a random
+    (unaligned) axis, at a random origin and rpy, with a side branch (a locked "finger")
+    and the end-effector frame behind a fixed joint."""
+    rng = np.random.default_rng(seed)
+    fmt = lambda v: " ".join(f"{x:.6f}" for x in v)  # noqa: E731
+    links = ['<link name="base"/>']
+    joints = []
+    parent = "base"
+    for k in range(7):
+        kind = ("revolute", "continuous", "prismatic")[k % 3]
+        axis = rng.normal(size=3)
+        limit = '<limit lower="-1.5" upper="2.0" effort="1" velocity="1"/>' if kind != "continuous" else ""
+        joints.append(f'<joint name="j{k}" type="{kind}"><parent link="{parent}"/><child link="l{k}"/>'
+                      f'<origin xyz="{fmt(rng.uniform(-1, 1, 3))}" rpy="{fmt(rng.uniform(-3, 3, 3))}"/>'
+                      f'<axis xyz="{fmt(axis / np.linalg.norm(axis))}"/>{limit}</joint>')
+        links.append(f'<link name="l{k}"/>')
+        parent = f"l{k}"
+    joints.append('<joint name="finger" type="revolute"><parent link="l3"/><child link="f"/>'
+                  '<axis xyz="0 0 1"/><limit lower="0" upper="1" effort="1" velocity="1"/></joint>')
+    joints.append(f'<joint name="tool" type="fixed"><parent link="l6"/><child link="tip"/>'
+                  f'<origin xyz="{fmt(rng.uniform(-1, 1, 3))}" rpy="{fmt(rng.uniform(-3, 3, 3))}"/></joint>')
+    links += ['<link name="f"/>', '<link name="tip"/>']
+    return f'<robot name="random{seed}">{"".join(links)}{"".join(joints)}</robot>'
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_fk_of_any_serial_chain_equals_pinocchio(seed, tmp_path):
+    """No code of its own per arm: unaligned revolute, continuous and prismatic axes at random
+    placements, a locked side branch, a fixed end-effector frame."""
+    path = tmp_path / "chain.urdf"
+    path.write_text(random_chain_urdf(seed))
+    arm = robots.from_urdf(path, "tip")
+    assert arm.nq == 7 and "finger" not in arm.joint_names
+    assert list(arm.is_prismatic) == [k % 3 == 2 for k in range(7)]
+    q = np.concatenate([arm.sample_q(200, seed=seed), np.random.default_rng(seed).uniform(-4, 4, (50, 7))])
+    expected, _ = pinocchio_fk(arm, q)
+    np.testing.assert_allclose(arm.fk(q), expected, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(arm.joint_positions(q)[:, -1], expected, rtol=0, atol=1e-9)
+
+
 @pytest.mark.parametrize("name", ALL)
 def test_chain_model_is_fixed_base_and_arm_only(name):
     arm = robots.load(name)
@@ -193,3 +234,11 @@ def test_unreadable_or_invalid_urdf_is_a_clear_error(tmp_path):
     bad.write_text("<robot name='x'><link name='a'></robot>")
     with pytest.raises(ValueError, match="not a valid URDF"):
         robots.from_urdf(bad, "a")
+
+
+def test_a_joint_of_more_than_one_axis_is_a_clear_error(tmp_path):
+    urdf = tmp_path / "floating.urdf"
+    urdf.write_text('<robot name="f"><link name="a"/><link name="b"/><joint name="free" type="floating">'
+                    '<parent link="a"/><child link="b"/></joint></robot>')
+    with pytest.raises(ValueError, match="JointModelFreeFlyer is not supported"):
+        robots.from_urdf(urdf, "b")
