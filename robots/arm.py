@@ -194,6 +194,8 @@ def from_urdf(
         _, vis = pin.buildReducedModel(full, vis_full, locked, q_full)
         return vis
 
+    for a in (lower, upper, rest, q_ref):  # load() shares one Arm per name: nobody may change it
+        a.flags.writeable = False
     return Arm(
         name=name, model=model, lower=lower, upper=upper, task_axes=tuple(int(a) for a in task_axes),
         ee_frame=ee_name, ee_frame_id=frame_id, urdf_path=urdf_path, package_dirs=dirs, joint_names=joint_names,

@@ -87,6 +87,10 @@ def test_chain_model_is_fixed_base_and_arm_only(name):
     assert arm.model.nv == arm.nq  # one velocity per joint: no free flyer, no locked-out gripper left
     assert len(arm.joint_names) == arm.nq
     assert np.all((arm.rest >= arm.lower) & (arm.rest <= arm.upper))
+    assert robots.load(name) is arm  # built once and shared, so its arrays are read-only
+    for a in (arm.lower, arm.upper, arm.rest):
+        with pytest.raises(ValueError, match="read-only"):
+            a[0] = 0.0
 
 
 @pytest.mark.parametrize("name", ALL)
