@@ -101,7 +101,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
 def check_file(path: str | os.PathLike) -> Path:
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(2, f"no such recording: {path}", str(path))
+        raise FileNotFoundError(f"no such recording: {path}")
     if not path.is_file():
         raise RecordingError(f"{path} is not a file (expected a Rerun .rrd recording)")
     with open(path, "rb") as f:
