@@ -66,7 +66,13 @@ class Arm:
 
     # ---------------------------------------------------------------- kinematics
     def _as_batch(self, q) -> tuple[np.ndarray, tuple[int, ...]]:
-        q = np.asarray(q, dtype=np.float64)
+        q = np.asarray(q)
+        try:
+            if q.dtype.kind not in "biufO":  # complex, strings, dates: no real angle
+                raise TypeError
+            q = q.astype(np.float64, copy=False)
+        except (TypeError, ValueError):
+            raise ValueError(f"{self.name}: q must hold real numbers, got dtype {q.dtype}") from None
         if q.ndim == 0 or q.shape[-1] != self.nq:
             raise ValueError(
                 f"{self.name}: q must have shape (..., {self.nq}) (one value per joint: "
@@ -101,8 +107,8 @@ class Arm:
     # ---------------------------------------------------------------- sampling
     def sample_q(self, n: int, seed: int | None = None) -> np.ndarray:
         """(n, nq) joint vectors drawn uniformly within the limits."""
-        if int(n) < 0:
-            raise ValueError(f"n must be >= 0, got {n}")
+        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
+            raise ValueError(f"n must be an integer >= 0, got {n!r}")
         rng = np.random.default_rng(seed)
         return self.lower + (self.upper - self.lower) * rng.random((int(n), self.nq))
 

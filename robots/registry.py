@@ -55,11 +55,15 @@ def names() -> tuple[str, ...]:
     return tuple(SPECS)
 
 
-@functools.cache
 def load(name: str) -> Arm:
     """The arm registered under `name` (see `names()`); built once, then shared."""
-    if name not in SPECS:
+    if not isinstance(name, str) or name not in SPECS:
         raise ValueError(f"unknown robot {name!r}; known robots: {', '.join(names())}")
+    return _build(name)
+
+
+@functools.cache
+def _build(name: str) -> Arm:
     spec = SPECS[name]
     if spec.urdf is not None:
         return from_urdf(os.path.join(URDF_DIR, spec.urdf), spec.ee_frame, name=name,

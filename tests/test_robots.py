@@ -1,6 +1,7 @@
 """robots: kinematics equal Pinocchio and the paper's equations; bad input is refused clearly."""
 
 import os
+import re
 
 import numpy as np
 import pinocchio as pin
@@ -213,6 +214,24 @@ def test_q_of_wrong_shape_names_the_expected_shape(shape):
     arm = robots.load("planar")
     with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
         arm.fk(np.zeros(shape))
+
+
+@pytest.mark.parametrize("q", [np.zeros((2, 3), complex), np.array([["a", "b", "c"]]), np.array([[1, "x", 2]], object)])
+def test_q_that_is_not_real_numbers_is_refused_by_dtype(q):
+    with pytest.raises(ValueError, match=f"planar: q must hold real numbers, got dtype {re.escape(str(q.dtype))}"):
+        robots.load("planar").fk(q)
+
+
+@pytest.mark.parametrize("n", [-1, 2.5, "3", True])
+def test_goal_counts_that_are_not_whole_numbers_are_refused(n):
+    with pytest.raises(ValueError, match="n must be an integer >= 0"):
+        robots.load("planar").sample_goals(n, seed=0)
+
+
+def test_unknown_name_of_any_type_lists_the_known_ones():
+    for name in (None, ["planar"], 3):
+        with pytest.raises(ValueError, match="known robots: planar, scara"):
+            robots.load(name)
 
 
 def test_nan_in_q_gives_nan_out():
