@@ -220,6 +220,11 @@ def test_cli_paper_preset_and_errors(tmp_path, capsys):
     assert lab_main(argv + ["--generations", "6"]) == 2  # other settings than the stored runs: refused
     assert "other settings" in capsys.readouterr().err
     assert lab_main(["reproduce", "--methods", "sgd", "--out", str(tmp_path / "x")]) == 2
+    report = (tmp_path / "report.md").read_bytes()
+    for out in (tmp_path / "report.md", tmp_path / "report.md" / "sub"):  # a file, or a path through one
+        assert lab_main(["reproduce", "--runs", "1", "--generations", "2", "--out", str(out)]) == 2
+        assert f"out must be a folder, but {tmp_path / 'report.md'} is a file" in capsys.readouterr().err
+    assert (tmp_path / "report.md").read_bytes() == report  # and it is left as it was
 
 
 def test_ray_local_instance(tmp_path):

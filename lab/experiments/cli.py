@@ -45,7 +45,7 @@ def main(args) -> int:
                                  overwrite=args.overwrite, progress=not args.quiet,
                                  recording=not args.no_recording)
         exp = reproduce(config)
-    except (ValueError, TypeError, ConfigMismatch, RuntimeError) as e:
+    except (ValueError, TypeError, OSError, ConfigMismatch, RuntimeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     done = len(exp.results)

@@ -67,6 +67,9 @@ class ReproduceConfig:
             raise ValueError(f"workers must be >= 1, got {self.workers!r}")
         if self.retries < 0:
             raise ValueError(f"retries must be >= 0, got {self.retries!r}")
+        blocker = next((a for a in (self.out, *self.out.parents) if a.exists()), None)
+        if blocker is not None and not blocker.is_dir():
+            raise ValueError(f"out must be a folder, but {blocker} is a file")
 
     def specs(self) -> list[RunSpec]:
         """Every run, by arm, method and seed; each validated as a TrainConfig."""
