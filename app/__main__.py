@@ -43,10 +43,16 @@ def main(argv=None) -> int:
     if not 0 <= args.port < 65536:
         print(f"error: --port must be in 0..65535, got {args.port}", file=sys.stderr)
         return 2
+    from .notebook import Notebook, NotebookError
     from .server import LabApp
 
     t0 = time.perf_counter()
-    app = LabApp(args.host, args.port, robot=args.robot, notebook=args.notebook, recordings=args.recordings,
+    try:
+        notebook = Notebook(args.notebook)
+    except NotebookError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    app = LabApp(args.host, args.port, robot=args.robot, notebook=notebook, recordings=args.recordings,
                  record=not args.no_record)
     print(f"\nNeuro-IK Lab ready in {time.perf_counter() - t0:.1f} s: {app.url}", flush=True)
     # the first Start would otherwise wait for numba to compile the fitness kernels (~30 s, once)

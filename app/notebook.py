@@ -8,22 +8,24 @@ Stored as JSON at recordings/notebook.json by default (beside the runs' Rerun re
     train_mse, test_mse (held-out), recording (path of the .rrd or null),
     controller (the final best controller's to_dict(), so an entry replays without its recording)
 
-Writes go to a temporary file then replace the old one, so a crash never leaves half a file;
-a notebook that cannot be read is set aside as notebook.json.bad and a new one started.
+Writes go to a temporary file then replace the old one, so a crash never leaves half a file.
+A path that holds something else (a folder, a file that is not a lab notebook) is refused with
+NotebookError, and left as it is.
 """
 
 from __future__ import annotations
 
 import json
-import logging
 import math
 import os
 import threading
 import time
 
-log = logging.getLogger(__name__)
-
 DEFAULT_PATH = os.path.join("recordings", "notebook.json")
+
+
+class NotebookError(ValueError):
+    """The notebook's path holds something that is not a lab notebook (it is left untouched)."""
 
 
 class Notebook:
@@ -33,19 +35,21 @@ class Notebook:
         self._entries: list[dict] = self._read()
 
     def _read(self) -> list[dict]:
-        if not os.path.exists(self.path):
+        if not os.path.lexists(self.path):
             return []
+        if os.path.isdir(self.path):
+            raise NotebookError(f"notebook {self.path} is a folder; give the path of a .json file")
         try:
             with open(self.path, encoding="utf-8") as f:
-                data = json.load(f)
-            entries = data["runs"] if isinstance(data, dict) else data
+                text = f.read()
+            data = json.loads(text) if text.strip() else []  # an empty file: an empty notebook
+            entries = data.get("runs") if isinstance(data, dict) else data
             if not isinstance(entries, list):
-                raise ValueError("no list of runs")
-            return [e for e in entries if isinstance(e, dict) and "run_id" in e]
-        except (OSError, ValueError, KeyError, TypeError) as e:
-            log.warning("notebook %s unreadable (%s); set aside as .bad", self.path, e)
-            os.replace(self.path, self.path + ".bad")
-            return []
+                raise ValueError("no list of runs in it")
+        except (OSError, ValueError) as e:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+            raise NotebookError(f"notebook {self.path} is not a lab notebook ({e}); it was left as it is: "
+                                "move it away or give another path") from e
+        return [e for e in entries if isinstance(e, dict) and "run_id" in e]
 
     def entries(self) -> list[dict]:
         with self._lock:

@@ -66,9 +66,12 @@ def rerun_recorder(folder: str):
 
 class LabApp:
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, *, robot: str = "planar",
-                 notebook: str = DEFAULT_PATH, recordings: str = "recordings", startup=True, record: bool = True):
-        """startup: True (the shipped or a quickly trained planar controller), a controller, or None.
-        Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
+                 notebook: str | Notebook = DEFAULT_PATH, recordings: str = "recordings", startup=True,
+                 record: bool = True):
+        """notebook: a Notebook or its path (NotebookError, before anything starts, if the path holds
+        something else). startup: True (the shipped or a quickly trained planar controller), a
+        controller, or None. Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
+        notebook = notebook if isinstance(notebook, Notebook) else Notebook(notebook)
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
         if startup is True:
             from .startup import startup_controller
@@ -77,7 +80,7 @@ class LabApp:
         else:
             self.startup_note = "given" if startup is not None else "none"
         lab_worker.prestart()  # a warmed-up training process, so that Start trains at once
-        self.state = LabState(robot, Notebook(notebook), startup=startup,
+        self.state = LabState(robot, notebook, startup=startup,
                               recorder=rerun_recorder(recordings) if record else None)
         self.recordings = recordings
         self.server = viser.ViserServer(host=host, port=port, verbose=False)

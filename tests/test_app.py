@@ -9,6 +9,7 @@ pause holds them, refusals are shown); the notebook keeps runs across restarts.
 from __future__ import annotations
 
 import os
+import re
 import threading
 import time
 import urllib.request
@@ -18,7 +19,7 @@ import pinocchio as pin
 import pytest
 
 from app.goals import fmt_len
-from app.notebook import Notebook
+from app.notebook import Notebook, NotebookError
 from app.probe import Probe
 from app.server import LabApp
 
@@ -199,8 +200,27 @@ def test_notebook_survives_a_restart_and_a_bad_file(tmp_path):
     nb = Notebook(str(path))
     nb.add({"run_id": "abc", "robot": "planar", "method": "cmaes", "seed": 0, "generations": 3})
     assert Notebook(str(path)).get("abc")["generations"] == 3
-    path.write_text("{ not json")
-    assert Notebook(str(path)).entries() == [] and os.path.exists(str(path) + ".bad")
+    for content in (b"{ not json", b'{"runs": 3}', b"RRF2\x00\xff binary"):  # refused, and left as it is
+        path.write_bytes(content)
+        with pytest.raises(NotebookError, match=f"notebook {re.escape(str(path))} is not a lab notebook"):
+            Notebook(str(path))
+        assert path.read_bytes() == content and sorted(os.listdir(tmp_path)) == ["nb.json"]
+    with pytest.raises(NotebookError, match="is a folder"):
+        Notebook(str(tmp_path))
+    path.write_bytes(b"")
+    assert Notebook(str(path)).entries() == []
+
+
+def test_python_m_app_refuses_a_notebook_path_that_holds_something_else(tmp_path, capsys):
+    from app.__main__ import main
+
+    recording = tmp_path / "run.rrd"
+    recording.write_bytes(b"RRF2\x00\x88 a recording given by mistake")
+    for path, why in ((recording, "is not a lab notebook"), (tmp_path, "is a folder")):
+        assert main(["--notebook", str(path), "--port", "0"]) == 2
+        assert f"error: notebook {path} {why}" in capsys.readouterr().err
+    assert recording.read_bytes() == b"RRF2\x00\x88 a recording given by mistake"
+    assert sorted(os.listdir(tmp_path)) == ["run.rrd"]
 
 
 def test_python_m_app_prints_the_url_it_really_serves(tmp_path):
