@@ -43,6 +43,11 @@ def main(argv=None) -> int:
     if not 0 <= args.port < 65536:
         print(f"error: --port must be in 0..65535, got {args.port}", file=sys.stderr)
         return 2
+    from lab.recording import not_a_folder
+
+    if not args.no_record and (blocker := not_a_folder(args.recordings)) is not None:
+        print(f"error: --recordings must be a folder, but {blocker} is a file", file=sys.stderr)
+        return 2
     from .notebook import Notebook, NotebookError
     from .server import LabApp
 

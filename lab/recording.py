@@ -68,6 +68,14 @@ def default_path(config: TrainConfig, folder: str | os.PathLike = "recordings", 
     return path
 
 
+def not_a_folder(folder: str | os.PathLike) -> Path | None:
+    """The file that keeps `folder` from being (or becoming) a folder: itself or the first
+    existing path above it, when that is not a folder; None when the folder can be there."""
+    folder = Path(folder)
+    existing = next((a for a in (folder, *folder.parents) if a.exists()), None)
+    return existing if existing is not None and not existing.is_dir() else None
+
+
 def prepare_path(path: str | os.PathLike | None, config: TrainConfig) -> Path:
     """The file to write (a folder gets a default name); raises OSError/ValueError, naming the
     path, when it cannot be written. Creates missing folders."""
@@ -79,8 +87,8 @@ def prepare_path(path: str | os.PathLike | None, config: TrainConfig) -> Path:
         p = Path(path)
     if p.exists() and not p.is_file():
         raise ValueError(f"recording path {p} exists and is not a file")
-    blocker = next((a for a in p.parents if a.exists()), None)
-    if blocker is not None and not blocker.is_dir():
+    blocker = not_a_folder(p.parent)
+    if blocker is not None:
         raise OSError(f"cannot write the recording {p}: {blocker} is not a folder")
     try:
         p.parent.mkdir(parents=True, exist_ok=True)

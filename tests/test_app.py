@@ -211,7 +211,7 @@ def test_notebook_survives_a_restart_and_a_bad_file(tmp_path):
     assert Notebook(str(path)).entries() == []
 
 
-def test_python_m_app_refuses_a_notebook_path_that_holds_something_else(tmp_path, capsys):
+def test_python_m_app_refuses_notebook_and_recordings_paths_that_hold_something_else(tmp_path, capsys):
     from app.__main__ import main
 
     recording = tmp_path / "run.rrd"
@@ -219,6 +219,8 @@ def test_python_m_app_refuses_a_notebook_path_that_holds_something_else(tmp_path
     for path, why in ((recording, "is not a lab notebook"), (tmp_path, "is a folder")):
         assert main(["--notebook", str(path), "--port", "0"]) == 2
         assert f"error: notebook {path} {why}" in capsys.readouterr().err
+    assert main(["--recordings", str(recording / "sub"), "--port", "0"]) == 2
+    assert f"error: --recordings must be a folder, but {recording} is a file" in capsys.readouterr().err
     assert recording.read_bytes() == b"RRF2\x00\x88 a recording given by mistake"
     assert sorted(os.listdir(tmp_path)) == ["run.rrd"]
 

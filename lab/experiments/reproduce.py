@@ -25,6 +25,7 @@ from pathlib import Path
 import robots
 
 from ..config import METHODS
+from ..recording import not_a_folder
 from .runs import RunSpec, RunStore, train_run
 
 
@@ -67,8 +68,8 @@ class ReproduceConfig:
             raise ValueError(f"workers must be >= 1, got {self.workers!r}")
         if self.retries < 0:
             raise ValueError(f"retries must be >= 0, got {self.retries!r}")
-        blocker = next((a for a in (self.out, *self.out.parents) if a.exists()), None)
-        if blocker is not None and not blocker.is_dir():
+        blocker = not_a_folder(self.out)
+        if blocker is not None:
             raise ValueError(f"out must be a folder, but {blocker} is a file")
 
     def specs(self) -> list[RunSpec]:
