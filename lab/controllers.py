@@ -187,7 +187,18 @@ def run_programs(program: tuple, X: np.ndarray) -> np.ndarray:
 
 
 def controller_from_dict(d: dict) -> Controller:
-    """Rebuild a controller from its `to_dict()`."""
+    """Rebuild a controller from its `to_dict()`; ValueError, naming what is wrong, for anything else."""
+    if not isinstance(d, dict):
+        raise ValueError(f"not a controller: expected a dict, got {type(d).__name__}")
+    try:
+        return _from_dict(d)
+    except KeyError as e:
+        raise ValueError(f"not a controller: its field {e.args[0]!r} is missing") from e
+    except (TypeError, ValueError, AttributeError) as e:
+        raise ValueError(f"not a controller: {e}") from e
+
+
+def _from_dict(d: dict) -> Controller:
     enc = Encoding.from_dict(d["encoding"])
     if d["kind"] == "mlp":
         return MLPController(enc, int(d["hidden"]), np.asarray(d["weights"], dtype=np.float64))

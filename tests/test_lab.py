@@ -652,6 +652,18 @@ def test_population_too_small_for_the_method(no_work):
 
 
 # ---------------------------------------------------------------- 8. serialisation
+def test_a_malformed_controller_dict_is_a_value_error_naming_the_problem():
+    c = MLPController(Encoding.for_arm(robots.load("planar")), 2, np.zeros(mlp_size(2, 2, 3))).to_dict()
+    cases = [({}, "its field 'encoding' is missing"), ({**c, "kind": "svm"}, "unknown controller kind 'svm'"),
+             ({k: v for k, v in c.items() if k != "weights"}, "its field 'weights' is missing"),
+             ({**c, "weights": c["weights"][:-1]}, "MLP with 2 hidden units needs 12 weights, got shape \\(11,\\)"),
+             ({**c, "hidden": "five"}, ".*'five'"),
+             ([c], "expected a dict, got list")]
+    for d, why in cases:
+        with pytest.raises(ValueError, match="not a controller: " + why):
+            controller_from_dict(d)
+
+
 def test_controllers_rebuild_from_dict_with_identical_outputs():
     mlp = lab.evolve("scara", "cmaes", generations=5, population=8, targets=20, seed=1, **SMALL).controller
     cfg = lab.TrainConfig(robot="scara", method="neat", population=20, generations=5, targets=20, **SMALL)
