@@ -102,7 +102,22 @@ class Arm:
 
     def from_pinocchio(self, q_pin) -> np.ndarray:
         """Pinocchio configurations (..., model.nq) -> angle vectors (..., nq)."""
+        q_pin = np.asarray(q_pin, dtype=np.float64)
+        if q_pin.ndim == 0 or q_pin.shape[-1] != self.model.nq:
+            raise ValueError(f"{self.name}: a Pinocchio configuration has shape (..., {self.model.nq}), "
+                             f"got shape {q_pin.shape}")
         return self.chain.from_pinocchio(q_pin)
+
+    def within_limits(self, q) -> np.ndarray:
+        """q (..., nq) moved into the limits: a continuous joint turned by whole turns into
+        [lower, lower + 2 pi), then every coordinate clipped to [lower, upper]."""
+        flat, batch = self._as_batch(q)
+        cont, lo = self.chain.continuous, self.lower[self.chain.continuous]
+        x = flat[:, cont]
+        inside = (x >= lo) & (x < lo + 2 * np.pi)  # kept bit for bit
+        flat = flat.copy()
+        flat[:, cont] = np.where(inside, x, lo + np.mod(x - lo, 2 * np.pi))
+        return np.clip(flat, self.lower, self.upper).reshape(*batch, self.nq)
 
     # ---------------------------------------------------------------- sampling
     def sample_q(self, n: int, seed: int | None = None) -> np.ndarray:
@@ -174,22 +189,22 @@ def from_urdf(
 
     on_chain = set(full.supports[full.frames[frame_id].parentJoint])
     locked = [j for j in range(1, full.njoints) if j not in on_chain]
-    q_full = pin.neutral(full) if reference is None else np.asarray(reference, float)
-    if reference is None and srdf is not None:
-        pin.loadReferenceConfigurations(full, srdf[0], False)
-        if srdf[1] in full.referenceConfigurations:
-            q_full = np.array(full.referenceConfigurations[srdf[1]])
+    q_full = _reference(full, reference, srdf, name)
     model = pin.buildReducedModel(full, locked, q_full) if locked else full
     frame_id = _find_frame(model, ee_frame, name, urdf_path)
     chain = ChainKinematics(model, frame_id)
     if chain.n == 0:
         raise ValueError(f"{name}: frame {ee_frame!r} in {urdf_path} is not moved by any joint")
 
+    joint_names = tuple(model.names[int(j)] for j in chain.joint_ids)
+    mimics = _mimic_joints(xml) & set(joint_names)
+    if mimics:
+        raise ValueError(f"{name}: joint(s) {', '.join(sorted(mimics))} on the chain to {ee_frame!r} mimic "
+                         "another joint; mimic joints are supported only off the chain (locked)")
     lower, upper = _limits(model, chain, limits or {}, name)
     q_ref = pin.neutral(model)
-    joint_names = tuple(model.names[int(j)] for j in chain.joint_ids)
     arm_q_ref = _reduce_reference(full, model, q_full)
-    rest = np.clip(chain.from_pinocchio(arm_q_ref), lower, upper)
+    rest = chain.from_pinocchio(arm_q_ref)
     dirs = tuple(package_dirs)
     ee_name = model.frames[frame_id].name
 
@@ -200,13 +215,17 @@ def from_urdf(
         _, vis = pin.buildReducedModel(full, vis_full, locked, q_full)
         return vis
 
-    for a in (lower, upper, rest, q_ref):  # load() shares one Arm per name: nobody may change it
+    for a in (lower, upper, q_ref):  # load() shares one Arm per name: nobody may change it
         a.flags.writeable = False
-    return Arm(
+    arm = Arm(
         name=name, model=model, lower=lower, upper=upper, task_axes=tuple(int(a) for a in task_axes),
         ee_frame=ee_name, ee_frame_id=frame_id, urdf_path=urdf_path, package_dirs=dirs, joint_names=joint_names,
         rest=rest, q_ref=q_ref, chain=chain, _visual_builder=build_visual,
     )
+    rest = arm.within_limits(rest)
+    rest.flags.writeable = False
+    object.__setattr__(arm, "rest", rest)
+    return arm
 
 
 def _find_frame(model: pin.Model, ee_frame: str, name: str, urdf_path: str) -> int:
@@ -222,12 +241,19 @@ def _find_frame(model: pin.Model, ee_frame: str, name: str, urdf_path: str) -> i
 
 
 def _limits(model, chain, overrides, name) -> tuple[np.ndarray, np.ndarray]:
+    names = [model.names[int(j)] for j in chain.joint_ids]
+    unknown = sorted(set(overrides) - set(names))
+    if unknown:
+        raise ValueError(f"{name}: limits for {', '.join(map(repr, unknown))}, which is not a joint of the chain "
+                         f"({', '.join(names)})")
     lower = np.empty(chain.n)
     upper = np.empty(chain.n)
-    for k, j in enumerate(chain.joint_ids):
-        jname = model.names[int(j)]
+    for k, jname in enumerate(names):
         if jname in overrides:
-            lower[k], upper[k] = overrides[jname]
+            lo, hi = (float(v) for v in overrides[jname])
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+                raise ValueError(f"{name}: limits of {jname!r} must be finite with lower < upper, got ({lo}, {hi})")
+            lower[k], upper[k] = lo, hi
         elif chain.continuous[k]:
             lower[k], upper[k] = -np.pi, np.pi
         else:
@@ -238,6 +264,35 @@ def _limits(model, chain, overrides, name) -> tuple[np.ndarray, np.ndarray]:
                 raise ValueError(f"{name}: prismatic joint {jname!r} has no finite limits")
             lower[k], upper[k] = -np.pi, np.pi
     return lower, upper
+
+
+def _reference(full: pin.Model, reference, srdf, name: str) -> np.ndarray:
+    """The full model's configuration at which off-chain joints are locked: `reference`, else the
+    SRDF's named posture, else neutral."""
+    if reference is not None:
+        q = np.asarray(reference, dtype=np.float64)
+        if q.shape != (full.nq,):
+            raise ValueError(f"{name}: reference must be a Pinocchio configuration of shape ({full.nq},), "
+                             f"got shape {q.shape}")
+        return q
+    if srdf is None or srdf[1] is None:  # no SRDF, or one that names no posture (ur5's)
+        return pin.neutral(full)
+    pin.loadReferenceConfigurations(full, srdf[0], False)
+    if srdf[1] not in full.referenceConfigurations:
+        known = ", ".join(sorted(entry.key() for entry in full.referenceConfigurations)) or "none"
+        raise ValueError(f"{name}: posture {srdf[1]!r} is not in {srdf[0]} (postures: {known})")
+    return np.array(full.referenceConfigurations[srdf[1]])
+
+
+def _mimic_joints(xml: str) -> set[str]:
+    """Names of the URDF's joints that mimic another (Pinocchio reads them as free joints here)."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError:
+        return set()
+    return {j.get("name") for j in root.iter("joint") if j.find("mimic") is not None}
 
 
 def _reduce_reference(full: pin.Model, model: pin.Model, q_full: np.ndarray) -> np.ndarray:

@@ -6,7 +6,7 @@ One query iterates, from the rest pose q_0 = arm.rest,
     J_k  = J_p(q_k)[task_axes]                          translational frame Jacobian rows, (m, nq)
     J#   = J_k^T (J_k J_k^T + lambda^2 I)^-1            damped pseudo-inverse (Wampler 1986; Buss 2004)
     dq_k = J# e_k + (I - J# J_k) b_k                    b_k: a posture term toward mid-range
-    q_{k+1} = q_k + dq_k                                continuous joints wrap to [-pi, pi]
+    q_{k+1} = q_k + dq_k                                within the limits (arm.within_limits)
 
 J_p comes from `pinocchio.computeFrameJacobian` (LOCAL_WORLD_ALIGNED, end-effector frame).
 The arm's chain has one velocity per coordinate (nv == nq), so dq is a step in the arm's own
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import threading
 import time
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,12 +58,13 @@ def _limited(dq: np.ndarray, max_step: float) -> np.ndarray:
 
 
 def _data(arm: Arm) -> pin.Data:
+    """This thread's pin.Data of the arm's model; dropped with the arm (an id could be reused)."""
     cache = getattr(_local, "data", None)
     if cache is None:
-        cache = _local.data = {}
-    d = cache.get(id(arm.model))
+        cache = _local.data = weakref.WeakKeyDictionary()
+    d = cache.get(arm)
     if d is None:
-        d = cache[id(arm.model)] = arm.model.createData()
+        d = cache[arm] = arm.model.createData()
     return d
 
 
@@ -74,7 +76,7 @@ def workspace_size(arm: Arm) -> float:
 
 def dls_ik(arm: Arm, goal, q0=None, *, damping: float = 0.02, tol: float | None = None,
            max_iter: int = 100, max_step: float = 0.5, posture: float = 0.1) -> IKResult:
-    """Solve reach(q) = goal by damped least squares, from q0 (arm.rest by default).
+    """Solve reach(q) = goal by damped least squares, from q0 (arm.rest by default; moved into the limits).
 
     goal: (len(task_axes),) task coordinates; damping: lambda as a fraction of workspace_size;
     tol: error threshold [length] (default 1e-4 * workspace_size).
@@ -88,7 +90,7 @@ def dls_ik(arm: Arm, goal, q0=None, *, damping: float = 0.02, tol: float | None 
     lam2 = (damping * size) ** 2
     tol = 1e-4 * size if tol is None else float(tol)
     model, data, fid = arm.model, _data(arm), arm.ee_frame_id
-    q = np.array(arm.rest if q0 is None else q0, dtype=np.float64)
+    q = arm.rest.copy() if q0 is None else arm.within_limits(np.asarray(q0, dtype=np.float64).reshape(-1))
     cont = arm.chain.continuous.astype(bool)
     lower, upper = arm.lower, arm.upper
     mid = 0.5 * (lower + upper)
@@ -122,9 +124,7 @@ def dls_ik(arm: Arm, goal, q0=None, *, damping: float = 0.02, tol: float | None 
             dq_held = np.where(held, np.clip(q + dq, lower, upper) - q, 0.0)
             free = _step(np.where(held, 0.0, J), e - J @ dq_held, np.where(held, 0.0, bias), lam2)
             dq = dq_held + _limited(np.where(held, 0.0, free), max_step)
-        q_new = q + dq
-        q_new[cont] = (q_new[cont] + np.pi) % (2 * np.pi) - np.pi
-        q_new = np.clip(q_new, lower, upper)
+        q_new = arm.within_limits(q + dq)  # continuous joints turn by whole turns into their range
         if np.max(np.abs(q_new - q)) < 1e-10:  # stalled: held at limits
             break
         q = q_new

@@ -265,3 +265,87 @@ def test_a_joint_of_more_than_one_axis_is_a_clear_error(tmp_path):
                     '<parent link="a"/><child link="b"/></joint></robot>')
     with pytest.raises(ValueError, match="JointModelFreeFlyer is not supported"):
         robots.from_urdf(urdf, "b")
+
+
+# ---------------------------------------------------------------- from_urdf options, IK
+PLANAR_URDF = os.path.join(os.path.dirname(robots.__file__), "urdf", "planar.urdf")
+SCARA_URDF = os.path.join(os.path.dirname(robots.__file__), "urdf", "scara.urdf")
+
+
+def test_limit_overrides_must_name_a_chain_joint_and_be_a_finite_range():
+    arm = robots.from_urdf(PLANAR_URDF, "ee", limits={"theta1": (-1.0, 1.0)})
+    assert (arm.lower[0], arm.upper[0]) == (-1.0, 1.0)
+    for limits, why in (({"theta_1": (-1, 1)}, "'theta_1', which is not a joint of the chain"),
+                        ({"theta1": (1, -1)}, "limits of 'theta1' must be finite with lower < upper"),
+                        ({"theta2": (0, np.inf)}, "limits of 'theta2' must be finite")):
+        with pytest.raises(ValueError, match=re.escape(why)):
+            robots.from_urdf(PLANAR_URDF, "ee", limits=limits)
+
+
+def test_reference_postures_are_checked():
+    from robots.registry import _erd_paths
+
+    path, share, (srdf, _) = _erd_paths("panda")
+    with pytest.raises(ValueError, match="posture 'no_such' is not in .* \\(postures: default\\)"):
+        robots.from_urdf(path, "panda_hand_tcp", package_dirs=(share,), srdf=(srdf, "no_such"))
+    with pytest.raises(ValueError, match="reference must be a Pinocchio configuration of shape \\(9,\\)"):
+        robots.from_urdf(path, "panda_hand_tcp", package_dirs=(share,), reference=np.zeros(7))
+
+
+def test_from_pinocchio_checks_the_configuration_size():
+    arm = robots.load("kinova")
+    with pytest.raises(ValueError, match=r"shape \(\.\.\., 9\), got shape \(6,\)"):
+        arm.from_pinocchio(np.zeros(6))
+
+
+def test_a_mimic_joint_on_the_chain_is_refused(tmp_path):
+    urdf = tmp_path / "mimic.urdf"
+    urdf.write_text('''<robot name="m"><link name="base"/><link name="a"/><link name="b"/><link name="tip"/>
+      <joint name="j1" type="revolute"><parent link="base"/><child link="a"/><axis xyz="0 0 1"/>
+        <limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+      <joint name="j2" type="revolute"><parent link="a"/><child link="b"/><origin xyz="1 0 0"/><axis xyz="0 0 1"/>
+        <limit lower="-2" upper="2" effort="1" velocity="1"/><mimic joint="j1" multiplier="2"/></joint>
+      <joint name="t" type="fixed"><parent link="b"/><child link="tip"/><origin xyz="1 0 0"/></joint></robot>''')
+    with pytest.raises(ValueError, match="joint\\(s\\) j2 on the chain to 'tip' mimic another joint"):
+        robots.from_urdf(urdf, "tip")
+    assert robots.from_urdf(urdf, "a").nq == 1  # off the chain it is locked, as a gripper's fingers are
+
+
+def test_continuous_joints_turn_by_whole_turns_into_their_limits():
+    kinova = robots.load("kinova")
+    joint = kinova.joint_names[0]  # continuous, [-pi, pi] by default
+    arm = robots.from_urdf(kinova.urdf_path, kinova.ee_frame, package_dirs=kinova.package_dirs,
+                           limits={joint: (-5.0, -1.0)})
+    q = np.array([[np.pi / 2, 3, 3, 0, 3, 0], [-4.0, 3, 3, 0, 3, 0], [0.5, 3, 3, 0, 3, 0]])
+    moved = arm.within_limits(q)
+    np.testing.assert_allclose(moved[:, 0], [np.pi / 2 - 2 * np.pi, -4.0, -1.0])  # -4.0 is kept as it is
+    assert moved[1, 0] == -4.0
+    np.testing.assert_allclose(arm.fk(moved[:2]), arm.fk(q[:2]), atol=1e-9)  # the same pose
+
+
+def test_ik_starts_within_the_limits():
+    from robots.ik import dls_ik
+
+    planar = robots.load("planar")
+    q0 = np.array([0.3, -0.5, 2.5])  # theta2 and theta3 are in [0, pi/2]
+    r = dls_ik(planar, planar.reach(q0), q0=q0)
+    assert np.all((r.q >= planar.lower) & (r.q <= planar.upper))
+    assert r.error == pytest.approx(np.linalg.norm(planar.reach(q0) - planar.reach(r.q)), abs=1e-12)
+    kinova = robots.load("kinova")
+    r = dls_ik(kinova, kinova.reach(kinova.rest), q0=kinova.rest + 2 * np.pi * kinova.chain.continuous)
+    assert np.all((r.q >= kinova.lower) & (r.q <= kinova.upper)) and r.converged
+
+
+def test_ik_gives_each_arm_its_own_pinocchio_data():
+    """Arms built and dropped in turn (an id may then be reused) never share a pin.Data."""
+    import gc
+
+    from robots.ik import dls_ik
+
+    for i in range(60):
+        arm = robots.from_urdf(SCARA_URDF if i % 3 == 0 else PLANAR_URDF, "ee")
+        goal = arm.sample_goals(1, seed=i)[0]
+        r = dls_ik(arm, goal, max_iter=3)
+        assert r.error == pytest.approx(np.linalg.norm(goal - arm.reach(r.q)), abs=1e-12)
+        del arm
+        gc.collect()
