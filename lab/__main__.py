@@ -37,6 +37,7 @@ def _train_parser(sub) -> None:
                      help="Rerun recording to write (a .rrd file or a folder; default: "
                           "recordings/<robot>-<method>-s<seed>-<time>.rrd)")
     rec.add_argument("--no-recording", action="store_true", help="write no Rerun recording")
+    p.add_argument("--overwrite", action="store_true", help="replace a recording already at --recording")
 
 
 def _replay_parser(sub) -> None:
@@ -81,7 +82,7 @@ def train(args) -> int:
         from .recording import RerunLogger
 
         try:  # before training: a recording that cannot be written stops here
-            logger = RerunLogger(runner, path=args.recording)
+            logger = RerunLogger(runner, path=args.recording, overwrite=args.overwrite)
         except (OSError, ValueError) as e:
             print(f"error: {e}", file=sys.stderr)
             return 2

@@ -76,9 +76,10 @@ def not_a_folder(folder: str | os.PathLike) -> Path | None:
     return existing if existing is not None and not existing.is_dir() else None
 
 
-def prepare_path(path: str | os.PathLike | None, config: TrainConfig) -> Path:
+def prepare_path(path: str | os.PathLike | None, config: TrainConfig, overwrite: bool = False) -> Path:
     """The file to write (a folder gets a default name); raises OSError/ValueError, naming the
-    path, when it cannot be written. Creates missing folders."""
+    path, when it cannot be written, and FileExistsError when it names a file that is already
+    there (unless overwrite). Creates missing folders."""
     if path is None:
         p = default_path(config)
     elif Path(path).is_dir() or str(path).endswith(("/", os.sep)):
@@ -87,6 +88,9 @@ def prepare_path(path: str | os.PathLike | None, config: TrainConfig) -> Path:
         p = Path(path)
     if p.exists() and not p.is_file():
         raise ValueError(f"recording path {p} exists and is not a file")
+    if p.exists() and not overwrite:
+        raise FileExistsError(f"recording {p} already exists and was left as it is; give another path "
+                              "(or overwrite it: --overwrite, RerunLogger(..., overwrite=True))")
     blocker = not_a_folder(p.parent)
     if blocker is not None:
         raise OSError(f"cannot write the recording {p}: {blocker} is not a folder")
@@ -109,14 +113,16 @@ class RerunLogger:
     pose_every: at least this many generations between 3D poses, and generation / 5 later on
         (scalars and controllers: all).
     compact: compact the file after closing it (the writer process does, after close() returns).
+    overwrite: replace a file already at `path` (by default such a path is refused, FileExistsError).
     """
 
     def __init__(self, source, problem: Problem | None = None, path: str | os.PathLike | None = None, *,
-                 pose_every: int = 10, compact: bool = True, hyperparameters: dict | None = None):
+                 pose_every: int = 10, compact: bool = True, hyperparameters: dict | None = None,
+                 overwrite: bool = False):
         config, problem, run_id = _resolve_source(source, problem)
         if not (isinstance(pose_every, int) and pose_every >= 1):
             raise ValueError(f"pose_every must be an integer >= 1, got {pose_every!r}")
-        self.path = prepare_path(path, config)
+        self.path = prepare_path(path, config, overwrite)
         self.config, self.problem, self.pose_every, self.compact = config, problem, pose_every, compact
         if hyperparameters is None:
             hyperparameters = backend_type(config.method).settings(problem, config)  # builds no backend

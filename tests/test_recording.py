@@ -169,6 +169,20 @@ def test_unwritable_path_is_refused_before_training(tmp_path):
     assert runner.state == "idle" and not (blocker.parent / "run.rrd").exists()
 
 
+def test_a_file_already_at_the_path_is_left_as_it_is_unless_overwrite(tmp_path):
+    existing = tmp_path / "precious.rrd"
+    existing.write_bytes(b"RRF2 yesterday's run")
+    with pytest.raises(FileExistsError, match=f"recording {re.escape(str(existing))} already exists"):
+        RerunLogger(Runner(lab.TrainConfig(method="cmaes", **SHORT)), path=existing)
+    assert existing.read_bytes() == b"RRF2 yesterday's run"
+    runner = Runner(lab.TrainConfig(method="cmaes", **SHORT))
+    logger = RerunLogger(runner, path=existing, overwrite=True)
+    runner.subscribe(logger)
+    runner.run()
+    logger.close()
+    assert read_recording(existing).last_generation == SHORT["generations"] - 1
+
+
 # ---------------------------------------------------------------- the command line
 def test_train_cli_writes_and_prints_the_recording(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
