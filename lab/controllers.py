@@ -205,5 +205,26 @@ def _from_dict(d: dict) -> Controller:
     if d["kind"] == "graph":
         nodes = tuple((int(k), float(b), float(r), tuple((int(s), float(w)) for s, w in links))
                       for k, b, r, links in d["nodes"])
-        return GraphController(enc, nodes, tuple(d["input_keys"]), tuple(d["output_keys"]), d["genome"])
+        input_keys, output_keys = tuple(int(k) for k in d["input_keys"]), tuple(int(k) for k in d["output_keys"])
+        _check_graph(enc, nodes, input_keys, output_keys)
+        return GraphController(enc, nodes, input_keys, output_keys, d["genome"])
     raise ValueError(f"unknown controller kind {d['kind']!r}")
+
+
+def _check_graph(enc: Encoding, nodes: tuple, input_keys: tuple, output_keys: tuple) -> None:
+    """A graph the kernel can run: one input key per network input, one output key per joint,
+    every link reading an input or an earlier node (evaluation order)."""
+    if len(input_keys) != enc.n_inputs or len(set(input_keys)) != len(input_keys):
+        raise ValueError(f"graph: {len(input_keys)} input_keys, but the encoding has {enc.n_inputs} distinct inputs")
+    if len(output_keys) != enc.n_outputs or len(set(output_keys)) != len(output_keys):
+        raise ValueError(f"graph: {len(output_keys)} output_keys, but the arm has {enc.n_outputs} joints")
+    known = set(input_keys)
+    for key, _, _, links in nodes:
+        if key in known:
+            raise ValueError(f"graph: node {key} is defined twice, or is an input")
+        for src, _ in links:
+            if src not in known:
+                raise ValueError(f"graph: node {key} reads key {src}, which is not an input or an earlier node")
+        known.add(key)
+    if set(output_keys) & set(input_keys):
+        raise ValueError("graph: an output key is also an input key")

@@ -29,6 +29,7 @@ import numpy as np
 import robots
 
 FEATURES = ("cartesian", "polar", "cylindrical", "reach")
+_N_EXTRA = {"cartesian": 0, "polar": 2, "cylindrical": 0, "reach": 3}  # inputs beyond the task axes
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,6 +50,16 @@ class Encoding:
             raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
         if not 0 <= self.margin < 10:
             raise ValueError(f"margin must be in [0, 10), got {self.margin!r}")
+        m = len(self.task_axes)
+        if not (1 <= m <= 3 and len(set(self.task_axes)) == m and all(a in (0, 1, 2) for a in self.task_axes)):
+            raise ValueError(f"task_axes must be distinct axes among 0, 1, 2, got {self.task_axes!r}")
+        if self.features == "reach" and not (np.isfinite(self.r_max) and self.r_max > 0):
+            raise ValueError(f"reach features need a positive r_max, got {self.r_max!r}")
+        n_in = _N_EXTRA[self.features] + m
+        for lo, hi, n, what in ((self.in_lo, self.in_hi, n_in, f"input ranges ({self.features}, {m} task axes)"),
+                                (self.q_lo, self.q_hi, len(self.q_lo), "joint ranges")):
+            if not (lo.shape == hi.shape == (n,) and np.all(np.isfinite(lo) & np.isfinite(hi)) and np.all(lo < hi)):
+                raise ValueError(f"{what} must be {n} finite (lo < hi) pairs, got lo {lo.tolist()}, hi {hi.tolist()}")
 
     @classmethod
     def for_arm(cls, arm: robots.Arm, features: str = "cartesian", margin: float = 0.0) -> "Encoding":
@@ -108,7 +119,8 @@ class Encoding:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Encoding":
-        return cls(d["features"], tuple(d["task_axes"]), *(np.asarray(d[k], float) for k in ("in_lo", "in_hi", "q_lo", "q_hi")),
+        return cls(d["features"], tuple(d["task_axes"]),
+                   *(np.atleast_1d(np.asarray(d[k], float)) for k in ("in_lo", "in_hi", "q_lo", "q_hi")),
                    float(d.get("margin", 0.0)), float(d.get("r_max", 0.0)))
 
 

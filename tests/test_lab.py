@@ -664,6 +664,28 @@ def test_a_malformed_controller_dict_is_a_value_error_naming_the_problem():
             controller_from_dict(d)
 
 
+def test_a_graph_or_encoding_the_kernels_cannot_run_is_refused_when_loaded():
+    """Keys are checked before a graph reaches the compiled kernel (which does not bounds-check)."""
+    enc = Encoding.for_arm(robots.load("planar"), "cartesian")
+    nodes = [[0, 0.1, 1.0, [[-1, 0.5], [-2, -0.3]]], [1, 0.0, 1.0, [[0, 0.7]]], [2, 0.0, 1.0, [[-2, 0.2]]]]
+    g = {"kind": "graph", "encoding": enc.to_dict(), "nodes": nodes, "input_keys": [-1, -2],
+         "output_keys": [0, 1, 2], "genome": {}}
+    goals = robots.load("planar").sample_goals(5, seed=0)
+    assert controller_from_dict(g)(goals).shape == (5, 3)
+    e = enc.to_dict()
+    cases = [({**g, "input_keys": [-1, -2, -3]}, "graph: 3 input_keys, but the encoding has 2 distinct inputs"),
+             ({**g, "output_keys": [0]}, "graph: 1 output_keys, but the arm has 3 joints"),
+             ({**g, "nodes": [[0, 0, 1, [[999, 1.0]]]]}, "graph: node 0 reads key 999, which is not an input or an earlier node"),
+             ({**g, "nodes": nodes[1:] + nodes[:1]}, "graph: node 1 reads key 0"),  # not in evaluation order
+             ({**g, "encoding": {**e, "in_hi": e["in_lo"]}}, "input ranges .* must be 2 finite \\(lo < hi\\) pairs"),
+             ({**g, "encoding": {**e, "q_lo": e["q_hi"], "q_hi": e["q_lo"]}}, "joint ranges must be 3 finite"),
+             ({**g, "encoding": {**e, "features": "reach"}}, "reach features need a positive r_max"),
+             ({**g, "encoding": {**e, "task_axes": [0, 5]}}, "task_axes must be distinct axes among 0, 1, 2")]
+    for d, why in cases:
+        with pytest.raises(ValueError, match="not a controller: " + why):
+            controller_from_dict(d)
+
+
 def test_controllers_rebuild_from_dict_with_identical_outputs():
     mlp = lab.evolve("scara", "cmaes", generations=5, population=8, targets=20, seed=1, **SMALL).controller
     cfg = lab.TrainConfig(robot="scara", method="neat", population=20, generations=5, targets=20, **SMALL)
