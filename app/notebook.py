@@ -29,27 +29,35 @@ class NotebookError(ValueError):
 
 
 class Notebook:
+    """Entries are kept as they were read: top-level keys it does not know and entries without a
+    run_id are written back unchanged (entries() lists only the runs)."""
+
     def __init__(self, path: str = DEFAULT_PATH):
         self.path = path
         self._lock = threading.Lock()
-        self._entries: list[dict] = self._read()
+        self._doc, self._all = self._read()  # the file's other keys; every entry, runs or not
 
-    def _read(self) -> list[dict]:
+    @property
+    def _entries(self) -> list[dict]:
+        return [e for e in self._all if "run_id" in e]
+
+    def _read(self) -> tuple[dict, list[dict]]:
         if not os.path.lexists(self.path):
-            return []
+            return {}, []
         if os.path.isdir(self.path):
             raise NotebookError(f"notebook {self.path} is a folder; give the path of a .json file")
         try:
             with open(self.path, encoding="utf-8") as f:
                 text = f.read()
             data = json.loads(text) if text.strip() else []  # an empty file: an empty notebook
-            entries = data.get("runs") if isinstance(data, dict) else data
-            if not isinstance(entries, list):
-                raise ValueError("no list of runs in it")
+            doc, entries = ({k: v for k, v in data.items() if k != "runs"}, data.get("runs")) \
+                if isinstance(data, dict) else ({}, data)
+            if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+                raise ValueError("no list of run entries in it")
         except (OSError, ValueError) as e:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
             raise NotebookError(f"notebook {self.path} is not a lab notebook ({e}); it was left as it is: "
                                 "move it away or give another path") from e
-        return [e for e in entries if isinstance(e, dict) and "run_id" in e]
+        return doc, entries
 
     def entries(self) -> list[dict]:
         with self._lock:
@@ -60,7 +68,7 @@ class Notebook:
 
     def add(self, entry: dict) -> None:
         with self._lock:
-            self._entries = [e for e in self._entries if e["run_id"] != entry["run_id"]] + [entry]
+            self._all = [e for e in self._all if e.get("run_id") != entry["run_id"]] + [entry]
             self._write()
 
     def _write(self) -> None:
@@ -68,7 +76,7 @@ class Notebook:
         os.makedirs(folder, exist_ok=True)
         tmp = f"{self.path}.{os.getpid()}.tmp"
         with open(tmp, "w", encoding="utf-8") as f:
-            json.dump({"version": 1, "runs": self._entries}, f, indent=1)
+            json.dump({"version": 1, **self._doc, "runs": self._all}, f, indent=1)
         os.replace(tmp, self.path)
 
 

@@ -8,6 +8,7 @@ pause holds them, refusals are shown); the notebook keeps runs across restarts.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import threading
@@ -200,7 +201,15 @@ def test_notebook_survives_a_restart_and_a_bad_file(tmp_path):
     nb = Notebook(str(path))
     nb.add({"run_id": "abc", "robot": "planar", "method": "cmaes", "seed": 0, "generations": 3})
     assert Notebook(str(path)).get("abc")["generations"] == 3
-    for content in (b"{ not json", b'{"runs": 3}', b"RRF2\x00\xff binary"):  # refused, and left as it is
+    # what it does not know is written back as it was: other keys, entries that are not runs
+    path.write_text(json.dumps({"comment": "my notes", "runs": [{"run_id": "a1"}, {"runid_typo": "b2"}]}))
+    nb = Notebook(str(path))
+    assert [e["run_id"] for e in nb.entries()] == ["a1"]
+    nb.add({"run_id": "c3", "robot": "planar"})
+    data = json.loads(path.read_text())
+    assert data["comment"] == "my notes" and data["runs"] == [{"run_id": "a1"}, {"runid_typo": "b2"},
+                                                              {"run_id": "c3", "robot": "planar"}]
+    for content in (b"{ not json", b'{"runs": 3}', b"[1, 2, 3]", b"RRF2\x00\xff binary"):  # refused, left as it is
         path.write_bytes(content)
         with pytest.raises(NotebookError, match=f"notebook {re.escape(str(path))} is not a lab notebook"):
             Notebook(str(path))
