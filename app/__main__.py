@@ -32,6 +32,17 @@ def parse(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def _cannot_listen_on(host: str) -> str | None:
+    """Why no server can listen on host (unknown name, an address of another machine), or None."""
+    try:
+        family, kind, _, _, address = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM)[0]
+        with socket.socket(family, kind) as s:
+            s.bind(address)
+    except OSError as e:
+        return e.strerror or str(e)
+    return None
+
+
 def main(argv=None) -> int:
     args = parse(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -42,6 +53,10 @@ def main(argv=None) -> int:
         return 2
     if not 0 <= args.port < 65536:
         print(f"error: --port must be in 0..65535, got {args.port}", file=sys.stderr)
+        return 2
+    problem = _cannot_listen_on(args.host)
+    if problem:  # viser would wait forever for a server that cannot start
+        print(f"error: cannot serve on --host {args.host}: {problem}", file=sys.stderr)
         return 2
     from lab.recording import not_a_folder
 

@@ -220,7 +220,7 @@ def test_notebook_survives_a_restart_and_a_bad_file(tmp_path):
     assert Notebook(str(path)).entries() == []
 
 
-def test_python_m_app_refuses_notebook_and_recordings_paths_that_hold_something_else(tmp_path, capsys):
+def test_python_m_app_refuses_bad_paths_and_hosts_before_starting(tmp_path, capsys):
     from app.__main__ import main
 
     recording = tmp_path / "run.rrd"
@@ -230,6 +230,8 @@ def test_python_m_app_refuses_notebook_and_recordings_paths_that_hold_something_
         assert f"error: notebook {path} {why}" in capsys.readouterr().err
     assert main(["--recordings", str(recording / "sub"), "--port", "0"]) == 2
     assert f"error: --recordings must be a folder, but {recording} is a file" in capsys.readouterr().err
+    assert main(["--host", "no.such.host.invalid", "--port", "0"]) == 2  # viser would wait forever
+    assert "error: cannot serve on --host no.such.host.invalid" in capsys.readouterr().err
     assert recording.read_bytes() == b"RRF2\x00\x88 a recording given by mistake"
     assert sorted(os.listdir(tmp_path)) == ["run.rrd"]
 
