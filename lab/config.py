@@ -10,13 +10,20 @@
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
 from dataclasses import dataclass
+
+import numpy as np
 
 import robots
 
 from .encoding import FEATURES
 
 METHODS = ("cmaes", "neat")
+# upper bounds that keep a run within this machine's memory and time (a population of 10^9 would
+# hang in pycma's or neat's setup; hidden 256 is a CMA-ES search space of about 2,300 weights)
+LIMITS = {"population": 10_000, "goals": 1_000_000, "hidden": 256}
 
 
 @dataclass(frozen=True)
@@ -47,12 +54,11 @@ class TrainConfig:
             raise ValueError(f"unknown method {self.method!r}; known methods: {', '.join(METHODS)}")
         if self.robot not in robots.names():
             raise ValueError(f"unknown robot {self.robot!r}; known robots: {', '.join(robots.names())}")
-        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
-            raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
-        for name in ("generations", "population", "targets", "test_goals"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        for name in ("seed", "goal_seed"):
+            self._whole(name, 0)
+        for name, most in (("generations", 10**9), ("population", LIMITS["population"]),
+                           ("targets", LIMITS["goals"]), ("test_goals", LIMITS["goals"])):
+            self._whole(name, 1, most)
         if self.population < 4 and self.method == "cmaes":
             raise ValueError(f"population must be >= 4 for CMA-ES, got {self.population}")
         if self.population < 2:
@@ -62,17 +68,36 @@ class TrainConfig:
                 object.__setattr__(self, name, defaults[self.method])
         if self.features not in FEATURES:
             raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
-        if not isinstance(self.hidden, int) or self.hidden < (1 if self.method == "cmaes" else 0):
-            raise ValueError(f"hidden must be an integer >= {1 if self.method == 'cmaes' else 0}, got {self.hidden!r}")
-        if not (self.sigma0 > 0 and self.sigma0 < 1e6):
-            raise ValueError(f"sigma0 must be a positive number, got {self.sigma0!r}")
-        if not isinstance(self.diagonal, int) or isinstance(self.diagonal, bool) or self.diagonal < 0:
-            raise ValueError(f"diagonal must be an integer >= 0 (generations), got {self.diagonal!r}")
-        if not (self.mutation_power > 0 and self.mutation_power < 1e6):
-            raise ValueError(f"mutation_power must be a positive number, got {self.mutation_power!r}")
+        self._whole("hidden", 1 if self.method == "cmaes" else 0, LIMITS["hidden"])
+        self._whole("diagonal", 0, 10**9)
+        self._real("margin", 0, 10, "a number in [0, 10)", closed_above=False)
+        for name in ("sigma0", "mutation_power"):
+            self._real(name, 0, 1e6, "a positive number", closed_below=False)
         for name in ("add_node", "add_connection"):
-            if not 0 <= getattr(self, name) <= 1:
-                raise ValueError(f"{name} must be a probability in [0, 1], got {getattr(self, name)!r}")
+            self._real(name, 0, 1, "a probability in [0, 1]")
+        for name in ("restarts", "paper"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, bool(getattr(self, name)))
+
+    def _whole(self, name: str, least: int, most: int | None = None) -> None:
+        """Check that field `name` is a whole number in [least, most], and store it as an int."""
+        v = getattr(self, name)
+        if not isinstance(v, numbers.Integral) or isinstance(v, (bool, np.bool_)) or v < least \
+                or (most is not None and v > most):
+            bound = f">= {least}" if most is None else f"in {least}..{most:,}"
+            raise ValueError(f"{name} must be an integer {bound}, got {v!r}")
+        object.__setattr__(self, name, int(v))
+
+    def _real(self, name: str, lo: float, hi: float, what: str, closed_below: bool = True,
+              closed_above: bool = True) -> None:
+        """Check that field `name` is a real number within (lo, hi) as closed, and store it as a float."""
+        v = getattr(self, name)
+        ok = isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)) and math.isfinite(v) and \
+            (v >= lo if closed_below else v > lo) and (v <= hi if closed_above else v < hi)
+        if not ok:
+            raise ValueError(f"{name} must be {what}, got {v!r}")
+        object.__setattr__(self, name, float(v))
 
     @classmethod
     def preset(cls, paper: bool = False, **overrides) -> "TrainConfig":

@@ -626,6 +626,24 @@ def test_bad_counts_are_refused_before_any_work(field, value, method, no_work):
     assert time.monotonic() - t < 0.5
 
 
+@pytest.mark.parametrize("field,value,why", [
+    ("paper", "no", "paper must be True or False"), ("restarts", "no", "restarts must be True or False"),
+    ("margin", -5, "margin must be a number in \\[0, 10\\)"), ("margin", float("nan"), "margin must be"),
+    ("goal_seed", 1.5, "goal_seed must be an integer >= 0"), ("sigma0", "x", "sigma0 must be a positive number"),
+    ("sigma0", True, "sigma0 must be a positive number"), ("add_node", None, "add_node must be a probability"),
+    ("hidden", True, "hidden must be an integer in 1..256"), ("population", 10**9, "population must be an integer in 1..10,000"),
+    ("targets", 10**10, "targets must be an integer in 1..1,000,000")])
+def test_bad_settings_are_refused_by_field_name(field, value, why, no_work):
+    with pytest.raises(ValueError, match=why):
+        lab.TrainConfig(**{field: value})
+
+
+def test_numpy_integers_are_whole_numbers_and_stored_as_int():
+    c = lab.TrainConfig(generations=np.int64(5), seed=np.int64(3), hidden=np.int32(4))
+    assert (c.generations, c.seed, c.hidden) == (5, 3, 4) and type(c.generations) is int
+    json.dumps(c.to_dict())  # what a recording stores
+
+
 @pytest.mark.parametrize("paper", [False, True])
 def test_unknown_robot_is_refused_before_any_work(paper, no_work):
     with pytest.raises(ValueError, match="robot.*'nope'.*planar"):
