@@ -112,12 +112,7 @@ class Arm:
         """q (..., nq) moved into the limits: a continuous joint turned by whole turns into
         [lower, lower + 2 pi), then every coordinate clipped to [lower, upper]."""
         flat, batch = self._as_batch(q)
-        cont, lo = self.chain.continuous, self.lower[self.chain.continuous]
-        x = flat[:, cont]
-        inside = (x >= lo) & (x < lo + 2 * np.pi)  # kept bit for bit
-        flat = flat.copy()
-        flat[:, cont] = np.where(inside, x, lo + np.mod(x - lo, 2 * np.pi))
-        return np.clip(flat, self.lower, self.upper).reshape(*batch, self.nq)
+        return _within(flat, self.lower, self.upper, self.chain.continuous).reshape(*batch, self.nq)
 
     # ---------------------------------------------------------------- sampling
     def sample_q(self, n: int, seed: int | None = None) -> np.ndarray:
@@ -204,7 +199,7 @@ def from_urdf(
     lower, upper = _limits(model, chain, limits or {}, name)
     q_ref = pin.neutral(model)
     arm_q_ref = _reduce_reference(full, model, q_full)
-    rest = chain.from_pinocchio(arm_q_ref)
+    rest = _within(chain.from_pinocchio(arm_q_ref)[None], lower, upper, chain.continuous)[0]
     dirs = tuple(package_dirs)
     ee_name = model.frames[frame_id].name
 
@@ -215,17 +210,23 @@ def from_urdf(
         _, vis = pin.buildReducedModel(full, vis_full, locked, q_full)
         return vis
 
-    for a in (lower, upper, q_ref):  # load() shares one Arm per name: nobody may change it
+    for a in (lower, upper, rest, q_ref):  # load() shares one Arm per name: nobody may change it
         a.flags.writeable = False
-    arm = Arm(
+    return Arm(
         name=name, model=model, lower=lower, upper=upper, task_axes=tuple(int(a) for a in task_axes),
         ee_frame=ee_name, ee_frame_id=frame_id, urdf_path=urdf_path, package_dirs=dirs, joint_names=joint_names,
         rest=rest, q_ref=q_ref, chain=chain, _visual_builder=build_visual,
     )
-    rest = arm.within_limits(rest)
-    rest.flags.writeable = False
-    object.__setattr__(arm, "rest", rest)
-    return arm
+
+
+def _within(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, continuous: np.ndarray) -> np.ndarray:
+    """Arm.within_limits on (N, nq): continuous coordinates turned by whole turns into
+    [lower, lower + 2 pi) (those already there kept bit for bit), then all clipped."""
+    lo = lower[continuous]
+    x = q[:, continuous]
+    q = q.copy()
+    q[:, continuous] = np.where((x >= lo) & (x < lo + 2 * np.pi), x, lo + np.mod(x - lo, 2 * np.pi))
+    return np.clip(q, lower, upper)
 
 
 def _find_frame(model: pin.Model, ee_frame: str, name: str, urdf_path: str) -> int:
