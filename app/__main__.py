@@ -58,13 +58,13 @@ def main(argv=None) -> int:
     if problem:  # viser would wait forever for a server that cannot start
         print(f"error: cannot serve on --host {args.host}: {problem}", file=sys.stderr)
         return 2
-    from lab.recording import not_a_folder
+    from lab.recording.logger import not_a_folder
 
     if not args.no_record and (blocker := not_a_folder(args.recordings)) is not None:
         print(f"error: --recordings must be a folder, but {blocker} is a file", file=sys.stderr)
         return 2
-    from .notebook import Notebook, NotebookError
-    from .server import LabApp
+    from app.notebook import Notebook, NotebookError
+    from app.server import LabApp
 
     t0 = time.perf_counter()
     try:
@@ -76,7 +76,7 @@ def main(argv=None) -> int:
                  record=not args.no_record)
     print(f"\nNeuro-IK Lab ready in {time.perf_counter() - t0:.1f} s: {app.url}", flush=True)
     # the first Start would otherwise wait for numba to compile the fitness kernels (~30 s, once)
-    from lab.warmup import compile_kernels
+    from lab.running.warmup import compile_kernels
 
     threading.Thread(target=compile_kernels, name="kernel-warmup", daemon=True).start()
     if args.host in ("0.0.0.0", ""):

@@ -9,7 +9,7 @@ A marker update moves its arm at once, in the callback (in viser's event loop: o
 forward pass, one forward kinematics, nq pose messages, then a flush); the IK query runs in its own thread, at
 most 10 times a second per tab; `refresh` (called by the render loop) redraws all goals when
 the controller changes, at most 5 times a second. A lock per tab keeps them apart.
-Poses go out through scene.set_pose inside client.atomic() (see there: viser's setters cost
+Poses go out through viser_private.set_pose inside client.atomic() (see there: viser's setters cost
 most of the server's time while dragging).
 """
 
@@ -25,8 +25,9 @@ import numpy as np
 import robots
 from robots.ik import dls_ik
 
-from .ikworker import IK_WORKER
-from .scene import ArmView, frame_workspace, set_pose, to_world
+from app.ikworker import IK_WORKER
+from app.scene import ArmView, frame_workspace, to_world
+from app.viser_private import set_pose
 
 MAX_GOALS = 8
 GHOST = (120, 200, 255)

@@ -84,14 +84,14 @@ def entry_from_summary(summary, started: float, recording: str | None) -> dict:
     """A notebook entry from a lab.RunSummary."""
     cfg = summary.config
     finite = lambda x: float(x) if x is not None and math.isfinite(x) else None  # noqa: E731
+    numbers = summary.numbers()
     return {
         "run_id": summary.run_id,
         "started": time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(started)),
         "robot": cfg.robot, "method": cfg.method, "seed": cfg.seed, "settings": cfg.to_dict(),
-        "state": summary.state, "generations": summary.generations, "evaluations": summary.evaluations,
-        "seconds": round(float(summary.seconds), 3),
-        "train_mse": finite(summary.train_mse), "test_mse": finite(summary.test_mse),
-        "recording": str(recording) if recording else None, "error": summary.error,
+        **numbers, "seconds": round(float(numbers["seconds"]), 3),
+        "train_mse": finite(numbers["train_mse"]), "test_mse": finite(numbers["test_mse"]),
+        "recording": str(recording) if recording else None,
         "controller": summary.controller.to_dict() if summary.controller is not None else None,
     }
 

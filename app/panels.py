@@ -1,6 +1,8 @@
 """The training panel, shared by every tab (server.gui): settings, run controls, progress.
 
-Settings are validated by lab.TrainConfig as they change: an invalid value is put back to
+The method menu and the method's option fields come from the methods registry (lab.methods):
+a method registered there appears here with its options, and picking a robot or a method fills
+the fields with that pair's defaults. Settings are validated by lab.TrainConfig as they change: an invalid value is put back to
 the last valid one and the reason is shown (in the panel and as a notification in the tab
 that typed it). Start while a run is going is refused the same way. Buttons only call
 LabState; the render loop calls `refresh` to show progress.
@@ -8,16 +10,18 @@ LabState; the render loop calls `refresh` to show progress.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import viser
 import viser.uplot
 
 import lab
 import robots
-from lab.config import DEFAULT_HIDDEN, METHODS
+from lab import methods
 
 PLOT_POINTS = 400  # the convergence plot is decimated to this many generations
-METHOD_LABELS = {"cmaes": "CMA-ES", "neat": "NEAT"}
+SHARED = ("population", "generations", "hidden", "seed")  # the TrainConfig fields shown
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
 EMPTY_PLOT = (np.array([0.0, 1.0]), np.full(2, np.nan), np.full(2, np.nan))
 
@@ -31,15 +35,21 @@ class TrainingPanel:
     def __init__(self, gui, state, on_robot=None):
         """gui: a viser GuiApi (inside the Train tab); state: LabState; on_robot(name): switch the scene."""
         self.state, self.on_robot = state, on_robot
+        self.gui = gui
         d = lab.TrainConfig.preset(robot=state.arm.name)
         self.robot = gui.add_dropdown("Robot", robots.names(), initial_value=state.arm.name)
-        self.method = gui.add_dropdown("Method", tuple(METHOD_LABELS[m] for m in METHODS), initial_value="CMA-ES")
+        self.method = gui.add_dropdown("Method", tuple(m.label for m in methods.all_methods()),
+                                       initial_value=methods.get(d.method).label)
         # float fields, so that a fraction typed in the browser reaches us (and is refused) instead of
         # being truncated by viser's int cast
         self.population = gui.add_number("Population", float(d.population), step=1)
         self.generations = gui.add_number("Generations", float(d.generations), step=1)
         self.hidden = gui.add_number("Hidden units", float(d.hidden), step=1)
         self.seed = gui.add_number("Seed", float(d.seed), step=1)
+        self.options_folder = gui.add_folder("Method options", expand_by_default=False)
+        self.options: dict = {}  # option name -> its field, for the selected method
+        self._options_lock = threading.RLock()  # callbacks of several tabs may rebuild them at once
+        self._build_options(d)
         actions = {"Start": self.start, "Pause": self.pause, "Resume": self.resume, "Stop": self.stop,
                    "Reset": self.reset}
         icons = {"Start": viser.Icon.PLAYER_PLAY, "Pause": viser.Icon.PLAYER_PAUSE, "Resume": viser.Icon.PLAYER_PLAY,
@@ -60,35 +70,80 @@ class TrainingPanel:
         self.message = gui.add_markdown("")
         self._valid = {id(h): h.value for h in self._fields()}
         self._reverting = False
-        for h in self._fields():
+        for h in (self.robot, self.method, self.population, self.generations, self.hidden, self.seed):
             h.on_update(self._on_field)
         self._shown_gen = -1
 
     def _fields(self):
-        return (self.robot, self.method, self.population, self.generations, self.hidden, self.seed)
+        return (self.robot, self.method, self.population, self.generations, self.hidden, self.seed,
+                *self.options.values())
+
+    def _build_options(self, config: lab.TrainConfig) -> None:
+        """One field per option of config's method, at config's values (the old fields go)."""
+        with self._options_lock:
+            self._build_options_locked(config)
+
+    def _build_options_locked(self, config: lab.TrainConfig) -> None:
+        for handle in self.options.values():
+            handle.remove()
+        self.options = {}
+        describe = type(config.options).describe()
+        with self.options_folder:
+            for name, value in config.options.to_dict().items():
+                label, hint = name.replace("_", " ").capitalize(), describe[name][2]
+                if isinstance(value, bool):
+                    handle = self.gui.add_checkbox(label, value, hint=hint)
+                else:
+                    handle = self.gui.add_number(label, float(value), step=1 if isinstance(value, int) else None,
+                                                 hint=hint)
+                handle.on_update(self._on_field)
+                self.options[name] = handle
+
+    def _method_name(self) -> str:
+        return next(m.name for m in methods.all_methods() if m.label == self.method.value)
+
+    def _fill_defaults(self) -> None:
+        """The selected robot's and method's defaults into the fields (our own writes, not checked)."""
+        with self._options_lock:
+            d = lab.TrainConfig.preset(robot=self.robot.value, method=self._method_name(), seed=int(self.seed.value))
+            self._reverting = True
+            try:
+                for name in SHARED:
+                    getattr(self, name).value = float(getattr(d, name))
+                self._build_options(d)
+            finally:
+                self._reverting = False
+            self._valid = {id(h): h.value for h in self._fields()}
 
     # ------------------------------------------------------------------ settings
     def config(self) -> lab.TrainConfig:
         """The TrainConfig of the fields; ValueError (with the reason) when they are invalid."""
         values = {}
-        for name, handle in (("population", self.population), ("generations", self.generations),
-                             ("hidden", self.hidden), ("seed", self.seed)):
+        for name in SHARED:
+            handle = getattr(self, name)
             v = handle.value
             if not isinstance(v, (int, float)) or not float(v).is_integer():
                 raise ValueError(f"{handle.label.lower()} must be a whole number, got {v!r}")
             values[name] = int(v)
-        method = {v: k for k, v in METHOD_LABELS.items()}[self.method.value]
-        return lab.TrainConfig.preset(robot=self.robot.value, method=method, **values)
+        method = methods.get(self._method_name())
+        kinds = {name: kind for name, (_d, kind, _h) in method.options.describe().items()}
+        options = {}
+        for name, handle in self.options.items():
+            v = handle.value
+            if kinds.get(name) is int:
+                if not isinstance(v, (int, float)) or not float(v).is_integer():
+                    raise ValueError(f"{handle.label.lower()} must be a whole number, got {v!r}")
+                v = int(v)
+            options[name] = v
+        return lab.TrainConfig.preset(robot=self.robot.value, method=method.name, **values, **options)
 
     def _on_field(self, event) -> None:
         if self._reverting:  # our own write-back of a refused value
             return
         handle = event.target
         if handle is self.method and self.method.value != self._valid[id(self.method)]:
-            method = {v: k for k, v in METHOD_LABELS.items()}[self.method.value]
-            self._reverting = True
-            self.hidden.value = float(DEFAULT_HIDDEN[method])  # each method's own default size
-            self._reverting = False
+            self._fill_defaults()  # each method's own defaults (its hidden size, its options)
+            return
         try:
             self.config()
         except (ValueError, TypeError) as e:
@@ -101,15 +156,15 @@ class TrainingPanel:
                 self.refuse(event.client, msg)
                 self._revert(handle)
                 return
+        if handle is self.robot:
+            self._fill_defaults()  # the new arm's defaults
         self._valid[id(handle)] = handle.value
-        self._valid[id(self.hidden)] = self.hidden.value
         self.message.content = ""
 
     def _revert(self, handle) -> None:
         self._reverting = True
         try:
             handle.value = self._valid[id(handle)]
-            self.hidden.value = self._valid[id(self.hidden)]
         finally:
             self._reverting = False
 

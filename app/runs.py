@@ -2,7 +2,7 @@
 
 The list holds every notebook entry (runs started in the app, kept across restarts) and any
 other recording found in the recordings folder; an uploaded .rrd is saved under
-recordings/uploads/ and opened. Opening a run reads its Rerun recording (lab.replay); the
+recordings/uploads/ and opened. Opening a run reads its Rerun recording (lab.recording.replay); the
 generation slider then shows the controller logged at or before that generation, and every
 tab's arms follow their goal markers with it. An entry whose recording is gone replays its
 final controller only. "Back to live" returns to the training run (or the startup controller).
@@ -19,8 +19,8 @@ import time
 import lab
 import robots
 
-from .notebook import label
-from .panels import notify
+from app.notebook import label
+from app.panels import notify
 
 MAX_UPLOAD = 200 * 2**20  # bytes
 
@@ -35,7 +35,7 @@ class RunsPanel:
         self.live_button = gui.add_button("Back to live", icon="player-play")
         self.details = gui.add_markdown("")
         self.message = gui.add_markdown("")
-        self.recording = None  # lab.replay.Recording being replayed
+        self.recording = None  # lab.recording.replay.Recording being replayed
         self._items: dict[str, tuple[str, object]] = {}  # label -> ("entry", dict) or ("file", path)
         self._listed_at, self._listing = 0.0, None
         self.open_button.on_click(lambda e: self.open(self.choice.value, e.client))
@@ -98,7 +98,7 @@ class RunsPanel:
         return msg
 
     def open_file(self, path: str, client=None, entry: dict | None = None) -> str | None:
-        from lab.replay import read_recording
+        from lab.recording.replay import read_recording
 
         try:
             rec = read_recording(path)
@@ -130,7 +130,7 @@ class RunsPanel:
         with open(tmp, "wb") as f:
             f.write(content)
         try:
-            from lab.replay import read_recording
+            from lab.recording.replay import read_recording
 
             read_recording(tmp)
         except Exception as e:

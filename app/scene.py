@@ -17,9 +17,9 @@ import warnings
 
 import numpy as np
 import pinocchio as pin
-from viser._messages import SetOrientationMessage, SetPositionMessage
 
 import robots
+from app.viser_private import set_pose
 from robots.ik import workspace_size
 
 
@@ -103,38 +103,14 @@ class ArmView:
             frame.remove()
 
 
-def set_pose(handle, position: np.ndarray, wxyz: np.ndarray) -> None:
-    """handle.position, handle.wxyz = position, wxyz, about 7x faster.
-
-    viser 1.1's pose setters cost about 0.3 ms per pose (casts, np.allclose, property
-    machinery), which made arm updates the server's main cost while dragging. This queues the
-    same two messages through the scene's own (private) queue and keeps the handle's state in
-    step; if that API is not there (another viser), it falls back to the setters."""
-    impl = handle._impl
-    queue = getattr(getattr(impl, "api", None), "_queue_scene_message", None)
-    if queue is None or not hasattr(impl, "removed"):
-        handle.position, handle.wxyz = position, wxyz
-        return
-    if impl.removed:  # a message for a removed node would bring it back in the browser
-        return
-    impl.position[:] = position
-    impl.wxyz[:] = wxyz
-    queue(SetPositionMessage(impl.name, (float(position[0]), float(position[1]), float(position[2]))))
-    queue(SetOrientationMessage(impl.name, (float(wxyz[0]), float(wxyz[1]), float(wxyz[2]), float(wxyz[3]))))
-
-
 def to_world(arm: robots.Arm, goal) -> np.ndarray:
     """Task coordinates (len(task_axes),) -> a 3D point (other coordinates 0)."""
-    p = np.zeros(3)
-    p[list(arm.task_axes)] = goal
-    return p
+    return arm.to_3d(goal)
 
 
 def frame_workspace(arm: robots.Arm) -> dict:
     """Camera, floor and goal-marker limits for an arm, from its workspace bounds."""
-    lo3, hi3 = np.zeros(3), np.zeros(3)
-    lo, hi = arm.workspace_bounds
-    lo3[list(arm.task_axes)], hi3[list(arm.task_axes)] = lo, hi
+    lo3, hi3 = (arm.to_3d(b) for b in arm.workspace_bounds)
     size = workspace_size(arm)
     center = 0.5 * (lo3 + hi3)
     span = hi3 - lo3

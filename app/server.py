@@ -7,7 +7,7 @@
 Shared by all tabs (server.scene / server.gui): the floor grid, the training goals, the error
 map, the training panel, the network drawing and the runs list; one training run at a time.
 Per tab (client.scene / client.gui): goal markers, arms and the IK ghost. Callbacks run in
-viser's thread pool, training in a worker process (lab.worker.ProcessRunner) whose events a
+viser's thread pool, training in a worker process (lab.running.worker.ProcessRunner) whose events a
 reader thread takes in; the render loop (30 Hz) redraws tabs when the shown controller changes
 and refreshes progress, plot, map and network.
 """
@@ -24,15 +24,15 @@ from collections import deque
 import numpy as np
 import viser
 
-import lab.worker as lab_worker
+import lab.running.worker as lab_worker
 
-from .goals import TabSession, fmt_len
-from .notebook import DEFAULT_PATH, Notebook
-from .panels import TrainingPanel
-from .runs import RunsPanel
-from .scene import frame_workspace
-from .state import LabState
-from .views import error_map, map_grid, network_svg
+from app.goals import TabSession, fmt_len
+from app.notebook import DEFAULT_PATH, Notebook
+from app.panels import TrainingPanel
+from app.runs import RunsPanel
+from app.scene import frame_workspace
+from app.state import LabState
+from app.views import error_map, map_grid, network_svg
 
 log = logging.getLogger(__name__)
 
@@ -50,9 +50,9 @@ warnings.filterwarnings("ignore", message="Queued a .* on a closed connection", 
 
 
 def rerun_recorder(folder: str):
-    """A recorder for LabState: a lab.recording.RerunLogger per run (None when the module is missing)."""
+    """A recorder for LabState: a lab.recording.logger.RerunLogger per run (None when the module is missing)."""
     try:
-        from lab.recording import RerunLogger
+        from lab.recording.logger import RerunLogger
     except ImportError:
         return None
 
@@ -74,7 +74,7 @@ class LabApp:
         notebook = notebook if isinstance(notebook, Notebook) else Notebook(notebook)
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
         if startup is True:
-            from .startup import startup_controller
+            from app.startup import startup_controller
 
             startup, self.startup_note = startup_controller()
         else:
@@ -172,9 +172,7 @@ class LabApp:
         arm = self.state.arm
         r = self.state.runner
         goals = r.problem.train_goals if r is not None and r.problem.arm is arm else arm.sample_goals(70, seed=0)
-        pts = np.zeros((len(goals), 3))
-        pts[:, list(arm.task_axes)] = goals
-        return pts
+        return arm.to_3d(goals)
 
     def _draw_views(self) -> None:
         """Error map and network of the shown controller, when it has changed."""

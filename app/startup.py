@@ -15,11 +15,13 @@ import os
 import time
 
 import lab
+from lab import methods
 
 log = logging.getLogger(__name__)
 
-PRETRAINED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "pretrained", "planar-cmaes.json")
-QUICK = dict(robot="planar", method="cmaes", generations=400, population=20, seed=0)
+PRETRAINED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "pretrained",
+                          f"planar-{methods.DEFAULT_METHOD}.json")
+QUICK = dict(robot="planar", method=methods.DEFAULT_METHOD, generations=400, population=20, seed=0)
 
 
 def startup_controller(path: str = PRETRAINED):
@@ -38,7 +40,7 @@ def startup_controller(path: str = PRETRAINED):
 
 
 def main() -> None:
-    run = lab.evolve(robot="planar", method="cmaes", generations=4000, population=50, seed=0)
+    run = lab.evolve(robot="planar", method=methods.DEFAULT_METHOD, generations=4000, population=50, seed=0)
     os.makedirs(os.path.dirname(PRETRAINED), exist_ok=True)
     with open(PRETRAINED, "w", encoding="utf-8") as f:
         json.dump({"settings": run.config.to_dict(), "train_mse": run.train_mse, "test_mse": run.test_mse,

@@ -3,7 +3,7 @@
 Nothing here knows about viser; the panels call these methods and show what they return.
 Methods that can be refused return a message (str) and change nothing, or None when done.
 
-Training runs in a process of its own (lab.worker.ProcessRunner): the server's threads and the
+Training runs in a process of its own (lab.running.worker.ProcessRunner): the server's threads and the
 optimizer do not share a GIL, so neither slows the other down. The runner's subscriber (`_Tap`)
 runs in its reader thread and only appends numbers and swaps a reference under a lock. The
 render loop polls `version` and redraws when the shown controller has changed.
@@ -20,9 +20,9 @@ import numpy as np
 
 import lab
 import robots
-from lab.worker import ProcessRunner
+from lab.running.worker import ProcessRunner
 
-from .notebook import Notebook, entry_from_summary
+from app.notebook import Notebook, entry_from_summary
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +55,7 @@ class LabState:
     def __init__(self, robot: str = "planar", notebook: Notebook | None = None, startup=None,
                  recorder=None):
         """startup: controller shown first (or None); recorder: callable(runner) -> object with
-        .path that records the run (lab.recording.RerunLogger), or None for no recordings."""
+        .path that records the run (lab.recording.logger.RerunLogger), or None for no recordings."""
         self._lock = threading.RLock()
         self.notebook = notebook or Notebook()
         self.recorder = recorder

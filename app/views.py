@@ -20,9 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 
 import robots
+from lab.problem.controllers import network_layout
 from robots.ik import workspace_size
 
-from .scene import colormap
+from app.scene import colormap
 
 GRID = 64
 GRID_3D = 40
@@ -85,45 +86,13 @@ def error_map(arm: robots.Arm, controller) -> tuple[np.ndarray, np.ndarray, floa
 
 
 # ---------------------------------------------------------------------------- network drawing
-def network_graph(controller) -> tuple[list, list]:
-    """(nodes [(key, layer, label)], links [(src, dst, weight)]) of an MLP or a NEAT graph."""
-    enc = controller.encoding
-    in_labels = enc.input_names
-    n_out = enc.n_outputs
-    if controller.kind == "mlp":
-        w_i, w_o = controller.w_i, controller.w_o  # (ni+1, nh), (nh, no); last row of w_i: bias
-        nodes = [(("i", k), 0, in_labels[k]) for k in range(enc.n_inputs)]
-        nodes += [(("h", h), 1, "") for h in range(controller.hidden)]
-        nodes += [(("o", o), 2, f"q{o + 1}") for o in range(n_out)]
-        links = [(("i", k), ("h", h), w_i[k, h]) for k in range(enc.n_inputs) for h in range(controller.hidden)]
-        links += [(("h", h), ("o", o), w_o[h, o]) for h in range(controller.hidden) for o in range(n_out)]
-        return nodes, links
-    genome = controller.genome
-    inputs, outputs = list(controller.input_keys), list(controller.output_keys)
-    links = [(int(i), int(o), float(w)) for i, o, w, enabled in genome["connections"] if enabled]
-    keys = set(inputs) | set(outputs) | {int(k) for k, *_ in genome["nodes"]}
-    depth = {k: 0 for k in inputs}
-    for _ in range(len(keys)):  # longest path from the inputs (the graph is feed-forward)
-        changed = False
-        for i, o, _w in links:
-            if i in depth and depth.get(o, -1) < depth[i] + 1 and o not in inputs:
-                depth[o], changed = depth[i] + 1, True
-        if not changed:
-            break
-    last = max([depth.get(k, 1) for k in keys if k not in outputs] + [0]) + 1
-    nodes = [(k, 0, in_labels[n]) for n, k in enumerate(inputs)]
-    nodes += [(k, min(depth.get(k, 1), last - 1) or 1, "") for k in sorted(keys - set(inputs) - set(outputs))]
-    nodes += [(k, last, f"q{n + 1}") for n, k in enumerate(outputs)]
-    return nodes, links
-
-
 def network_svg(controller, width: int = 300, height: int = 220) -> str:
     """An SVG drawing of the controller's network (a short note when there is none)."""
     if controller is None:
         return "<p style='font-size:0.8em'>No controller yet.</p>"
-    nodes, links = network_graph(controller)
+    nodes, links = network_layout(controller)
     layers: dict[int, list] = {}
-    for key, layer, label in nodes:
+    for key, layer, label, _kind in nodes:
         layers.setdefault(layer, []).append((key, label))
     n_layers = max(layers) + 1
     pos = {}
@@ -141,9 +110,9 @@ def network_svg(controller, width: int = 300, height: int = 220) -> str:
         (x1, y1), (x2, y2) = pos[src], pos[dst]
         parts.append(f"<line x1='{x1:.1f}' y1='{y1:.1f}' x2='{x2:.1f}' y2='{y2:.1f}' stroke='{color}' "
                      f"stroke-width='{0.4 + 2.6 * a:.2f}' stroke-opacity='{0.15 + 0.85 * a:.2f}'/>")
-    for key, layer, label in nodes:
+    for key, layer, label, kind in nodes:
         x, y = pos[key]
-        fill = "#444" if layer == 0 else ("#2ca02c" if label.startswith("q") else "#ff7f0e")
+        fill = {"input": "#444", "output": "#2ca02c", "hidden": "#ff7f0e"}[kind]
         parts.append(f"<circle cx='{x:.1f}' cy='{y:.1f}' r='5' fill='{fill}'/>")
         if label:
             dx = -8 if layer == 0 else 8
@@ -151,6 +120,6 @@ def network_svg(controller, width: int = 300, height: int = 220) -> str:
             parts.append(f"<text x='{x + dx:.1f}' y='{y + 3:.1f}' font-size='9' text-anchor='{anchor}' "
                          f"fill='currentColor'>{html.escape(label)}</text>")
     parts.append("</svg>")
-    n_hidden = sum(1 for _k, layer, label in nodes if layer > 0 and not label)
+    n_hidden = sum(1 for node in nodes if node.kind == "hidden")
     caption = f"{controller.kind}: {n_hidden} hidden, {len(links)} connections, {controller.n_params} parameters"
     return "".join(parts) + f"<p style='font-size:0.75em;margin:0'>{caption}</p>"

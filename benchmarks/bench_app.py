@@ -15,12 +15,12 @@ Two numbers, measured side by side in rounds (headless then app, app then headle
 2. Training throughput (evaluations per second over the same window) with the app serving
    those tabs, over headless training (lab.Runner in this process's thread, as `python -m lab
    train` runs, nothing else running). The app trains in its worker process
-   (lab.worker.ProcessRunner), started from the panel's code path (app.state.start).
+   (lab.running.worker.ProcessRunner), started from the panel's code path (app.state.start).
    Target: >= 80 %.
 
 The clients share the machine's cores with the server (a classroom's browsers would not), so
 both numbers are pessimistic. No Rerun recording in either case, unless --record: then both
-record (headless with lab.recording.RerunLogger, as `python -m lab train` does by default; the
+record (headless with lab.recording.logger.RerunLogger, as `python -m lab train` does by default; the
 app with its recorder, as `make app` does).
 """
 
@@ -45,13 +45,13 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 import lab  # noqa: E402
 
-CONFIG = dict(robot="planar", method="cmaes", generations=10**7, population=50, seed=0)
+CONFIG = dict(robot="planar", method=lab.methods.DEFAULT_METHOD, generations=10**7, population=50, seed=0)
 
 
 class Meter:
     """Runner subscriber: (wall time, the optimizer's CPU time, evaluations) per generation. The
     optimizer's CPU time: this thread's (lab.Runner calls subscribers in its training thread), or
-    the worker process's (`pid`: lab.worker.ProcessRunner)."""
+    the worker process's (`pid`: lab.running.worker.ProcessRunner)."""
 
     def __init__(self, pid: int | None = None):
         self.points = []
@@ -87,7 +87,7 @@ def headless(seconds: float, record: str | None = None) -> float:
     runner, meter = lab.Runner(lab.TrainConfig.preset(**CONFIG)), Meter()
     logger = None
     if record:
-        from lab.recording import RerunLogger
+        from lab.recording.logger import RerunLogger
 
         logger = RerunLogger(runner, path=record + "/")
         runner.subscribe(logger)

@@ -21,15 +21,21 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-PAPER_BEST = {("planar", "cmaes"): 0.1976, ("scara", "cmaes"): 0.0529,
-              ("planar", "neat"): 4.1564, ("scara", "neat"): 10.3440}
+from lab import methods  # noqa: E402
+from lab.experiments import paper  # noqa: E402
 
-# the paper's method, this project's defaults, and the defaults with one choice undone
-DEFAULT_VARIANTS = {
-    "cmaes": ["paper", "default", "features=polar", "features=cartesian", "margin=0.5", "hidden=8", "sigma0=0.4",
-              "diagonal=0"],
-    "neat": ["paper", "default", "mutation_power=1.0", "margin=0.0", "features=reach"],
-}
+
+def default_variants(method: str) -> list[str]:
+    """The paper's method (where the method has a paper preset), this project's defaults, and the
+    defaults with one choice undone (the method's declared ablations)."""
+    m = methods.get(method)
+    return (["paper"] if m.paper is not None else []) + ["default", *m.ablations]
+
+
+def paper_best(robot: str, method: str) -> str:
+    """The best of the paper's 30 runs (Table 3), or '-' where the paper has none."""
+    column = paper.column(robot, method)
+    return f"{column.min():.4f}" if column is not None else "-"
 
 
 def parse_variant(text: str) -> dict:
@@ -60,14 +66,14 @@ def one_run(args) -> tuple:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--method", default="cmaes", choices=("cmaes", "neat"))
+    ap.add_argument("--method", default=methods.DEFAULT_METHOD, choices=methods.names())
     ap.add_argument("--robots", default="planar,scara")
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--generations", type=int, default=1000)
-    ap.add_argument("--variants", default=None, help="';'-separated; default: the method's DEFAULT_VARIANTS")
+    ap.add_argument("--variants", default=None, help="';'-separated; default: paper, default and the method's ablations")
     ap.add_argument("--workers", type=int, default=os.cpu_count())
     args = ap.parse_args()
-    variants = args.variants.split(";") if args.variants else DEFAULT_VARIANTS[args.method]
+    variants = args.variants.split(";") if args.variants else default_variants(args.method)
     jobs = [(r, args.method, v, s, args.generations) for r in args.robots.split(",") for v in variants
             for s in range(args.seeds)]
     t0 = time.perf_counter()
@@ -84,7 +90,7 @@ def main() -> None:
             te = np.array([r[4] for r in rows])
             print(f"{robot:7s} {v:34s} {rows[0][5]:6d} {np.median(tr):10.4f} {tr.max():11.4f} "
                   f"{np.median(te):12.4f} {te.max():14.4f} {np.mean([r[6] for r in rows]):6.1f}  "
-                  f"{PAPER_BEST[(robot, args.method)]}")
+                  f"{paper_best(robot, args.method)}")
 
 
 if __name__ == "__main__":

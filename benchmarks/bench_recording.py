@@ -1,7 +1,7 @@
 """What the Rerun logger costs a training run.
 
 Times a planar CMA-ES run (default 1000 generations, population 50, 70 goals) with and without
-lab.recording.RerunLogger, interleaved (A B, B A, ...) with the same seed in each pair so that
+lab.recording.logger.RerunLogger, interleaved (A B, B A, ...) with the same seed in each pair so that
 load from other processes hits both alike. Prints the median wall times of `runner.run()`
 (which includes writing and closing the recording) and their ratio (target <= 1.10); the CPU time
 ratio (less sensitive to other processes on a shared machine; it includes the writer process,
@@ -25,7 +25,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from lab import Runner, TrainConfig  # noqa: E402
-from lab.recording import RerunLogger  # noqa: E402
+from lab.recording.logger import RerunLogger  # noqa: E402
 
 
 def one_run(config: TrainConfig, path: Path | None, **logger_options) -> dict:
@@ -60,7 +60,7 @@ def main(argv=None) -> None:
     ap.add_argument("--generations", type=int, default=1000)
     ap.add_argument("--population", type=int, default=50)
     ap.add_argument("--robot", default="planar")
-    ap.add_argument("--method", default="cmaes")
+    ap.add_argument("--method", default=methods.DEFAULT_METHOD, choices=methods.names())
     ap.add_argument("--pose-every", type=int, default=None)
     ap.add_argument("--no-compact", action="store_true")
     args = ap.parse_args(argv)

@@ -1,4 +1,4 @@
-"""Lab: neuro-controllers evolved by CMA-ES and NEAT to solve inverse kinematics.
+"""Lab: neuro-controllers evolved (CMA-ES, NEAT, or a method of your own) to solve inverse kinematics.
 
     import lab
     run = lab.evolve(robot="planar", method="cmaes", generations=1000, population=50, targets=70, seed=0)
@@ -6,33 +6,44 @@
     run.train_mse, run.test_mse  # final best on the training and held-out goals
     lab.load_controller("recordings/....rrd", generation=None)  # a controller back from a Rerun recording
     lab.Runner(config) / lab.ProcessRunner(config)  # a run in a background thread / in a worker process
+    lab.methods.names(), lab.methods.register(...)  # the methods (examples/custom_method.py adds one)
 
+Sub-packages, in the direction data flows:
+    problem/     encoding, controllers, compiled kernels, the fitness (Problem)
+    methods/     the registry and one module per method (CMA-ES, NEAT)
+    running/     TrainConfig, the Runner (thread) and ProcessRunner (worker process), evolve, warm-up
+    recording/   the Rerun logger, its writer process, replay, what recordings draw
+    experiments/ the paper's tables and figures (python -m lab reproduce)
 Nothing here knows about the GUI.
 """
 
-from .config import TrainConfig
-from .controllers import Controller, GraphController, MLPController, controller_from_dict
-from .evolve import Run, evolve
-from .runner import GenerationEvent, Runner, RunSummary
+from lab import methods
+from lab.methods import Backend, Method, Options, StepResult
+from lab.problem.controllers import Controller, GraphController, MLPController, controller_from_dict
+from lab.running.config import TrainConfig
+from lab.running.evolve import Run, evolve
+from lab.running.runner import GenerationEvent, Runner, RunSummary
 
 __all__ = [
-    "Controller", "GenerationEvent", "GraphController", "MLPController", "ProcessRunner", "RerunLogger", "Run",
-    "RunSummary", "Runner", "TrainConfig", "controller_from_dict", "evolve", "load_controller",
+    "Backend", "Controller", "GenerationEvent", "GraphController", "MLPController", "Method", "Options",
+    "ProcessRunner", "RerunLogger", "Run", "RunSummary", "Runner", "StepResult", "TrainConfig", "controller_from_dict",
+    "evolve", "load_controller", "methods", "read_recording",
 ]
 
 
 def __getattr__(name: str):
-    """RerunLogger and load_controller import rerun (~0.7 s) only when first used."""
-    if name == "ProcessRunner":  # not imported above: `python -m lab.worker` must be its first import
-        from .worker import ProcessRunner
+    """ProcessRunner, RerunLogger, load_controller and read_recording are imported when first used
+    (rerun: ~0.7 s)."""
+    if name == "ProcessRunner":  # not imported above: `python -m lab.running.worker` must be its first import
+        from lab.running.worker import ProcessRunner
 
         return ProcessRunner
     if name == "RerunLogger":
-        from .recording import RerunLogger
+        from lab.recording.logger import RerunLogger
 
         return RerunLogger
-    if name == "load_controller":
-        from .replay import load_controller
+    if name in ("load_controller", "read_recording"):
+        from lab.recording import replay
 
-        return load_controller
+        return getattr(replay, name)
     raise AttributeError(f"module 'lab' has no attribute {name!r}")

@@ -11,9 +11,35 @@ import sys  # noqa: E402
 
 import robots  # noqa: E402
 
-from .config import METHODS, TrainConfig  # noqa: E402
-from .encoding import FEATURES  # noqa: E402
-from .experiments import cli as experiments_cli  # noqa: E402
+from lab import methods  # noqa: E402
+from lab.experiments import cli as experiments_cli  # noqa: E402
+from lab.problem.encoding import FEATURES  # noqa: E402
+from lab.running.config import TrainConfig  # noqa: E402
+
+
+def method_options() -> dict:
+    """Every registered method's options: name -> (type, help, [methods that have it])."""
+    seen: dict = {}
+    for m in methods.all_methods():
+        for name, (_default, kind, text) in m.options.describe().items():
+            seen.setdefault(name, (kind, text, []))[2].append(m.name)
+    return seen
+
+
+def add_method_options(p) -> None:
+    """A flag per method option (--sigma0, --mutation-power, ...), each unset by default."""
+    group = p.add_argument_group("method options (each method's own; unset: its default for the arm)")
+    for name, (kind, text, owners) in method_options().items():
+        flag = "--" + name.replace("_", "-")
+        text = f"{text} [{', '.join(owners)}]"
+        if kind is bool:
+            group.add_argument(flag, dest=name, action=argparse.BooleanOptionalAction, default=None, help=text)
+        else:
+            group.add_argument(flag, dest=name, type=kind, default=None, help=text)
+
+
+def given_options(args) -> dict:
+    return {name: getattr(args, name) for name in method_options() if getattr(args, name, None) is not None}
 
 
 def _train_parser(sub) -> None:
@@ -21,15 +47,17 @@ def _train_parser(sub) -> None:
                        description="Evolve one neuro-controller; shows a progress bar, then the final "
                                    "training and held-out MSE.")
     p.add_argument("--robot", default="planar", help=f"one of: {', '.join(robots.names())}")
-    p.add_argument("--method", default="cmaes", help=f"one of: {', '.join(METHODS)}")
-    p.add_argument("--generations", type=int, default=1000)
-    p.add_argument("--population", type=int, default=50)
-    p.add_argument("--targets", type=int, default=70, help="number of fixed training goals")
+    p.add_argument("--method", default=methods.DEFAULT_METHOD,
+                   help="; ".join(f"{m.name}: {m.summary}" for m in methods.all_methods()))
+    p.add_argument("--generations", type=int, default=None, help="default: the method's for the arm (the paper: 1000)")
+    p.add_argument("--population", type=int, default=None, help="default: the method's for the arm (the paper: 50)")
+    p.add_argument("--targets", type=int, default=None,
+                   help="number of fixed training goals (default: the method's for the arm; the paper: 70)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--paper", action="store_true", help="the paper's method literally (lab.config.PAPER_PRESET)")
-    p.add_argument("--hidden", type=int, default=None, help="MLP hidden units; NEAT: initial hidden nodes")
-    p.add_argument("--sigma0", type=float, default=None, help="CMA-ES initial step size")
+    p.add_argument("--paper", action="store_true", help="the paper's method literally (lab.running.config.PAPER_PRESET)")
+    p.add_argument("--hidden", type=int, default=None, help="MLP hidden units; graph methods: initial hidden nodes")
     p.add_argument("--features", default=None, choices=FEATURES, help="network inputs")
+    p.add_argument("--margin", type=float, default=None, help="output range widening before clipping to the limits")
     p.add_argument("--test-goals", type=int, default=None, help="held-out goals (default 1000)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     rec = p.add_mutually_exclusive_group()
@@ -38,6 +66,7 @@ def _train_parser(sub) -> None:
                           "recordings/<robot>-<method>-s<seed>-<time>.rrd)")
     rec.add_argument("--no-recording", action="store_true", help="write no Rerun recording")
     p.add_argument("--overwrite", action="store_true", help="replace a recording already at --recording")
+    add_method_options(p)
 
 
 def _replay_parser(sub) -> None:
@@ -53,7 +82,7 @@ def _replay_parser(sub) -> None:
 
 
 def replay(args) -> int:
-    from .replay import replay as show
+    from lab.recording.replay import replay as show
 
     try:
         return show(args.path, web=args.web, timeout=args.timeout, web_port=args.web_port, grpc_port=args.grpc_port)
@@ -65,21 +94,21 @@ def replay(args) -> int:
 def train(args) -> int:
     from tqdm import tqdm
 
-    from .evolve import Run
-    from .runner import Runner
+    from lab.running.evolve import Run
+    from lab.running.runner import Runner
 
     try:
         config = TrainConfig.preset(
             paper=args.paper, robot=args.robot, method=args.method, generations=args.generations,
             population=args.population, targets=args.targets, seed=args.seed, hidden=args.hidden,
-            sigma0=args.sigma0, features=args.features, test_goals=args.test_goals)
+            features=args.features, margin=args.margin, test_goals=args.test_goals, **given_options(args))
     except (ValueError, TypeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     runner = Runner(config)
     logger = None
     if not args.no_recording:
-        from .recording import RerunLogger
+        from lab.recording.logger import RerunLogger
 
         try:  # before training: a recording that cannot be written stops here
             logger = RerunLogger(runner, path=args.recording, overwrite=args.overwrite)

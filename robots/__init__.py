@@ -9,7 +9,7 @@
 Nothing here knows about networks or evolution.
 """
 
-from .arm import Arm, from_urdf
-from .registry import load, names
+from robots.arm import Arm, from_urdf
+from robots.registry import load, names
 
 __all__ = ["Arm", "from_urdf", "load", "names"]

@@ -18,7 +18,7 @@ from typing import Sequence
 import numpy as np
 import pinocchio as pin
 
-from .kinematics import PRISMATIC, ChainKinematics
+from robots.kinematics import PRISMATIC, ChainKinematics
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,6 +94,15 @@ class Arm:
     def reach(self, q) -> np.ndarray:
         """The goal coordinates reached by q: (..., nq) -> (..., len(task_axes))."""
         return self.fk(q)[..., list(self.task_axes)]
+
+    def to_3d(self, points) -> np.ndarray:
+        """Task coordinates (..., len(task_axes)) -> 3D points (..., 3), zero on the other axes."""
+        points = np.asarray(points, dtype=np.float64)
+        if points.shape[-1:] != (len(self.task_axes),):
+            raise ValueError(f"task points must have shape (..., {len(self.task_axes)}), got {points.shape}")
+        out = np.zeros(points.shape[:-1] + (3,))
+        out[..., list(self.task_axes)] = points
+        return out
 
     def to_pinocchio(self, q) -> np.ndarray:
         """Angle vectors (..., nq) -> Pinocchio configurations (..., model.nq)."""

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .arm import Arm
+from robots.arm import Arm
 
 _local = threading.local()  # one pin.Data per thread and arm (pink's rule: Data is not shared)
 

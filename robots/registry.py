@@ -11,7 +11,7 @@ import functools
 import os
 from dataclasses import dataclass, field
 
-from .arm import Arm, from_urdf
+from robots.arm import Arm, from_urdf
 
 URDF_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "urdf")
 

@@ -6,6 +6,11 @@ from pathlib import Path
 
 import pytest
 
+import lab
+
+# every registered method: tests that hold for any method are parametrized over these
+METHODS = lab.methods.names()
+
 
 def process_ended(pid: int) -> bool:
     """Whether a process (our child or not) has ended; a zombie counts as ended."""

@@ -8,8 +8,8 @@ import os
 import numpy as np
 import pytest
 
-pytest.importorskip("lab.replay", reason="lab/replay.py (the Rerun issue) is not there")
-from lab.replay import load_controller  # noqa: E402
+pytest.importorskip("lab.recording.replay", reason="lab/replay.py (the Rerun issue) is not there")
+from lab.recording.replay import load_controller  # noqa: E402
 
 from app.notebook import label  # noqa: E402
 from app.server import LabApp  # noqa: E402

@@ -7,7 +7,8 @@ import pytest
 
 import lab
 import robots
-from app.views import error_map, map_grid, network_graph, network_svg
+from app.views import error_map, map_grid, network_svg
+from lab.problem.controllers import network_layout
 from robots.ik import dls_ik, workspace_size
 
 
@@ -59,10 +60,44 @@ def test_error_map_of_a_3d_arm_is_a_slice():
 
 def test_network_drawing_shows_enabled_connections_only(neat_run):
     c = neat_run.controller
-    nodes, links = network_graph(c)
+    nodes, links = network_layout(c)
     enabled = [x for x in c.genome["connections"] if x[3]]
     assert len(links) == len(enabled)
-    assert {k for k, *_ in nodes} >= set(c.input_keys) | set(c.output_keys)
+    assert {n.key for n in nodes} >= set(c.input_keys) | set(c.output_keys)
     assert network_svg(c).count("<line") == len(enabled)
     mlp = lab.evolve("planar", "cmaes", generations=3, population=8, seed=0).controller
     assert network_svg(mlp).count("<line") == mlp.w_i[:-1].size + mlp.w_o.size  # bias row not drawn
+
+
+def test_the_app_and_recordings_label_a_network_alike(neat_run):
+    """One layout (lab.problem.controllers.network_layout) for the app's drawing and Rerun's graph:
+    the same labels, inputs named by the encoding and joints q1 .. qn."""
+    import rerun as rr  # noqa: F401
+
+    from lab.recording.views import network
+
+    c = neat_run.controller
+    nodes, _links = network_layout(c)
+    graph, _edges = network(c)
+    labels = [str(x) for x in graph.labels.as_arrow_array().to_pylist()]
+    assert labels == [n.label for n in nodes]
+    assert [n.label for n in nodes if n.kind == "output"] == [f"q{k + 1}" for k in range(len(c.output_keys))]
+    svg = network_svg(c)
+    assert all(f">{n.label}<" in svg for n in nodes if n.label)
+
+
+def test_the_private_viser_api_the_app_relies_on_is_still_there():
+    """app/viser_private.py holds every reach into viser's internals; if viser changes one, this
+    fails and names it (the app would fall back to slower public setters, silently)."""
+    import viser
+
+    from app import viser_private
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        frame = server.scene.add_frame("/probe", show_axes=False)
+        assert viser_private.check(frame) == [], f"viser {viser.__version__} changed: {viser_private.check(frame)}"
+        viser_private.set_pose(frame, np.array([1.0, 2.0, 3.0]), np.array([0.0, 1.0, 0.0, 0.0]))
+        assert np.allclose(frame.position, [1, 2, 3]) and np.allclose(frame.wxyz, [0, 1, 0, 0])
+    finally:
+        server.stop()

@@ -16,13 +16,14 @@ import numpy as np
 import pytest
 
 import lab
+from conftest import METHODS
 import robots
-from lab.backends.cmaes import CMAESBackend
-from lab.backends.neat import NEATBackend, compile_genomes, genome_program, genome_to_controller, program_hidden
-from lab.controllers import GraphController, MLPController, compile_programs, controller_from_dict, mlp_size
-from lab.encoding import Encoding
+from lab.methods.cmaes import CMAESBackend
+from lab.methods.neat import NEATBackend, compile_genomes, genome_program, genome_to_controller, program_hidden
+from lab.problem.controllers import GraphController, MLPController, compile_programs, controller_from_dict, mlp_size
+from lab.problem.encoding import Encoding
 from lab.problem import Problem, goal_errors
-from lab.runner import build_problem
+from lab.running.runner import build_problem
 
 SMALL = dict(test_goals=200)
 
@@ -300,13 +301,14 @@ def test_genome_to_controller_equals_neat_feed_forward_network(robot):
             assert m == pytest.approx(np_mse(arm, goals, np_joints(arm, a, enc.margin)), rel=0, abs=1e-9)
 
 
-@pytest.mark.parametrize("method", ["cmaes", "neat"])
+@pytest.mark.parametrize("method", METHODS)
 def test_logged_hyperparameters_are_the_ones_the_optimizer_runs_with(method):
     """Backend.settings(problem, config) builds no backend (a recording of a run in a worker
     process logs it from the app's side), so check it against the optimizer a backend builds."""
-    config = lab.TrainConfig(robot="scara", method=method, population=20, hidden=4, mutation_power=0.7, **SMALL)
+    own = {"neat": dict(mutation_power=0.7)}.get(method, {})
+    config = lab.TrainConfig(robot="scara", method=method, population=20, hidden=4, **own, **SMALL)
     problem = build_problem(config)
-    backend = (CMAESBackend if method == "cmaes" else NEATBackend)(problem, config)
+    backend = lab.methods.make_backend(problem, config)
     settings = type(backend).settings(problem, config)
     assert settings == backend.hyperparameters()
     if method == "cmaes":
@@ -323,8 +325,10 @@ def test_logged_hyperparameters_are_the_ones_the_optimizer_runs_with(method):
 # ---------------------------------------------------------------- 4. determinism
 # diagonal=10: CMA-ES switches from its diagonal to its full sampler mid-run (pycma's new sampler
 # would draw from numpy's global generator if the backend did not hand it the run's own)
-RUN = {"cmaes": dict(generations=30, population=12, targets=30, diagonal=10, **SMALL),
-       "neat": dict(generations=30, population=30, targets=30, **SMALL)}
+# (a graph method gets a larger population: NEAT's species need room)
+RUN = {m.name: dict(generations=30, population=12 if m.controller == "mlp" else 30, targets=30, **SMALL,
+                    **({"diagonal": 10} if "diagonal" in m.options.names() else {}))
+       for m in lab.methods.all_methods()}
 
 
 def _scramble_global_random(k):
@@ -332,7 +336,7 @@ def _scramble_global_random(k):
     random.seed(k)
 
 
-@pytest.mark.parametrize("method", ["cmaes", "neat"])
+@pytest.mark.parametrize("method", METHODS)
 def test_same_seed_same_run_different_seed_different_run(method):
     _scramble_global_random(1)
     a = lab.evolve("planar", method, seed=3, **RUN[method])
@@ -365,7 +369,7 @@ def test_same_seed_same_history_in_another_process():
         assert other[method] == here, method
 
 
-@pytest.mark.parametrize("method", ["neat", "cmaes"])
+@pytest.mark.parametrize("method", METHODS)
 def test_runners_in_threads_equal_sequential_runs(method):
     cfgs = [lab.TrainConfig(method=method, seed=s, **RUN[method]) for s in (0, 1)]
     sequential = [lab.Runner(c).run().history for c in cfgs]
@@ -466,7 +470,7 @@ class Recorder:
         self.ends.append(summary)
 
 
-@pytest.mark.parametrize("method", ["cmaes", "neat"])
+@pytest.mark.parametrize("method", METHODS)
 def test_subscribers_get_every_generation_in_order(method, caplog):
     G, P = 15, 12
     cfg = lab.TrainConfig(method=method, generations=G, population=P, targets=25, test_goals=20)
@@ -481,7 +485,7 @@ def test_subscribers_get_every_generation_in_order(method, caplog):
     r.subscribe(a)
     r.subscribe(broken)
     r.subscribe(b)
-    with caplog.at_level(logging.CRITICAL, logger="lab.runner"):
+    with caplog.at_level(logging.CRITICAL, logger="lab.running.runner"):
         summary = r.run()
     assert summary.state == "finished" and summary.generations == G
     assert calls == [0]  # called once, then unsubscribed; the run went on
@@ -526,18 +530,18 @@ def test_snapshot_after_the_run_is_consistent():
 
 
 
-@pytest.mark.parametrize("method", ["cmaes", "neat"])
+@pytest.mark.parametrize("method", METHODS)
 def test_snapshot_during_an_improvement_is_consistent(method, monkeypatch):
     """Deterministic: take the snapshot at the instant another thread could, while _offer
     builds the new best controller."""
     r = lab.Runner(lab.TrainConfig(method=method, generations=15, population=10, targets=20, test_goals=20))
     snaps = []
     if method == "cmaes":
-        import lab.backends.cmaes as mod
+        import lab.methods.cmaes as mod
 
         real, name = mod.MLPController, "MLPController"
     else:
-        import lab.backends.neat as mod
+        import lab.methods.neat as mod
 
         real, name = mod.genome_to_controller, "genome_to_controller"
 
@@ -581,7 +585,7 @@ def test_snapshot_from_another_thread_while_running():
 # one genome (spawn [2, 2, 2, 2, 4] for pop_size 10): NEATBackend re-speciates and retries.
 def test_a_small_population_neat_run_finishes(caplog):
     cfg = lab.TrainConfig(method="neat", population=10, generations=200, seed=0, targets=20, test_goals=20)
-    with caplog.at_level(logging.CRITICAL, logger="lab.runner"):
+    with caplog.at_level(logging.CRITICAL, logger="lab.running.runner"):
         summary = lab.Runner(cfg).run()
     assert summary.state == "finished", summary.error
     assert summary.generations == 200
@@ -609,14 +613,14 @@ def no_work(monkeypatch):
     def boom(*a, **k):
         raise AssertionError("work started before the input was validated")
 
-    monkeypatch.setattr(sys.modules["lab.evolve"], "Runner", boom)
-    monkeypatch.setattr(sys.modules["lab.runner"], "build_problem", boom)
+    monkeypatch.setattr(sys.modules["lab.running.evolve"], "Runner", boom)
+    monkeypatch.setattr(sys.modules["lab.running.runner"], "build_problem", boom)
     monkeypatch.setattr(robots, "load", boom)
 
 
 @pytest.mark.parametrize("field", ["generations", "population", "targets", "test_goals"])
 @pytest.mark.parametrize("value", [0, -1, 2.5, True])
-@pytest.mark.parametrize("method", ["cmaes", "neat"])
+@pytest.mark.parametrize("method", METHODS)
 def test_bad_counts_are_refused_before_any_work(field, value, method, no_work):
     t = time.monotonic()
     with pytest.raises(ValueError, match=field):
@@ -634,8 +638,9 @@ def test_bad_counts_are_refused_before_any_work(field, value, method, no_work):
     ("hidden", True, "hidden must be an integer in 1..256"), ("population", 10**9, "population must be an integer in 1..10,000"),
     ("targets", 10**10, "targets must be an integer in 1..1,000,000")])
 def test_bad_settings_are_refused_by_field_name(field, value, why, no_work):
+    owner = next((m.name for m in lab.methods.all_methods() if field in m.options.names()), "cmaes")
     with pytest.raises(ValueError, match=why):
-        lab.TrainConfig(**{field: value})
+        lab.TrainConfig(method=owner, **{field: value})
 
 
 def test_numpy_integers_are_whole_numbers_and_stored_as_int():
@@ -728,13 +733,13 @@ def test_controllers_rebuild_from_dict_with_identical_outputs():
 
 # ---------------------------------------------------------------- 5b. training in a worker process
 def process_runner(method="cmaes", **changes):
-    from lab.worker import ProcessRunner
+    from lab.running.worker import ProcessRunner
 
     config = dict(method=method, generations=100_000, population=20, targets=20, test_goals=20)
     return ProcessRunner(lab.TrainConfig(**{**config, **changes}))
 
 
-@pytest.mark.parametrize("method", ["cmaes", "neat"])
+@pytest.mark.parametrize("method", METHODS)
 def test_a_run_in_a_worker_process_is_the_same_run(method):
     """Same seed, same generations, same controllers: only where the optimizer runs differs."""
     cfg = dict(generations=25, population=12)
@@ -801,7 +806,7 @@ def test_a_killed_worker_process_fails_the_run_with_its_exit_code():
 
 def test_a_worker_process_ends_with_its_parent(wait_ended):
     """The parent killed outright: its worker stops training and exits (no orphan keeps a core)."""
-    script = ("import time, lab\nfrom lab.worker import ProcessRunner\n"
+    script = ("import time, lab\nfrom lab.running.worker import ProcessRunner\n"
               "r = ProcessRunner(lab.TrainConfig(generations=10**6, population=10, targets=10, test_goals=10))\n"
               "r.start()\nwhile r.snapshot().generation < 3: time.sleep(0.01)\n"
               "print(r.pid, flush=True)\ntime.sleep(60)\n")
@@ -813,19 +818,19 @@ def test_a_worker_process_ends_with_its_parent(wait_ended):
 
 
 def test_a_prestarted_worker_takes_the_next_run():
-    import lab.worker
+    import lab.running.worker
 
-    lab.worker.prestart()
-    spare = lab.worker._spare.pid
+    lab.running.worker.prestart()
+    spare = lab.running.worker._spare.pid
     r = process_runner(generations=5).start()
     assert r.pid == spare and r.join(30).state == "finished"
 
 
 def test_chatter_on_a_workers_stdout_cannot_corrupt_its_messages():
-    """print() in a process started by lab.pipes.start goes to stderr; the pipe carries only messages."""
-    from lab import pipes
+    """print() in a process started by lab.running.pipes.start goes to stderr; the pipe carries only messages."""
+    from lab.running import pipes
 
-    script = ("from lab import pipes\nfd = pipes.claim_stdout()\nprint('some library talking', flush=True)\n"
+    script = ("from lab.running import pipes\nfd = pipes.claim_stdout()\nprint('some library talking', flush=True)\n"
               "pipes.send(fd, ('event', [1.5, None]))\nprint('more talk')\n")
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     got = [m for batch in pipes.messages(proc.stdout.fileno()) for m in batch]

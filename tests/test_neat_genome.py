@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 import lab
-from lab.backends.neat import PAPER_NEAT, NEATBackend, config_from_text, make_neat_config, neat_config_text
-from lab.backends.neat_genome import FastConnectionGene, FastGenome, FastNodeGene, FastReproduction
-from lab.backends.neat_species import FastSpeciesSet
-from lab.runner import build_problem
+from lab.methods.neat import PAPER_NEAT, NEATBackend, config_from_text, make_neat_config, neat_config_text
+from lab.methods.neat_genome import FastConnectionGene, FastGenome, FastNodeGene, FastReproduction
+from lab.methods.neat_species import FastSpeciesSet
+from lab.running.runner import build_problem
 
 STRUCTURAL = dict(PAPER_NEAT, node_add_prob=0.2, conn_add_prob=0.3, weight_mutate_power=0.5)
 
@@ -328,7 +328,7 @@ def speciate_with(species_set_type, config, case, threshold, again=False):
     """One speciate call (two with again: the second re-speciates the population it just speciated,
     every old representative a member); the species, new ids, info lines and the distances cached
     (in the cache's order, as speciate hands them to mean()), or the error raised."""
-    import lab.backends.neat_species as fast_module
+    import lab.methods.neat_species as fast_module
     import neat.species as neat_module
 
     cached = []
@@ -374,7 +374,7 @@ def test_fast_species_set_speciates_as_neat(compiled_only):
 def test_compiled_distances_are_neats():
     """Every ordered pair, bit for bit (where genes sit in different orders, a.distance(b) and
     b.distance(a) can differ in the last bits: the data has such pairs)."""
-    from lab.backends.neat_species import _distance, _flatten
+    from lab.methods.neat_species import _distance, _flatten
 
     config, cases = speciation_cases()
     gc = config.genome_config

@@ -19,11 +19,12 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 import lab
+from conftest import METHODS
 from lab.__main__ import main as cli
-from lab.recording import RerunLogger, default_path
-from lab.recording_views import network
-from lab.replay import load_controller, read_recording
-from lab.runner import Runner, build_problem
+from lab.recording.logger import RerunLogger, default_path
+from lab.recording.views import network
+from lab.recording.replay import load_controller, read_recording
+from lab.running.runner import Runner, build_problem
 
 SHORT = dict(robot="planar", generations=40, population=10, targets=15, test_goals=10)
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,7 +41,7 @@ def logged_run(tmp_path, method, **changes):
     return runner, logger, runner.run(), events
 
 
-@pytest.fixture(scope="module", params=["cmaes", "neat"])
+@pytest.fixture(scope="module", params=METHODS)
 def run(request, tmp_path_factory):
     return logged_run(tmp_path_factory.mktemp(request.param), request.param)
 
@@ -295,7 +296,7 @@ def _writer_of(pid: int) -> int:
             cmdline = (stat.parent / "cmdline").read_bytes()
         except OSError:
             continue
-        if int(fields[1]) == pid and b"lab.recording_writer" in cmdline:
+        if int(fields[1]) == pid and b"lab.recording.writer" in cmdline:
             return int(stat.parent.name)
     pytest.fail(f"process {pid} has no writer process")
 
@@ -320,7 +321,7 @@ def killed(tmp_path_factory, wait_ended):
 KILLED_SCRIPT = """
 import sys
 import lab
-from lab.recording import RerunLogger
+from lab.recording.logger import RerunLogger
 
 runner = lab.Runner(lab.TrainConfig(method=sys.argv[2], generations=100000, population=10, targets=15, test_goals=10))
 logger = RerunLogger(runner, path=sys.argv[1])
@@ -331,7 +332,7 @@ runner.run()
 """
 
 
-@pytest.mark.parametrize("method", ["cmaes", "neat"])
+@pytest.mark.parametrize("method", METHODS)
 def test_a_killed_run_loses_at_most_the_generation_in_flight(tmp_path, method, wait_ended):
     """SIGKILL right after the training process has printed generation n (which it does once the
     logger has returned from that generation): the file holds every generation up to n, and
@@ -352,7 +353,7 @@ def test_a_killed_run_loses_at_most_the_generation_in_flight(tmp_path, method, w
     rec = read_recording(path)
     assert rec.summary is None and rec.last_generation >= printed
     np.testing.assert_array_equal(rec.generations, np.arange(rec.last_generation + 1))
-    config = lab.TrainConfig(**rec.protocol["config"])
+    config = lab.TrainConfig.from_dict(rec.protocol["config"], strict=False)
     assert build_problem(config).controller_mse(load_controller(path)) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
 
 
@@ -361,7 +362,7 @@ def test_a_killed_run_leaves_a_file_that_loads(killed):
     rec = read_recording(killed)
     assert rec.last_generation >= 29 and rec.summary is None  # no end was written
     np.testing.assert_array_equal(rec.generations, np.arange(rec.last_generation + 1))
-    config = lab.TrainConfig(**rec.protocol["config"])
+    config = lab.TrainConfig.from_dict(rec.protocol["config"], strict=False)
     controller = load_controller(killed)
     assert build_problem(config).controller_mse(controller) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
 
@@ -376,7 +377,7 @@ def test_a_file_cut_mid_frame_is_salvaged(killed, tmp_path, keep):
     cut.write_bytes(data[: first_size + int((len(data) - first_size) * keep)])
     rec = read_recording(cut)  # salvaged: the protocol and the first generations come first in the file
     assert rec.salvaged and rec.last_generation is not None and rec.last_generation <= read_recording(killed).last_generation
-    config = lab.TrainConfig(**rec.protocol["config"])
+    config = lab.TrainConfig.from_dict(rec.protocol["config"], strict=False)
     assert build_problem(config).controller_mse(load_controller(cut)) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
 
 
@@ -461,7 +462,7 @@ def test_the_shipped_examples_cover_both_arms_and_methods_within_20_mb():
 @pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
 def test_a_shipped_example_is_a_complete_run_at_the_papers_budget_whose_controller_rebuilds(path):
     rec = read_recording(path)
-    config = lab.TrainConfig(**rec.protocol["config"])
+    config = lab.TrainConfig.from_dict(rec.protocol["config"], strict=False)
     assert (config.generations, config.population, config.targets) == (1000, 50, 70) and not rec.salvaged
     assert rec.summary["state"] == "finished" and rec.last_generation == 999
     np.testing.assert_array_equal(rec.generations, np.arange(1000))

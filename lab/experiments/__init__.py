@@ -9,8 +9,8 @@ reproduce.py schedules the runs (processes or Ray, resume, retry), runs.py train
 run, stats.py is Welch's t-test, tables.py / figures.py / record.py / report.py write the outputs.
 """
 
-from .reproduce import Experiment, ReproduceConfig, reproduce
-from .runs import RunSpec, RunStore, train_run
-from .stats import WelchTest, welch
+from lab.experiments.reproduce import Experiment, ReproduceConfig, reproduce
+from lab.experiments.runs import RunSpec, RunStore, train_run
+from lab.experiments.stats import WelchTest, welch
 
 __all__ = ["Experiment", "ReproduceConfig", "RunSpec", "RunStore", "WelchTest", "reproduce", "train_run", "welch"]

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import sys
 
-from ..config import METHODS
+from lab import methods
+from lab.experiments import paper
 
 
 def add_parser(sub) -> None:
@@ -15,11 +16,12 @@ def add_parser(sub) -> None:
     p.add_argument("--runs", type=int, default=30, help="independent runs per arm and method (default 30)")
     p.add_argument("--generations", type=int, default=1000)
     p.add_argument("--population", type=int, default=50)
-    p.add_argument("--methods", default=",".join(METHODS), help="comma-separated (default cmaes,neat)")
+    p.add_argument("--methods", default=",".join(paper.METHODS),
+                   help=f"comma-separated, among {', '.join(methods.names())} (default: the paper's, {','.join(paper.METHODS)})")
     p.add_argument("--robots", default="planar,scara", help="comma-separated (default planar,scara)")
     p.add_argument("--out", default="results/paper", help="output folder (default results/paper)")
     p.add_argument("--paper", action="store_true",
-                   help="the paper's literal method (lab.config.PAPER_PRESET) instead of the tuned defaults")
+                   help="the paper's literal method (each method's paper preset) instead of the tuned defaults")
     p.add_argument("--seed", type=int, default=0, help="run i uses seed SEED + i (default 0)")
     p.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
     p.add_argument("--ray", metavar="ADDRESS", default=None,
@@ -35,8 +37,8 @@ def _names(text: str) -> tuple[str, ...]:
 
 
 def main(args) -> int:
-    from .reproduce import ReproduceConfig, reproduce
-    from .runs import ConfigMismatch
+    from lab.experiments.reproduce import ReproduceConfig, reproduce
+    from lab.experiments.runs import ConfigMismatch
 
     try:
         config = ReproduceConfig(runs=args.runs, generations=args.generations, population=args.population,

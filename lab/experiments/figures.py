@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-COLORS = {"cmaes": "#1f77b4", "neat": "#d62728"}
-LABEL = {"cmaes": "CMA-ES", "neat": "NEAT"}
+from lab import methods
+
 FIGURE_NUMBER = {"planar": 5, "scara": 6}
 
 
@@ -38,7 +38,7 @@ def convergence_figure(exp, robot: str, out: Path) -> Path:
         runs = exp.runs_of(robot, method)
         if not runs:
             continue
-        color = COLORS.get(method, None)
+        color, label = methods.get(method).hex, methods.get(method).label
         hist = [_positive(d["history"]) for d in runs]
         for h in hist:
             ax_all.plot(np.arange(len(h)), h, color=color, lw=0.6, alpha=0.35)
@@ -46,12 +46,12 @@ def convergence_figure(exp, robot: str, out: Path) -> Path:
         hb = _positive(best["history"])
         for ax in (ax_all, ax_best):
             ax.plot(np.arange(len(hb)), hb, color=color, lw=2.4,
-                    label=f"{LABEL.get(method, method)} best run (seed {best['seed']}, MSE {best['train_mse']:.4g})")
+                    label=f"{label} best run (seed {best['seed']}, MSE {best['train_mse']:.4g})")
         length = min(len(h) for h in hist)
         median = np.median(np.stack([h[:length] for h in hist]), axis=0)
         ax_best.plot(np.arange(length), median, color=color, lw=1.4, ls="--",
-                     label=f"{LABEL.get(method, method)} median of {len(runs)} runs")
-        ax_all.plot([], [], color=color, lw=0.8, alpha=0.6, label=f"{LABEL.get(method, method)}: all {len(runs)} runs")
+                     label=f"{label} median of {len(runs)} runs")
+        ax_all.plot([], [], color=color, lw=0.8, alpha=0.6, label=f"{label}: all {len(runs)} runs")
     for ax in (ax_all, ax_best):
         ax.set_yscale("log")
         ax.set_ylabel("best training MSE so far")

@@ -14,6 +14,10 @@ from importlib import resources
 
 import numpy as np
 
+# The paper's two methods, compared in its Tables 3-5 (x = CMA-ES, y = NEAT in the Welch tests):
+# the one place outside lab/methods that names methods.
+METHODS = ("cmaes", "neat")
+
 
 def _read(name: str) -> list[dict]:
     text = resources.files(__package__).joinpath("paper", name).read_text()

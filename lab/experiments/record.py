@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-COLORS = {"cmaes": [31, 119, 180], "neat": [214, 39, 40]}
+from lab import methods
+
 
 
 def _send(rec, rr, path: str, history: np.ndarray) -> None:
@@ -35,7 +36,7 @@ def write_recording(exp, path: Path) -> Path:
         for robot in exp.config.robots:
             for method in exp.config.methods:
                 runs = exp.runs_of(robot, method)
-                color = COLORS.get(method, [128, 128, 128])
+                color = list(methods.get(method).color)
                 for d in runs:
                     h = np.asarray(d["history"], dtype=np.float64)
                     for tree, values, width in (("mse", h, 1.0), ("log10_mse", np.log10(np.maximum(h, 1e-300)), 1.0)):

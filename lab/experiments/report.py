@@ -16,11 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import paper
-from .figures import convergence_figure, figure_name
-from .record import write_recording
-from .stats import welch
-from .tables import LABEL, fmt, generalization, md_table, table3, tests_table
+from lab import methods
+from lab.experiments import paper
+from lab.experiments.figures import convergence_figure, figure_name
+from lab.experiments.record import write_recording
+from lab.experiments.stats import welch
+from lab.experiments.tables import fmt, generalization, md_table, table3, tests_table
 
 PACKAGES = ("neuro-ik-lab", "numpy", "scipy", "cma", "neat-python", "numba", "pin", "rerun-sdk", "matplotlib", "ray")
 
@@ -104,16 +105,16 @@ def _headline(exp) -> str:
             p = paper.column(robot, method)
             ours = f"{fmt(v.mean())} ± {fmt(v.std(ddof=1))}" if len(v) > 1 else "—"
             theirs = f"{fmt(p.mean())} ± {fmt(p.std(ddof=1))}" if p is not None else "—"
-            rows.append([robot, LABEL.get(method, method), str(len(v)), ours,
+            rows.append([robot, methods.get(method).label, str(len(v)), ours,
                          fmt(float(np.median(v))) if len(v) else "—", fmt(float(v.min())) if len(v) else "—",
                          theirs, fmt(float(p.min())) if p is not None else "—"])
     md = [md_table(["arm", "method", "runs", "training MSE μ ± σ", "median", "best",
                     "paper μ ± σ", "paper best"], rows, left=2)]
-    if {"cmaes", "neat"} <= set(exp.config.methods):
+    if set(paper.METHODS) <= set(exp.config.methods):
         rows = []
         for robot in exp.config.robots:
             for best, key in ((None, "all"), (10, "best10")):
-                x, y = np.array(exp.values(robot, "cmaes")), np.array(exp.values(robot, "neat"))
+                x, y = np.array(exp.values(robot, paper.METHODS[0])), np.array(exp.values(robot, paper.METHODS[1]))
                 if best:
                     x, y = np.sort(x)[:best], np.sort(y)[:best]
                 if len(x) < 2 or len(y) < 2:
@@ -146,7 +147,7 @@ def _what_was_run(exp) -> list[str]:
             f"{c.targets} fixed training goals, {c.test_goals} held-out goals.",
             f"- Seeds: run i of every arm and method uses seed {c.seed} + i ({c.seed}..{c.seed + c.runs - 1}); "
             f"goals fixed across runs (goal_seed {cfg[c.methods[0]]['goal_seed']}).",
-            *[f"- {LABEL.get(m, m)} config: `{cfg[m]}`" for m in c.methods],
+            *[f"- {methods.get(m).label} config: `{cfg[m]}`" for m in c.methods],
             f"- Executed: {exp.executed} runs in this call on {exp.executor}; resumed from `runs/`: {exp.resumed}."]
 
 
@@ -204,6 +205,6 @@ def report_md(exp, outputs_seconds: float) -> str:
           "Final training MSE (Table 3's statistics):\n", _headline(exp),
           "Welch's t-test: p one-sided is in the direction of the observed difference (the paper's "
           "*Significance*); two-sided is twice that. table4.md and table5.md add the paper's own Table 3 "
-          "recomputed.\n" if {"cmaes", "neat"} <= set(exp.config.methods) else "",
+          "recomputed.\n" if set(paper.METHODS) <= set(exp.config.methods) else "",
           *_failures(exp), *_files(exp.config)]
     return "\n".join(md)

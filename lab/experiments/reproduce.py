@@ -24,9 +24,10 @@ from pathlib import Path
 
 import robots
 
-from ..config import METHODS
-from ..recording import not_a_folder
-from .runs import RunSpec, RunStore, train_run
+from lab import methods
+from lab.experiments import paper
+from lab.recording.logger import not_a_folder
+from lab.experiments.runs import RunSpec, RunStore, train_run
 
 
 @dataclass(frozen=True)
@@ -34,7 +35,7 @@ class ReproduceConfig:
     runs: int = 30
     generations: int = 1000
     population: int = 50
-    methods: tuple[str, ...] = ("cmaes", "neat")
+    methods: tuple[str, ...] = paper.METHODS
     robots: tuple[str, ...] = ("planar", "scara")
     out: Path = Path("results/paper")
     paper: bool = False  # the paper's literal method (TrainConfig.preset(paper=True)) or the tuned defaults
@@ -56,8 +57,8 @@ class ReproduceConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
-        if not self.methods or any(m not in METHODS for m in self.methods):
-            raise ValueError(f"methods must be among {', '.join(METHODS)}, got {', '.join(self.methods) or 'none'}")
+        if not self.methods or any(m not in methods.names() for m in self.methods):
+            raise ValueError(f"methods must be among {', '.join(methods.names())}, got {', '.join(self.methods) or 'none'}")
         if not self.robots or any(r not in robots.names() for r in self.robots):
             raise ValueError(f"robots must be among {', '.join(robots.names())}, got {', '.join(self.robots) or 'none'}")
         if len(set(self.methods)) != len(self.methods) or len(set(self.robots)) != len(self.robots):
@@ -110,8 +111,8 @@ class Experiment:
 
 
 def _cost(spec: RunSpec) -> float:
-    """Rough relative run time (NEAT's reproduction dominates): longest runs are submitted first."""
-    return (6.0 if spec.method == "neat" else 1.0) * robots.load(spec.robot).nq
+    """Rough relative run time (each method's declared cost): longest runs are submitted first."""
+    return methods.get(spec.method).cost * robots.load(spec.robot).nq
 
 
 def _log(msg: str) -> None:
@@ -174,7 +175,7 @@ def reproduce(config: ReproduceConfig, train=train_run, write: bool = True) -> E
     """
     from tqdm import tqdm
 
-    from .executors import ProcessExecutor, RayExecutor
+    from lab.experiments.executors import ProcessExecutor, RayExecutor
 
     t0 = time.perf_counter()
     specs = config.specs()
@@ -202,7 +203,7 @@ def reproduce(config: ReproduceConfig, train=train_run, write: bool = True) -> E
     exp.wall_seconds = time.perf_counter() - t0
     exp.load_after = os.getloadavg()
     if write:
-        from .report import write_outputs
+        from lab.experiments.report import write_outputs
 
         write_outputs(exp)
     return exp

@@ -22,7 +22,7 @@ import traceback
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from ..config import TrainConfig
+from lab.running.config import TrainConfig
 
 
 @dataclass(frozen=True, order=True)

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import paper
-from .stats import ALPHA, welch
+from lab import methods
+from lab.experiments import paper
+from lab.experiments.stats import ALPHA, welch
 
-LABEL = {"cmaes": "CMA-ES", "neat": "NEAT"}
 
 
 def fmt(v: float | None, digits: int = 4) -> str:
@@ -67,7 +67,7 @@ def table3(exp, out: Path) -> tuple[Path, Path]:
 
     header = ["rank"]
     for r, m in arms:
-        header += [f"{r} {LABEL[m]}", "paper"]
+        header += [f"{r} {methods.get(m).label}", "paper"]
     rows = []
     for i in range(n):
         row = [str(i + 1)]
@@ -104,8 +104,9 @@ def test_rows(exp, best: int | None) -> list[list[str]]:
     rows = []
     key = "all" if best is None else f"best{best}"
     for robot in exp.config.robots:
-        samples = [("this experiment", exp.values(robot, "cmaes"), exp.values(robot, "neat"))]
-        px, py = paper.column(robot, "cmaes"), paper.column(robot, "neat")
+        x, y = paper.METHODS
+        samples = [("this experiment", exp.values(robot, x), exp.values(robot, y))]
+        px, py = paper.column(robot, x), paper.column(robot, y)
         if px is not None and py is not None:
             samples.append(("paper's Table 3, recomputed", px, py))
         for source, x, y in samples:
@@ -139,8 +140,8 @@ def tests_table(exp, out: Path, best: int | None) -> Path:
     name, title = ("table4.md", "Table 4: t-tests over all runs") if best is None else \
         ("table5.md", f"Table 5: t-tests over the best {best} runs of each method")
     md = [f"# {title}\n", _preset_line(exp) + "\n", TEST_NOTE]
-    if not {"cmaes", "neat"} <= set(exp.config.methods):
-        md.append("Not computed: the experiment must include both `cmaes` and `neat`.\n")
+    if not set(paper.METHODS) <= set(exp.config.methods):
+        md.append(f"Not computed: the experiment must include both `{'` and `'.join(paper.METHODS)}`.\n")
     else:
         md.append(md_table(TEST_HEADER, test_rows(exp, best), left=2))
         if best is not None:
@@ -168,11 +169,11 @@ def generalization(exp, out: Path) -> Path:
         tr = np.array([d["train_mse"] for d in runs])
         te = np.array([d["test_mse"] for d in runs])
         rel = (te - tr) / tr
-        summary.append([robot, LABEL[method], str(len(runs)), fmt(float(np.median(tr))), fmt(float(np.median(te))),
+        summary.append([robot, methods.get(method).label, str(len(runs)), fmt(float(np.median(tr))), fmt(float(np.median(te))),
                         f"{100 * np.median(rel):+.1f}%", f"{100 * np.min(rel):+.1f}%", f"{100 * np.max(rel):+.1f}%"])
         rows = [[str(d["seed"]), fmt(d["train_mse"]), fmt(d["test_mse"]), f"{100 * r:+.1f}%"]
                 for d, r in zip(runs, rel)]
-        sections.append(f"## {robot}, {LABEL[method]}\n\n" +
+        sections.append(f"## {robot}, {methods.get(method).label}\n\n" +
                         md_table(["seed", "training MSE", "held-out MSE", "held-out vs training"], rows))
     md.append(md_table(["arm", "method", "runs", "median training", "median held-out",
                         "median deviation", "min", "max"], summary, left=2))

@@ -27,11 +27,11 @@ from threadpoolctl import threadpool_limits
 
 import robots
 
-from .backends import Backend, make_backend
-from .config import TrainConfig
-from .controllers import Controller
-from .encoding import Encoding
-from .problem import Problem
+from lab.methods import Backend, make_backend
+from lab.running.config import TrainConfig
+from lab.problem.controllers import Controller
+from lab.problem.encoding import Encoding
+from lab.problem import Problem
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +80,11 @@ class RunSummary:
     median_history: np.ndarray
     error: str | None = None
 
+    def numbers(self) -> dict:
+        """The summary's JSON-ready numbers (what recordings and the notebook store)."""
+        return {"state": self.state, "generations": self.generations, "evaluations": self.evaluations,
+                "seconds": self.seconds, "train_mse": self.train_mse, "test_mse": self.test_mse, "error": self.error}
+
 
 def build_problem(config: TrainConfig) -> Problem:
     arm = robots.load(config.robot)
@@ -89,7 +94,7 @@ def build_problem(config: TrainConfig) -> Problem:
 
 class RunBase:
     """What every runner shares: subscribers, state, history, snapshot, join. The training itself is
-    the subclass's: Runner trains in a thread of this process, lab.worker.ProcessRunner in a process
+    the subclass's: Runner trains in a thread of this process, lab.running.worker.ProcessRunner in a process
     of its own; subscribers cannot tell them apart."""
 
     def __init__(self, config: TrainConfig, problem: Problem | None = None):
@@ -103,6 +108,7 @@ class RunBase:
         self._best: tuple[float, Controller | None] = (float("inf"), None)  # updated with the history
         self._median: list[float] = []
         self._seconds = 0.0
+        self._evaluations = 0
         self._summary: RunSummary | None = None
         self._done = threading.Event()
 
@@ -156,7 +162,7 @@ class RunBase:
             self._best = (event.best, event.controller)
             self._history.append(event.best)
             self._median.append(event.median)
-            self._seconds = event.seconds
+            self._seconds, self._evaluations = event.seconds, event.evaluations
             subscribers = list(self._subscribers)
         for callback in subscribers:
             try:
@@ -164,6 +170,21 @@ class RunBase:
             except Exception:
                 log.exception("subscriber %r failed; unsubscribed", callback)
                 self.unsubscribe(callback)
+
+    def _summarize(self, state: str, controller: Controller | None, error: str | None = None) -> RunSummary:
+        """The run's summary, the one way every runner makes it: the numbers of the last
+        generation published, the final controller scored on the training and held-out goals."""
+        p = self.problem
+        with self._lock:
+            history, median = np.array(self._history), np.array(self._median)
+            seconds, evaluations = self._seconds, self._evaluations
+        scored = controller is not None
+        return RunSummary(
+            run_id=self.run_id, config=self.config, state=state, generations=len(history), evaluations=evaluations,
+            seconds=seconds, controller=controller,
+            train_mse=p.controller_mse(controller) if scored else float("inf"),
+            test_mse=p.controller_mse(controller, p.test_goals) if scored else float("inf"),
+            history=history, median_history=median, error=error)
 
     def _conclude(self, summary: RunSummary) -> None:
         """The run has ended: keep its summary, call every subscriber's on_end, release join()."""
@@ -256,12 +277,4 @@ class Runner(RunBase):
             ))
 
     def _finish(self, state: str, error: str | None) -> None:
-        b = self.backend
-        test = b.best is not None
-        self._conclude(RunSummary(
-            run_id=self.run_id, config=self.config, state=state, generations=len(self._history),
-            evaluations=b.evaluations, seconds=self._seconds, controller=b.best,
-            train_mse=self.problem.controller_mse(b.best) if test else float("inf"),
-            test_mse=self.problem.controller_mse(b.best, self.problem.test_goals) if test else float("inf"),
-            history=np.array(self._history), median_history=np.array(self._median), error=error,
-        ))
+        self._conclude(self._summarize(state, self.backend.best, error))

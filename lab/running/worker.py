@@ -4,9 +4,9 @@
     runner.subscribe(callback)       # called here, in a reader thread, once per generation
     runner.start(); runner.pause(); runner.resume(); runner.stop(); summary = runner.join()
 
-The same interface and events as lab.runner.Runner (both are RunBase), so subscribers (the
+The same interface and events as lab.running.runner.Runner (both are RunBase), so subscribers (the
 Rerun logger, the app) cannot tell them apart. What differs is where the optimizer runs: in
-`python -m lab.worker`, with an interpreter and a GIL of its own, so a busy process beside it
+`python -m lab.running.worker`, with an interpreter and a GIL of its own, so a busy process beside it
 (the app's server, its tabs, its redraws) no longer slows it down, and it cannot slow them.
 The worker sends each generation through a pipe (lab/pipes.py: its numbers, and the best
 controller when it changed); pause, resume and stop go the other way. A worker whose parent
@@ -25,11 +25,10 @@ import sys
 import threading
 from itertools import chain
 
-import numpy as np
 
-from . import pipes
-from .config import TrainConfig
-from .runner import RunBase, RunSummary
+from lab.running import pipes
+from lab.running.config import TrainConfig
+from lab.running.runner import RunBase, RunSummary
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +38,7 @@ _spare_lock = threading.Lock()
 
 
 class ProcessRunner(RunBase):
-    """A Runner (see lab.runner) that trains in a worker process. `backend` is None here: the
+    """A Runner (see lab.running.runner) that trains in a worker process. `backend` is None here: the
     backend lives in the worker."""
 
     backend = None
@@ -110,23 +109,12 @@ class ProcessRunner(RunBase):
         self._proc.stdout.close()
         code = self._proc.wait()
         if summary is None:
-            self._conclude(self._failed(error or f"the training process exited with code {code}", decode.controller))
+            self._conclude(self._summarize("failed", decode.controller,
+                                           error or f"the training process exited with code {code}"))
         else:
             self._conclude(summary)
         if _keep_spare:
             prestart()
-
-    def _failed(self, error: str, controller) -> RunSummary:
-        p = self.problem
-        with self._lock:
-            history, median, seconds = np.array(self._history), np.array(self._median), self._seconds
-        return RunSummary(
-            run_id=self.run_id, config=self.config, state="failed", generations=len(history),
-            evaluations=len(history) * self.config.population, seconds=seconds, controller=controller,
-            train_mse=p.controller_mse(controller) if controller is not None else float("inf"),
-            test_mse=p.controller_mse(controller, p.test_goals) if controller is not None else float("inf"),
-            history=history, median_history=median, error=error)
-
 
 def prestart() -> None:
     """Keep a warmed-up worker ready for the next start(), now and after every run."""
@@ -147,7 +135,7 @@ def _take_worker() -> subprocess.Popen:
 
 
 def _spawn(spare: bool) -> subprocess.Popen:
-    proc = pipes.start("lab.worker", *(["--spare"] if spare else []))
+    proc = pipes.start("lab.running.worker", *(["--spare"] if spare else []))
     pipes.grow(proc.stdout.fileno())
     return proc
 
@@ -157,10 +145,10 @@ def main(argv: list[str]) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which stops the run
     out = pipes.claim_stdout()
     if "--spare" in argv:
-        from .warmup import compile_kernels
+        from lab.running.warmup import compile_kernels
 
         compile_kernels()
-    from .runner import Runner
+    from lab.running.runner import Runner
 
     stream = pipes.messages(sys.stdin.fileno())
     first = next(stream, None)

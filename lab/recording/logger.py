@@ -46,14 +46,17 @@ from pathlib import Path
 
 import numpy as np
 
-from . import pipes
-from .backends import backend_type
-from .config import TrainConfig
-from .problem import Problem
+from lab.running import pipes
+from lab import methods
+from lab.running.config import TrainConfig
+from lab.problem import Problem
 
 log = logging.getLogger(__name__)
 
 APPLICATION_ID = "neuro-ik-lab"
+# what the writer process is told of the method (lab/recording/views.MethodView): plain data, so
+# that it needs no method's code (a method registered in a script exists in that script only)
+METHOD_VIEW = ("name", "label", "controller", "search_title", "search_series")
 FORMAT_VERSION = 1
 
 
@@ -124,17 +127,18 @@ class RerunLogger:
             raise ValueError(f"pose_every must be an integer >= 1, got {pose_every!r}")
         self.path = prepare_path(path, config, overwrite)
         self.config, self.problem, self.pose_every, self.compact = config, problem, pose_every, compact
+        method = methods.get(config.method)
         if hyperparameters is None:
-            hyperparameters = backend_type(config.method).settings(problem, config)  # builds no backend
+            hyperparameters = method.backend.settings(problem, config)  # builds no backend
         self._rows = pipes.EventEncoder()
         self._lock = threading.Lock()
         self._closed = False
         self._error: str | None = None
-        self._proc = pipes.start("lab.recording_writer")
+        self._proc = pipes.start("lab.recording.writer")
         self._fd = self._proc.stdin.fileno()
         pipes.grow(self._fd)
         self._send(("start", {
-            "path": str(self.path), "config": config, "run_id": run_id, "robot": problem.arm.name,
+            "path": str(self.path), "config": config.to_dict(), "method": {k: getattr(method, k) for k in METHOD_VIEW}, "run_id": run_id, "robot": problem.arm.name,
             "train_goals": np.asarray(problem.train_goals), "goal_seed": problem.goal_seed,
             "hyperparameters": hyperparameters, "pose_every": pose_every, "compact": compact}))
         atexit.register(_close_at_exit, weakref.ref(self))
@@ -164,10 +168,7 @@ class RerunLogger:
                     self.wait()
                 return
             self._closed = True
-        doc = None if summary is None else {
-            "state": summary.state, "generations": summary.generations, "evaluations": summary.evaluations,
-            "seconds": summary.seconds, "train_mse": summary.train_mse, "test_mse": summary.test_mse,
-            "error": summary.error}
+        doc = None if summary is None else summary.numbers()
         try:
             self._send(("end", doc))  # "end" even without a summary: a clean close, which is compacted
         except RuntimeError:
@@ -240,7 +241,7 @@ def _resolve_source(source, problem):
         source, problem = source
     if isinstance(source, TrainConfig):
         if problem is None:
-            from .runner import build_problem
+            from lab.running.runner import build_problem
 
             problem = build_problem(source)
         return source, problem, uuid.uuid4().hex[:12]

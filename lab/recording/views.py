@@ -1,7 +1,8 @@
-"""What the Rerun logger draws: the arm's poses, the NEAT network, the static scene, the blueprint.
+"""What the Rerun logger draws: the arm's poses, the network, the static scene, the blueprint.
 
-Pure functions from lab objects to Rerun archetypes; lab/recording.py decides when to log them.
-Goals of a planar arm (task_axes (0, 1)) are drawn at z = 0.
+Pure functions from lab objects to Rerun archetypes; lab/recording/writer.py decides when to log
+them. What differs per method comes from its registry entry, as a `MethodView` (plain data, so
+that the writer process needs no method's code). Goals of a planar arm are drawn at z = 0.
 """
 
 from __future__ import annotations
@@ -15,9 +16,21 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 import robots
+from lab.problem.controllers import network_layout
 
 GREEN, BLUE, RED, GREY, ORANGE = [40, 170, 60], [60, 110, 220], [220, 60, 50], [150, 150, 150], [240, 150, 30]
 LAYER_DX, NODE_DY = 160.0, 70.0  # network layout, in the graph view's units
+
+
+@dataclass(frozen=True)
+class MethodView:
+    """What a recording shows of its method: the fields of its lab.methods.Method of these names."""
+
+    name: str
+    label: str
+    controller: str  # "mlp" or "graph"
+    search_title: str
+    search_series: str
 
 
 @dataclass(frozen=True)
@@ -34,22 +47,15 @@ class Geometry:
         lo, hi = arm.workspace_bounds
         object.__setattr__(self, "arm", arm)
         object.__setattr__(self, "goals", goals)
-        object.__setattr__(self, "goals3", to_3d(goals, arm.task_axes))
+        object.__setattr__(self, "goals3", arm.to_3d(goals))
         object.__setattr__(self, "radius", 0.003 * float(np.max(hi - lo)))
-
-
-def to_3d(points: np.ndarray, task_axes) -> np.ndarray:
-    """Task coordinates (n, len(task_axes)) -> (n, 3), zeros on the other axes."""
-    out = np.zeros((len(points), 3))
-    out[:, list(task_axes)] = points
-    return out
 
 
 def pose(geo: Geometry, controller) -> dict:
     """The arm at controller(goal) for every training goal, the points reached, and the errors."""
     q = controller(geo.goals)  # (n, nq)
     strips = geo.arm.joint_positions(q).astype(np.float32)  # (n, nq + 2, 3); float32 converts 2x faster
-    reached = to_3d(geo.arm.reach(q), geo.arm.task_axes)
+    reached = geo.arm.to_3d(geo.arm.reach(q))
     r = geo.radius
     return {
         "world/arm": rr.LineStrips3D(strips, radii=0.6 * r, colors=[*GREY, 110]),
@@ -58,7 +64,7 @@ def pose(geo: Geometry, controller) -> dict:
     }
 
 
-def static_scene(geo: Geometry, method: str) -> list:
+def static_scene(geo: Geometry) -> list:
     """Logged once: axes convention, goals, series styles."""
     out = [("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP),
            ("world/goals", rr.Points3D(geo.goals3, radii=3.0 * geo.radius, colors=GREEN)),
@@ -70,33 +76,19 @@ def static_scene(geo: Geometry, method: str) -> list:
 
 
 def network(controller) -> tuple:
-    """GraphNodes and GraphEdges of a NEAT genome (enabled connections), laid out in layers:
-    inputs at x = 0, hidden nodes at their longest-path depth, outputs in the last column."""
-    g = controller.genome
-    inputs, outputs = list(controller.input_keys), list(controller.output_keys)
-    hidden = [k for k, _ in g["nodes"] if k not in outputs]
-    edges = [(i, o) for i, o, _, enabled in g["connections"] if enabled]
-    depth = {k: 0 for k in inputs}
-    for _ in range(len(hidden) + 1):  # longest path, relaxed (the genome is feed-forward)
-        for i, o in edges:
-            if o in hidden and i in depth:
-                depth[o] = max(depth.get(o, 1), depth[i] + 1)
-    for k in hidden:
-        depth.setdefault(k, 1)
-    last = max([depth[k] for k in hidden], default=0) + 1
-    depth.update({k: last for k in outputs})
-    names = controller.encoding.input_names
-    label = {k: names[n] for n, k in enumerate(inputs)} | {k: f"q{n}" for n, k in enumerate(outputs)}
-    keys = inputs + hidden + outputs
+    """GraphNodes and GraphEdges of a controller's network (lab.problem.controllers.network_layout:
+    inputs in the first column, hidden nodes by depth, joints in the last; enabled links only)."""
+    nodes, links = network_layout(controller)
     columns: dict[int, list] = {}
-    for k in keys:
-        columns.setdefault(depth[k], []).append(k)
-    pos = {k: (d * LAYER_DX, (n - (len(col) - 1) / 2) * NODE_DY) for d, col in columns.items() for n, k in enumerate(col)}
-    color = {k: GREEN for k in inputs} | {k: ORANGE for k in hidden} | {k: BLUE for k in outputs}
-    ids = [str(k) for k in keys]
-    nodes = rr.GraphNodes(ids, positions=[pos[k] for k in keys], labels=[label.get(k, f"h{k}") for k in keys],
-                          colors=[color[k] for k in keys], show_labels=True)
-    return nodes, rr.GraphEdges([(str(i), str(o)) for i, o in edges if i in pos and o in pos], graph_type="directed")
+    for node in nodes:
+        columns.setdefault(node.layer, []).append(node)
+    pos = {n.key: (d * LAYER_DX, (k - (len(col) - 1) / 2) * NODE_DY) for d, col in columns.items()
+           for k, n in enumerate(col)}
+    color = {"input": GREEN, "hidden": ORANGE, "output": BLUE}
+    ids = [str(n.key) for n in nodes]
+    graph = rr.GraphNodes(ids, positions=[pos[n.key] for n in nodes], labels=[n.label for n in nodes],
+                          colors=[color[n.kind] for n in nodes], show_labels=True)
+    return graph, rr.GraphEdges([(str(a), str(b)) for a, b, _w in links if a in pos and b in pos], graph_type="directed")
 
 
 def palette(n: int) -> list:
@@ -105,15 +97,14 @@ def palette(n: int) -> list:
     return [base[k % len(base)] for k in range(n)]
 
 
-def blueprint(method: str, geo: Geometry | None = None) -> rrb.Blueprint:
+def blueprint(method: MethodView, geo: Geometry | None = None) -> rrb.Blueprint:
     """Arm on the left; error curves (log10 first, linear in a tab), search state and the network
-    (NEAT) or the controller's JSON (CMA-ES) on the right; the time panel on `generation`.
+    (a graph method) or the controller's JSON (an MLP method) on the right; the time panel on `generation`.
     With the geometry, the 3D camera frames the workspace (from above for a planar arm)."""
     mse = rrb.Tabs(rrb.TimeSeriesView(origin="/log10_mse", name="log10 training MSE"),
                    rrb.TimeSeriesView(origin="/mse", name="training MSE (linear)"), name="Training error")
-    search = rrb.TimeSeriesView(origin="/search", name="CMA-ES step size and restarts" if method == "cmaes"
-                                else "NEAT species and best network size")
-    if method == "neat":
+    search = rrb.TimeSeriesView(origin="/search", name=method.search_title)
+    if method.controller == "graph":
         detail = rrb.GraphView(origin="/network", name="Best network (inputs left, joints right)",
                                force_link=rrb.archetypes.ForceLink(enabled=False),
                                force_many_body=rrb.archetypes.ForceManyBody(enabled=False),
@@ -130,27 +121,28 @@ def blueprint(method: str, geo: Geometry | None = None) -> rrb.Blueprint:
 
 
 def _eye(geo: Geometry) -> rrb.EyeControls3D:
-    lo, hi = (to_3d(b[None, :], geo.arm.task_axes)[0] for b in geo.arm.workspace_bounds)
+    lo, hi = (geo.arm.to_3d(b[None, :])[0] for b in geo.arm.workspace_bounds)
     center, size = (lo + hi) / 2, float(np.max(hi - lo))
     planar = len(geo.arm.task_axes) == 2
     offset = np.array([0.0, -0.35, 1.3]) if planar else np.array([0.7, -0.7, 0.55])
     return rrb.EyeControls3D(position=center + size * offset, look_target=center, eye_up=[0.0, 0.0, 1.0])
 
 
-def about(config) -> str:
-    return f"""# {config.robot} arm, {config.method}, seed {config.seed}
+def about(config: dict, method: MethodView) -> str:
+    """The recording's /about text; config: TrainConfig.to_dict()."""
+    graph = method.controller == "graph"
+    return f"""# {config["robot"]} arm, {method.label}, seed {config["seed"]}
 
-Evolution of a neural inverse-kinematics controller ({config.generations} generations of {config.population}).
+Evolution of a neural inverse-kinematics controller ({config["generations"]} generations of {config["population"]}).
 
 - **3D view**: the arm at the best controller's joint values for every training goal (grey),
   the goals (green), the points reached (blue) and the errors goal -> reached (red).
   Updated on improvement, at most every few generations.
 - **Training error**: best so far, median and worst (when finite) of each generation, as log10(MSE)
   (Rerun 0.41 has no log axis) and in a second tab on a linear scale.
-- **Search**: {"CMA-ES step size sigma and the number of restarts" if config.method == "cmaes"
-               else "number of species, nodes and enabled connections of the best genome"}.
-- **{"Network" if config.method == "neat" else "Controller"}**: {"the best genome; inputs left, joint outputs right"
-    if config.method == "neat" else "the best controller as JSON (rebuild it with lab.load_controller)"}.
+- **Search**: {method.search_series}.
+- **{"Network" if graph else "Controller"}**: {"the best network; inputs left, joint outputs right"
+    if graph else "the best controller as JSON (rebuild it with lab.load_controller)"}.
 
 Drag the time cursor (timeline `generation`) to see any generation. The full protocol is in `/protocol`.
 """

@@ -4,7 +4,7 @@ One call evaluates a whole population on all goals:
 
     mse[p] = mean_g || goal_g - fk(joints(net_p(x_g)))[task_axes] ||^2
 
-joints() is lab.encoding.Encoding.joints; its arrays travel as qmap = (offset, scale, lo, hi).
+joints() is lab.problem.encoding.Encoding.joints; its arrays travel as qmap = (offset, scale, lo, hi).
 A controller whose output or error is NaN or infinite gets +inf.
 
 Layout: goals run along the innermost, contiguous axis ("structure of arrays": inputs (ni, n),
@@ -269,7 +269,7 @@ def graph_forward(XT, starts, n_nodes, bias, response, link_start, link_src, lin
 
 @numba.njit(**_JIT)
 def graph_mse(XT, goalsT, axes, program, qmap, chain, out):
-    """MSE of every compiled graph (lab.controllers.compile_programs) on the goals: out (P,)."""
+    """MSE of every compiled graph (lab.problem.controllers.compile_programs) on the goals: out (P,)."""
     starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot, no = program
     n = XT.shape[1]
     V = _graph_scratch(XT, n_nodes)

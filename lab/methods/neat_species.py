@@ -38,7 +38,7 @@ from neat.genome import DefaultGenome
 from neat.math_util import mean, stdev
 from neat.species import DefaultSpeciesSet, Species
 
-from .neat_genome import FastGenome
+from lab.methods.neat_genome import FastGenome
 
 # no fastmath: the distances must be neat-python's to the last bit
 _JIT = dict(cache=True, nogil=True, error_model="numpy")

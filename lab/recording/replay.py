@@ -27,8 +27,8 @@ from urllib.parse import quote
 
 import numpy as np
 
-from .controllers import Controller, controller_from_dict
-from .recording import rerun_binary
+from lab.problem.controllers import Controller, controller_from_dict
+from lab.recording.logger import rerun_binary
 
 MAGIC = b"RRF"  # the first bytes of every .rrd file
 
@@ -81,7 +81,7 @@ def load_controller(path: str | os.PathLike, generation: int | None = None) -> C
 
 
 def read_recording(path: str | os.PathLike) -> Recording:
-    """Read a recording written by lab.recording.RerunLogger (raises OSError/ValueError naming the file)."""
+    """Read a recording written by lab.recording.logger.RerunLogger (raises OSError/ValueError naming the file)."""
     path = check_file(path)
     try:
         return _read(path, path, salvaged=False)

@@ -1,7 +1,7 @@
 """Messages between lab's processes: length-prefixed pickles over a pipe (no heavy imports).
 
-Used by the Rerun writer process (lab/recording_writer.py) and the training process
-(lab/worker.py). A message written with `send` is in the kernel's pipe buffer when it returns,
+Used by the Rerun writer process (lab/recording/writer.py) and the training process
+(lab/running/worker.py). A message written with `send` is in the kernel's pipe buffer when it returns,
 so it outlives the sender: a process killed right after still has it delivered.
 """
 
@@ -11,6 +11,7 @@ import os
 import pickle
 import struct
 import subprocess
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -81,34 +82,27 @@ def grow(fd: int) -> None:
         pass
 
 
-def event_row(event, controller) -> tuple:
-    """A GenerationEvent as sent between processes (controller: None when unchanged)."""
-    return (event.index, event.best, event.gen_best, event.median, event.worst, event.evaluations,
-            event.seconds, event.improved, event.extras, event.wall_time, controller)
-
-
 class EventDecoder:
-    """Rows back into GenerationEvents, with the last controller sent where a row has None."""
+    """Events off the pipe back into the run's GenerationEvents: its run id, and the last controller
+    sent where an event came without one."""
 
     def __init__(self, run_id: str = ""):
         self.run_id, self.controller = run_id, None
 
-    def __call__(self, row: tuple):
-        from .runner import GenerationEvent
-
-        if row[-1] is not None:
-            self.controller = row[-1]
-        return GenerationEvent(self.run_id, *row[:7], controller=self.controller, improved=row[7], extras=row[8],
-                               wall_time=row[9])
+    def __call__(self, sent):
+        if sent.controller is not None:
+            self.controller = sent.controller
+        return dataclasses.replace(sent, run_id=self.run_id, controller=self.controller)
 
 
 class EventEncoder:
-    """GenerationEvents into rows, each controller sent once (when it changes)."""
+    """GenerationEvents for the pipe: the same named fields, the run id left out and the controller
+    sent once (when it changes; None: the last one sent)."""
 
     def __init__(self):
         self.sent = None
 
-    def __call__(self, event) -> tuple:
+    def __call__(self, event):
         controller = event.controller if event.controller is not self.sent else None
         self.sent = event.controller
-        return event_row(event, controller)
+        return dataclasses.replace(event, run_id="", controller=controller)

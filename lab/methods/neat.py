@@ -34,16 +34,21 @@ import functools
 import math
 import os
 import random
+import sys
 import tempfile
 import threading
+import time
+from dataclasses import dataclass
 
 import neat
 import numpy as np
 
-from ..controllers import GraphController, join_programs, lay_out
-from .base import Backend, StepResult
-from .neat_genome import FastGenome, FastReproduction
-from .neat_species import FastSpeciesSet
+from lab.methods.base import Backend, Options, StepResult, option
+from lab.methods.registry import Method, SpeedReference, register
+from lab.problem.checks import real
+from lab.problem.controllers import GraphController, join_programs, lay_out
+from lab.methods.neat_genome import FastGenome, FastReproduction
+from lab.methods.neat_species import FastSpeciesSet
 
 _RANDOM_LOCK = threading.Lock()
 BAD_FITNESS = -1e30  # neat-python needs a finite float; NaN/inf outputs get this
@@ -53,10 +58,23 @@ PAPER_NEAT = dict(node_add_prob=0.002, conn_add_prob=0.002, weight_mutate_rate=0
                   weight_mutate_power=1.0, enabled_rate_to_true_add=0.5)
 
 
+@dataclass(frozen=True)
+class NEATOptions(Options):
+    mutation_power: float = option(0.05, "std of a weight or bias perturbation (paper: 1)")
+    add_node: float = option(0.002, "probability of an add-node mutation (paper: 0.002)")
+    add_connection: float = option(0.002, "probability of an add-connection mutation (paper: 0.002)")
+
+    def check(self) -> None:
+        real(self, "mutation_power", 0, 1e6, "a positive number", closed_below=False)
+        for name in ("add_node", "add_connection"):
+            real(self, name, 0, 1, "a probability in [0, 1]")
+
+
 def neat_parameters(config) -> dict:
     """The paper's NEAT parameters with this run's mutation power and structural rates."""
-    return dict(PAPER_NEAT, weight_mutate_power=config.mutation_power, node_add_prob=config.add_node,
-                conn_add_prob=config.add_connection)
+    o = config.options
+    return dict(PAPER_NEAT, weight_mutate_power=o.mutation_power, node_add_prob=o.add_node,
+                conn_add_prob=o.add_connection)
 
 
 def _gene_floats(name: str, p: dict) -> str:
@@ -279,7 +297,6 @@ def _topological(required: set, incoming: dict) -> list:
 
 
 class NEATBackend(Backend):
-    method = "neat"
     genome_type = FastGenome  # neat.DefaultGenome gives the same runs, slower
     species_set_type = FastSpeciesSet  # neat.DefaultSpeciesSet likewise
     reproduction_type = FastReproduction  # neat.DefaultReproduction likewise
@@ -375,3 +392,47 @@ class NEATBackend(Backend):
             ss.compatibility_threshold *= 1.5
             pop.species.species = {}
             pop.species.speciate(pop.config, pop.population, pop.generation)
+
+
+def reference_loop(config, problem, generations: int) -> float:
+    """Seconds of neat-python's own Population.run with the same configuration, its own
+    DefaultGenome and DefaultSpeciesSet, and a trivial fitness (uniform random numbers, so that
+    selection and speciation have work to do, as in a real run); benchmarks/bench_speed.py."""
+    enc = problem.encoding
+    cfg = make_neat_config(enc.n_inputs, enc.n_outputs, config.population, config.hidden, config.seed,
+                           neat_parameters(config), genome_type=neat.DefaultGenome,
+                           species_set_type=neat.DefaultSpeciesSet)
+    saved = random.getstate()
+    pop = neat.Population(cfg, seed=config.seed)
+    rng = np.random.default_rng(config.seed)
+
+    def trivial(genomes, _config):
+        for (_, g), f in zip(genomes, rng.random(len(genomes)).tolist()):
+            g.fitness = f
+
+    t = time.perf_counter()
+    stdout, sys.stdout = sys.stdout, open(os.devnull, "w")  # its closing "meets fitness threshold" line
+    try:
+        pop.run(trivial, generations)
+    finally:
+        sys.stdout.close()
+        sys.stdout = stdout
+        random.setstate(saved)
+    return time.perf_counter() - t
+
+
+# measured in benchmarks/bench_quality.py: NEAT loses with the slack-of-reach input and a wide
+# margin (SCARA held-out 7.3 with these, 12 with "reach", 240 with "reach" and margin 2)
+METHOD = register(Method(
+    name="neat", label="NEAT", color=(214, 39, 40),
+    summary="NEAT (neat-python): topology and weights evolved together",
+    backend_class=NEATBackend, options=NEATOptions, controller="graph",
+    defaults=lambda arm: dict(features="polar", margin=0.5, hidden=0),
+    # the paper's parameters (section 4.3); NEAT starts with the inputs wired to the outputs
+    paper=dict(features="cartesian", margin=0.0, hidden=0, mutation_power=1.0, add_node=0.002, add_connection=0.002),
+    min_population=2, min_hidden=0,
+    search_title="NEAT species and best network size",
+    search_series="number of species, nodes and enabled connections of the best genome",
+    cost=6.0, ablations=("mutation_power=1.0", "margin=0.0", "features=reach"),
+    reference=SpeedReference("neat-python Population.run, random fitness", 1.5, reference_loop),
+))

@@ -1,4 +1,4 @@
-"""The recording's writer process: `python -m lab.recording_writer`, started by lab.recording.RerunLogger.
+"""The recording's writer process: `python -m lab.recording.writer`, started by lab.recording.logger.RerunLogger.
 
 It reads length-prefixed pickles from stdin, the pipe the training process writes into:
 ("start", header) first, then ("event", row) per generation, then ("end", summary) on a clean
@@ -30,9 +30,9 @@ import rerun as rr
 
 import robots
 
-from . import recording_views as views
-from .pipes import EventDecoder, claim_stdout, messages
-from .recording import APPLICATION_ID, FORMAT_VERSION, compact
+from lab.recording import views
+from lab.running.pipes import EventDecoder, claim_stdout, messages
+from lab.recording.logger import APPLICATION_ID, FORMAT_VERSION, compact
 
 WRITE_INTERVAL = 0.02  # seconds: at most this often a write and flush of what the pipe holds (each costs
 # ~0.3 ms of CPU whatever it holds; the pipe keeps what waits, even if the training process is killed)
@@ -43,14 +43,15 @@ class Writer:
     """The recording of one run (see lab/recording.py for what goes where)."""
 
     def __init__(self, header: dict):
-        config = self.config = header["config"]
+        config = self.config = header["config"]  # TrainConfig.to_dict()
+        self.method = views.MethodView(**header["method"])
         self.path = header["path"]
         self.pose_every = header["pose_every"]
         arm = robots.load(header["robot"])
         self._geometry = views.Geometry(arm, header["train_goals"])
         self._rec = rr.RecordingStream(APPLICATION_ID, recording_id=header["run_id"])
-        self._rec.save(self.path, default_blueprint=views.blueprint(config.method, self._geometry))
-        self._rec.send_recording_name(f"{config.robot} {config.method} seed {config.seed}")
+        self._rec.save(self.path, default_blueprint=views.blueprint(self.method, self._geometry))
+        self._rec.send_recording_name(f"{config['robot']} {config['method']} seed {config['seed']}")
         self._log_static(header)
         self._rec.flush()
         self._logged = None  # the last controller written
@@ -120,7 +121,7 @@ class Writer:
             "controller", indexes=_indexes([e for e, _ in rows]),
             columns=[_Column(_Column.TEXT, [[t] for _, t in rows], pa.string())])
         e = rows[-1][0]
-        if getattr(e.controller, "genome", None):
+        if self.method.controller == "graph":
             self._set_time(e)
             self._rec.log("network", *views.network(e.controller))
 
@@ -145,16 +146,16 @@ class Writer:
     def _log_static(self, header: dict) -> None:
         c, arm = self.config, self._geometry.arm
         protocol = {
-            "format": FORMAT_VERSION, "run_id": header["run_id"], "robot": c.robot, "method": c.method,
-            "seed": c.seed, "joint_names": list(arm.joint_names), "lower": arm.lower.tolist(),
+            "format": FORMAT_VERSION, "run_id": header["run_id"], "robot": c["robot"], "method": c["method"],
+            "seed": c["seed"], "joint_names": list(arm.joint_names), "lower": arm.lower.tolist(),
             "upper": arm.upper.tolist(), "task_axes": list(arm.task_axes), "goal_seed": header["goal_seed"],
             "train_goals": np.asarray(header["train_goals"]).tolist(),
-            "hyperparameters": header["hyperparameters"], "config": c.to_dict(), "versions": views.versions(),
+            "hyperparameters": header["hyperparameters"], "config": c, "versions": views.versions(),
         }
         rec = self._rec
         rec.log("protocol", rr.TextDocument(json.dumps(protocol, indent=1, default=_jsonable)), static=True)
-        rec.log("about", rr.TextDocument(views.about(c), media_type=rr.MediaType.MARKDOWN), static=True)
-        for entity, archetype in views.static_scene(self._geometry, c.method):
+        rec.log("about", rr.TextDocument(views.about(c, self.method), media_type=rr.MediaType.MARKDOWN), static=True)
+        for entity, archetype in views.static_scene(self._geometry):
             rec.log(entity, archetype, static=True)
 
 

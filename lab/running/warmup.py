@@ -4,7 +4,7 @@ numba compiles on first call and caches the machine code under __pycache__/ (abo
 compiling on a 2-core machine, then milliseconds to load). `make install` runs this once;
 the app runs `compile_kernels` in a background thread at startup.
 
-    python -m lab.warmup
+    python -m lab.running.warmup
 """
 
 from __future__ import annotations
@@ -13,17 +13,18 @@ import time
 
 
 def compile_kernels() -> float:
-    """Call every kernel once (forward kinematics, MLP and NEAT fitness, controllers); seconds taken."""
+    """Call every kernel once (forward kinematics, each method's fitness, controllers); seconds taken."""
     import robots
+    from lab import methods
 
-    from .evolve import evolve
+    from lab.running.evolve import evolve
 
     t = time.perf_counter()
     arm = robots.load("planar")
     q = arm.sample_q(2, seed=0)
     arm.fk(q)
     arm.joint_positions(q)
-    for method in ("cmaes", "neat"):
+    for method in methods.names():
         run = evolve("planar", method, generations=2, population=10, targets=5, test_goals=5, seed=0)
         run.controller(arm.sample_goals(2, seed=1))
     return time.perf_counter() - t

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 import robots
-from . import kernels
-from .controllers import Controller, compile_programs
-from .encoding import Encoding
+from lab.problem import kernels
+from lab.problem.controllers import Controller, compile_programs
+from lab.problem.encoding import Encoding
 
 TEST_SEED_OFFSET = 1_000_003  # held-out goals come from another stream than the training goals
 
@@ -58,7 +58,7 @@ class Problem:
         return self.program_mse(compile_programs(graphs), test)
 
     def program_mse(self, program: tuple, test: bool = False) -> np.ndarray:
-        """MSE of every graph of a compiled program (lab.controllers.compile_programs): (P,)."""
+        """MSE of every graph of a compiled program (lab.problem.controllers.compile_programs): (P,)."""
         XT, goalsT = self._split(test)
         out = np.empty(len(program[0]))
         kernels.graph_mse(XT, goalsT, self._axes, program, self._qmap, self._chain, out)

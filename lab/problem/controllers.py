@@ -12,12 +12,12 @@ values (n, nq) within the joint limits; `to_dict()` is complete enough to rebuil
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
-from . import kernels
-from .encoding import Encoding
+from lab.problem import kernels
+from lab.problem.encoding import Encoding
 
 
 class Controller(Protocol):
@@ -228,3 +228,48 @@ def _check_graph(enc: Encoding, nodes: tuple, input_keys: tuple, output_keys: tu
         known.add(key)
     if set(output_keys) & set(input_keys):
         raise ValueError("graph: an output key is also an input key")
+
+
+class NetNode(NamedTuple):
+    """A node of a network drawing: its key, its column (0: inputs, last: joints), label, kind."""
+
+    key: object
+    layer: int
+    label: str
+    kind: str  # "input", "hidden" or "output"
+
+
+def network_layout(controller: Controller) -> tuple[list[NetNode], list[tuple]]:
+    """How to draw a controller's network, the same in the app and in recordings:
+    (nodes, links [(source key, target key, weight)]). Inputs are labelled by the encoding
+    (x, y, r, ...), joints q1 .. qn; an MLP's hidden units form one column, a graph's hidden
+    nodes stand at their longest-path depth from the inputs; a graph's enabled links only."""
+    enc = controller.encoding
+    in_labels, n_out = enc.input_names, enc.n_outputs
+    if controller.kind == "mlp":
+        w_i, w_o = controller.w_i, controller.w_o  # (ni+1, nh), (nh, no); last row of w_i: bias
+        nh = controller.hidden
+        nodes = [NetNode(("i", k), 0, in_labels[k], "input") for k in range(enc.n_inputs)]
+        nodes += [NetNode(("h", h), 1, "", "hidden") for h in range(nh)]
+        nodes += [NetNode(("o", o), 2, f"q{o + 1}", "output") for o in range(n_out)]
+        links = [(("i", k), ("h", h), float(w_i[k, h])) for k in range(enc.n_inputs) for h in range(nh)]
+        links += [(("h", h), ("o", o), float(w_o[h, o])) for h in range(nh) for o in range(n_out)]
+        return nodes, links
+    genome = controller.genome
+    inputs, outputs = list(controller.input_keys), list(controller.output_keys)
+    links = [(int(i), int(o), float(w)) for i, o, w, enabled in genome["connections"] if enabled]
+    keys = set(inputs) | set(outputs) | {int(k) for k, *_ in genome["nodes"]}
+    depth = {k: 0 for k in inputs}
+    for _ in range(len(keys)):  # longest path from the inputs (the graph is feed-forward)
+        changed = False
+        for i, o, _w in links:
+            if i in depth and depth.get(o, -1) < depth[i] + 1 and o not in inputs:
+                depth[o], changed = depth[i] + 1, True
+        if not changed:
+            break
+    last = max([depth.get(k, 1) for k in keys if k not in outputs] + [0]) + 1
+    nodes = [NetNode(k, 0, in_labels[n], "input") for n, k in enumerate(inputs)]
+    nodes += [NetNode(k, min(depth.get(k, 1), last - 1) or 1, "", "hidden")
+              for k in sorted(keys - set(inputs) - set(outputs))]
+    nodes += [NetNode(k, last, f"q{n + 1}", "output") for n, k in enumerate(outputs)]
+    return nodes, links

@@ -7,9 +7,10 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from .config import TrainConfig
-from .controllers import Controller
-from .runner import Runner, RunSummary
+from lab.methods import DEFAULT_METHOD
+from lab.running.config import TrainConfig
+from lab.problem.controllers import Controller
+from lab.running.runner import Runner, RunSummary
 
 
 @dataclass(frozen=True)
@@ -40,15 +41,17 @@ class Run:
                    s.state, s.run_id)
 
 
-def evolve(robot: str = "planar", method: str = "cmaes", generations: int = 1000, population: int = 50,
-           targets: int = 70, seed: int = 0, *, paper: bool = False,
+def evolve(robot: str = "planar", method: str = DEFAULT_METHOD, generations: int | None = None,
+           population: int | None = None, targets: int | None = None, seed: int = 0, *, paper: bool = False,
            subscribers: Iterable[Callable] = (), **options) -> Run:
-    """Evolve a neuro-controller for `robot` with `method` ("cmaes" or "neat"); blocks until done.
+    """Evolve a neuro-controller for `robot` with `method` (lab.methods.names()); blocks until done.
 
-    paper=True uses the paper's literal method (lab.config.PAPER_PRESET); options override
-    single settings of TrainConfig (hidden, sigma0, diagonal, features, margin, restarts, test_goals,
-    goal_seed, mutation_power, add_node, add_connection).
-    subscribers get every GenerationEvent (see lab.runner).
+    generations, population, targets: None is the method's default for the arm (the paper's
+    protocol, 1000, 50 and 70, unless the method declares others for that arm).
+    paper=True uses the paper's literal method (the method's paper preset); options override
+    single settings: TrainConfig's (hidden, features, margin, test_goals, goal_seed) and the
+    method's own options by name (CMA-ES: sigma0, diagonal, restarts; NEAT: mutation_power, ...).
+    subscribers get every GenerationEvent (see lab.running.runner).
     """
     config = TrainConfig.preset(paper=paper, robot=robot, method=method, generations=generations,
                                 population=population, targets=targets, seed=seed, **options)

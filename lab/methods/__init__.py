@@ -1,0 +1,33 @@
+"""The methods: one registry, one module per method (see registry.py).
+
+    from lab import methods
+    methods.names(), methods.get("neat").label
+    backend = methods.make_backend(problem, config)   # the Backend of config.method
+    backend.step()                                    # one generation
+
+- base.py: Options (a method's settings), Backend (one step = one generation), StepResult;
+- registry.py: Method (what the lab knows of a method), register, get, names;
+- cmaes.py: CMA-ES on the paper's MLP (pycma);
+- neat.py: NEAT (neat-python) with its faster genome and species code (neat_genome.py,
+  neat_species.py), bit for bit neat-python's.
+"""
+
+from __future__ import annotations
+
+import os
+
+from lab.methods.base import Backend, Options, StepResult, option
+from lab.methods.registry import DEFAULT_METHOD, Method, all_methods, get, load_plugins, names, register, unregister
+
+
+def make_backend(problem, config) -> Backend:
+    """The backend of config.method on problem."""
+    return get(config.method).backend(problem, config)
+
+
+from lab.methods import cmaes, neat  # noqa: E402,F401  (each registers itself)
+
+load_plugins(os.environ.get("LAB_METHODS"))
+
+__all__ = ["Backend", "DEFAULT_METHOD", "Method", "Options", "StepResult", "all_methods", "get", "load_plugins",
+           "make_backend", "names", "option", "register", "unregister"]

@@ -1,0 +1,139 @@
+"""CMA-ES (pycma, ask/tell) on the weights of a fixed-topology MLP (paper, sections 3 and 4.3).
+
+Randomness: pycma samples with this backend's own numpy Generator (option `randn`), so a run
+depends on its seed alone, never on numpy's global state, and runs in threads do not interfere.
+
+Restarts (config.restarts): when pycma's own termination criteria fire or the run has not
+improved its best by 1% in `STALL` generations, a new CMA-ES starts from a fresh random point
+with the remaining budget; the best controller over all starts is kept. The generation count
+and the evaluation budget (generations x population) are unchanged.
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from lab.methods.base import Backend, Options, StepResult, option
+from lab.methods.registry import Method, SpeedReference, register
+from lab.problem.checks import flag, real, whole
+from lab.problem.controllers import MLPController, mlp_size
+
+STALL = 150  # generations without 1% improvement that end a start (restarts only)
+_STOP_IGNORED = {"maxiter", "maxfevals", "ftarget"}
+
+
+@functools.cache
+def _cma():
+    """pycma, imported on first use (about 1 s)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "Could not import matplotlib"
+        import cma
+    return cma
+
+
+@dataclass(frozen=True)
+class CMAESOptions(Options):
+    sigma0: float = option(0.2, "initial step size")
+    diagonal: int = option(100, "generations that adapt only the diagonal of C first (pycma CMA_diagonal)")
+    restarts: bool = option(False, "restart from a new point when a start stagnates (same budget)")
+
+    def check(self) -> None:
+        real(self, "sigma0", 0, 1e6, "a positive number", closed_below=False)
+        whole(self, "diagonal", 0, 10**9)
+        flag(self, "restarts")
+
+
+class CMAESBackend(Backend):
+    def __init__(self, problem, config):
+        super().__init__(problem, config)
+        enc = problem.encoding
+        self.dim = mlp_size(enc.n_inputs, config.hidden, enc.n_outputs)
+        self.rng = np.random.default_rng(config.seed)
+        self.restarts = 0
+        self._start()
+
+    def _start(self) -> None:
+        x0 = self.rng.normal(0.0, 0.1, self.dim)
+        opts = {
+            "popsize": self.config.population,
+            "randn": lambda *shape: self.rng.standard_normal(shape),
+            "seed": np.nan,  # never touch numpy's global random state
+            "verbose": -9,
+            "verb_log": 0,
+            "maxiter": np.inf,
+            "CMA_diagonal": self.options.diagonal,  # a fast, diagonal-only start (0: full C from the first)
+        }
+        self.es = _cma().CMAEvolutionStrategy(x0, self.options.sigma0, opts)
+        self._start_best = np.inf
+        self._start_best_gen = self.generation
+
+    @classmethod
+    def settings(cls, problem, config) -> dict:
+        enc = problem.encoding
+        return {"dim": mlp_size(enc.n_inputs, config.hidden, enc.n_outputs), "hidden": config.hidden,
+                "sigma0": config.options.sigma0, "diagonal": config.options.diagonal, "popsize": config.population,
+                "restarts": config.options.restarts, "stall_generations": STALL, "cma": _cma().__version__}
+
+    def _step(self) -> StepResult:
+        X = np.asarray(self.es.ask())
+        f = self.problem.mlp_mse(X, self.config.hidden)
+        finite = np.isfinite(f)
+        worst = f[finite].max() if finite.any() else 1.0
+        self.es.tell(list(X), np.where(finite, f, 10.0 * worst + 1e6).tolist())
+        if self.es.sm.randn is np.random.randn:
+            # pycma 4.x switches from the diagonal to the full sampler (CMA_diagonal) with a new
+            # sampler that draws from numpy's global, unseeded generator: give it ours back
+            self.es.sm.randn = self.es.opts["randn"]
+        i = int(np.argmin(f))
+        self._offer(f[i], lambda: MLPController(self.problem.encoding, self.config.hidden, X[i].copy()))
+        extras = {"sigma": float(self.es.sigma), "restarts": self.restarts}
+        if self.options.restarts and self._start_is_over(float(f[i])):
+            self.restarts += 1
+            self._start()
+        return StepResult(f, extras)
+
+    def _start_is_over(self, gen_best: float) -> bool:
+        if gen_best < 0.99 * self._start_best:
+            self._start_best, self._start_best_gen = gen_best, self.generation
+        if self.generation - self._start_best_gen >= STALL:
+            return True
+        return bool(set(self.es.stop()) - _STOP_IGNORED)
+
+
+def reference_loop(config, problem, generations: int) -> float:
+    """Seconds of pycma's own ask/tell loop at the same dimension and population with a trivial
+    fitness, the sphere sum(x^2) (benchmarks/bench_speed.py; a constant fitness would be unfair:
+    pycma then stops adapting its covariance, which is most of its cost)."""
+    import time
+
+    enc = problem.encoding
+    rng = np.random.default_rng(config.seed)
+    dim = mlp_size(enc.n_inputs, config.hidden, enc.n_outputs)
+    es = _cma().CMAEvolutionStrategy(rng.normal(0, 0.1, dim), config.options.sigma0,
+                                     {"popsize": config.population, "seed": np.nan, "verbose": -9, "verb_log": 0,
+                                      "randn": lambda *s: rng.standard_normal(s), "maxiter": np.inf})
+    t = time.perf_counter()
+    for _ in range(generations):
+        X = es.ask()
+        es.tell(X, np.sum(np.square(X), axis=1).tolist())
+    return time.perf_counter() - t
+
+
+# measured in benchmarks/bench_quality.py (README, "Quality"): the slack-of-reach input and a wide
+# output margin help CMA-ES on the paper's arms
+METHOD = register(Method(
+    name="cmaes", label="CMA-ES", color=(31, 119, 180),
+    summary="CMA-ES (pycma) on the weights of a fixed-topology MLP",
+    backend_class=CMAESBackend, options=CMAESOptions, controller="mlp",
+    defaults=lambda arm: dict(features="reach", margin=2.0, hidden=5),
+    # the paper fixes no hidden size or step size: the values a reader of the paper would pick
+    paper=dict(features="cartesian", margin=0.0, hidden=8, sigma0=0.5, diagonal=0, restarts=False),
+    min_population=4, min_hidden=1,
+    search_title="CMA-ES step size and restarts", search_series="CMA-ES step size sigma and the number of restarts",
+    cost=1.0, ablations=("features=polar", "features=cartesian", "margin=0.5", "hidden=8", "sigma0=0.4", "diagonal=0"),
+    reference=SpeedReference("pycma ask/tell, sphere", 1.25, reference_loop),
+))

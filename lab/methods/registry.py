@@ -1,0 +1,154 @@
+"""The registry of methods: every part of the lab asks it, none asks which method is running.
+
+    from lab import methods
+    methods.names()                 # ('cmaes', 'neat', ...) in registration order
+    m = methods.get("cmaes")        # a Method: label, colour, options, defaults, backend, ...
+    m.backend(problem, config)      # its Backend (the class is imported on first use)
+    methods.register(Method(...))   # a method of your own (examples/custom_method.py)
+
+A method is one module that declares itself once with `register(Method(...))`. Built-in
+methods are lab/methods/cmaes.py and neat.py; others load from the modules named in the
+environment variable LAB_METHODS (comma-separated, so that worker processes load them too)
+and from the entry points of group `neuro_ik_lab.methods` of installed packages.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+from lab.methods.base import Backend, Options
+
+DEFAULT_METHOD = "cmaes"
+_REGISTRY: dict[str, "Method"] = {}
+
+
+@dataclass(frozen=True)
+class SpeedReference:
+    """The library's own loop with a trivial fitness: what a backend's overhead is measured against.
+    loop(config, problem, generations) -> seconds; target: the largest acceptable ratio."""
+
+    what: str
+    target: float
+    loop: Callable
+
+
+@dataclass(frozen=True)
+class Method:
+    """What the lab needs to know of a method, declared once in the method's module.
+
+    name: the id in configs, files and the CLI ("cmaes"); label: what people read ("CMA-ES");
+    color: (r, g, b) in its plots, recordings and the app; summary: one line for help texts.
+    backend_class: the Backend subclass, or "module:Class" to import on first use (a method
+        whose library is slow to import keeps `import lab` fast).
+    options: its Options dataclass; defaults(arm) -> dict: the settings it runs with on an arm
+        when none are given, TrainConfig fields (features, margin, hidden, generations,
+        population, targets) and option values alike; so defaults can differ per arm class.
+    paper: the paper's literal settings (same keys), or None when the paper has no such method.
+    controller: what its networks are, "mlp" (the paper's fixed MLP) or "graph" (NEAT-like);
+        recordings and the app draw them accordingly.
+    min_population / min_hidden: the smallest population and hidden size it accepts.
+    search_title / search_series: its /search plot (StepResult.extras) in words, for the
+        recording's views; cost: CPU per evaluation relative to CMA-ES, to schedule experiments;
+    ablations: settings compared with its defaults in benchmarks/bench_quality.py ("sigma0=0.4").
+    reference: the bare library's loop that benchmarks/bench_speed.py times this method's backend
+        against (None: nothing to compare with).
+    """
+
+    name: str
+    label: str
+    color: tuple[int, int, int]
+    summary: str
+    backend_class: type[Backend] | str
+    options: type[Options]
+    defaults: Callable[..., Mapping]
+    controller: str = "mlp"
+    paper: Mapping | None = None
+    min_population: int = 2
+    min_hidden: int = 0
+    search_title: str = "search state"
+    search_series: str = "the method's own numbers per generation"
+    cost: float = 1.0
+    ablations: tuple[str, ...] = ()
+    reference: SpeedReference | None = field(default=None, compare=False)
+
+    def __post_init__(self):
+        if not (isinstance(self.name, str) and self.name.isidentifier() and self.name.islower()):
+            raise ValueError(f"a method name must be a lowercase identifier, got {self.name!r}")
+        if self.controller not in ("mlp", "graph"):
+            raise ValueError(f"method {self.name}: controller must be 'mlp' or 'graph', got {self.controller!r}")
+        if not (isinstance(self.options, type) and issubclass(self.options, Options)):
+            raise ValueError(f"method {self.name}: options must be an Options dataclass, got {self.options!r}")
+
+    @property
+    def backend(self) -> type[Backend]:
+        """The Backend class (imported now if it was declared as "module:Class")."""
+        if isinstance(self.backend_class, str):
+            module, _, name = self.backend_class.partition(":")
+            cls = getattr(importlib.import_module(module), name)
+            object.__setattr__(self, "backend_class", cls)
+        return self.backend_class
+
+    @property
+    def hex(self) -> str:
+        return "#{:02x}{:02x}{:02x}".format(*self.color)
+
+    def known_options(self, given: Mapping | None) -> dict:
+        """given as a dict, when every name in it is one of this method's options (ValueError, naming them, else)."""
+        given = dict(given or {})
+        unknown = sorted(set(given) - set(self.options.names()))
+        if unknown:
+            raise ValueError(f"{', '.join(unknown)}: not an option of {self.name}; its options: "
+                             f"{', '.join(self.options.names()) or 'none'}")
+        return given
+
+    def options_for(self, arm, given: Mapping | Options | None = None) -> Options:
+        """The method's options on `arm`: its defaults there, with `given` values over them."""
+        if isinstance(given, self.options):
+            return given
+        if isinstance(given, Options):
+            raise ValueError(f"options of {type(given).__name__} given to method {self.name}")
+        given = self.known_options(given)
+        base = {k: v for k, v in self.defaults(arm).items() if k in self.options.names()}
+        return self.options(**{**base, **given})
+
+
+def register(method: Method, replace: bool = False) -> Method:
+    """Add a method to the registry (replace=True: take the place of one of the same name)."""
+    if not isinstance(method, Method):
+        raise TypeError(f"register() takes a Method, got {type(method).__name__}")
+    if method.name in _REGISTRY and not replace and _REGISTRY[method.name] != method:
+        raise ValueError(f"a method named {method.name!r} is already registered (replace=True to replace it)")
+    _REGISTRY[method.name] = method
+    return method
+
+
+def unregister(name: str) -> None:
+    _REGISTRY.pop(name, None)
+
+
+def get(name: str) -> Method:
+    """The method of that name; ValueError naming the known ones otherwise."""
+    if isinstance(name, str) and name in _REGISTRY:
+        return _REGISTRY[name]
+    raise ValueError(f"unknown method {name!r}; known methods: {', '.join(_REGISTRY)}")
+
+
+def names() -> tuple[str, ...]:
+    return tuple(_REGISTRY)
+
+
+def all_methods() -> tuple[Method, ...]:
+    return tuple(_REGISTRY.values())
+
+
+def load_plugins(spec: str | None) -> None:
+    """Import the modules named in `spec` (comma-separated; LAB_METHODS) and the installed
+    entry points of group `neuro_ik_lab.methods`: each registers its methods on import."""
+    for module in filter(None, (s.strip() for s in (spec or "").split(","))):
+        importlib.import_module(module)
+    from importlib.metadata import entry_points
+
+    for ep in entry_points(group="neuro_ik_lab.methods"):
+        ep.load()

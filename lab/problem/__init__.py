@@ -1,0 +1,15 @@
+"""The learning problem: what a network sees and does, and how well it does it.
+
+- encoding.py: goals -> network inputs, network outputs -> joint values within the limits;
+- controllers.py: the paper's MLP and NEAT's graphs as controllers goal -> q, their layout;
+- kernels.py: the compiled, batched network + forward kinematics + error of a whole population;
+- fitness.py: `Problem`, an arm with its fixed training and held-out goals and the fitness;
+- checks.py: field checks shared by the settings dataclasses.
+
+Nothing here knows which method trains the networks.
+"""
+
+from lab.problem.encoding import FEATURES, Encoding
+from lab.problem.fitness import Problem, goal_errors
+
+__all__ = ["FEATURES", "Encoding", "Problem", "goal_errors"]

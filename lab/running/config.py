@@ -1,0 +1,149 @@
+"""Training configuration: one frozen dataclass, validated before any work starts.
+
+    TrainConfig(robot="ur5", method="cmaes")                  # None fields: the arm's and method's defaults
+    TrainConfig.preset(paper=True, method="neat", seed=3)     # the paper's method literally
+    TrainConfig.preset(robot="scara", sigma0=0.3)             # a method option by name
+    TrainConfig.from_dict(config.to_dict())                   # what recordings and notebooks store
+
+The fields every method shares are TrainConfig's; each method's own settings are its Options
+dataclass (lab.methods), in `options`. to_dict() writes them flat, beside the shared fields
+(the format of earlier recordings), and from_dict/preset/replace take them by name.
+`preset(paper=...)` gives the two settings the project compares:
+- paper=True: the paper's method literally (the method's `paper` settings in its declaration);
+- paper=False (the default): this project's choices per method and arm (the method's
+  `defaults(arm)`), each backed by a measured comparison in benchmarks/bench_quality.py.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import robots
+from lab import methods
+from lab.methods import Options
+from lab.problem.checks import flag, real, whole
+from lab.problem.encoding import FEATURES
+
+# upper bounds that keep a run within this machine's memory and time (a population of 10^9 would
+# hang in pycma's or neat's setup; hidden 256 is a CMA-ES search space of about 2,300 weights)
+LIMITS = {"population": 10_000, "goals": 1_000_000, "hidden": 256}
+# the paper's protocol: what a field left at None becomes when the method's defaults say nothing
+PROTOCOL = {"generations": 1000, "population": 50, "targets": 70}
+_PER_METHOD = ("generations", "population", "targets", "features", "margin", "hidden")
+
+
+@dataclass(frozen=True, init=False)
+class TrainConfig:
+    """One training run's settings. TrainConfig(robot=..., method=..., sigma0=...): shared fields
+    by name, the method's options by name too (or as `options`, an Options or a dict)."""
+
+    robot: str = "planar"
+    method: str = methods.DEFAULT_METHOD
+    generations: int | None = None  # None: the method's default for the arm, else 1000
+    population: int | None = None  # None: the method's default for the arm, else 50
+    targets: int | None = None  # fixed training goals (None: the method's default for the arm, else 70)
+    seed: int = 0
+    test_goals: int = 1000
+    goal_seed: int = 0  # the training and held-out goals; fixed across runs, as in the paper
+    features: str | None = None  # network inputs (lab/problem/encoding.py; None: the method's default)
+    margin: float | None = None  # output range widening before clipping to the limits (None: the method's default)
+    hidden: int | None = None  # MLP hidden units; graph methods: hidden nodes of the first networks
+    options: Options | dict | None = None  # the method's own settings (a dict is checked and converted)
+    paper: bool = False  # record that this is the paper's literal method (see preset)
+
+    def __init__(self, robot: str = "planar", method: str = methods.DEFAULT_METHOD, generations: int | None = None,
+                 population: int | None = None, targets: int | None = None, seed: int = 0, test_goals: int = 1000,
+                 goal_seed: int = 0, features: str | None = None, margin: float | None = None,
+                 hidden: int | None = None, options: Options | dict | None = None, paper: bool = False,
+                 **option_values):
+        if option_values:
+            base = options.to_dict() if isinstance(options, Options) else dict(options or {})
+            options = {**base, **option_values}
+        for name, value in (("robot", robot), ("method", method), ("generations", generations),
+                            ("population", population), ("targets", targets), ("seed", seed),
+                            ("test_goals", test_goals), ("goal_seed", goal_seed), ("features", features),
+                            ("margin", margin), ("hidden", hidden), ("options", options), ("paper", paper)):
+            object.__setattr__(self, name, value)
+        self.__post_init__()
+
+    def __post_init__(self):
+        method = methods.get(self.method)
+        if not isinstance(self.robot, str) or self.robot not in robots.names():
+            raise ValueError(f"unknown robot {self.robot!r}; known robots: {', '.join(robots.names())}")
+        self._check(method)  # what was given, before any arm is loaded
+        arm = robots.load(self.robot)
+        defaults = {**PROTOCOL, **method.defaults(arm)}
+        for name in _PER_METHOD:
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, defaults[name])
+        object.__setattr__(self, "options", method.options_for(arm, self.options))
+        self._check(method)  # and the defaults filled in
+
+    def _check(self, method) -> None:
+        """Every field that is set (None: a default still to come) is valid, by name."""
+        for name in ("seed", "goal_seed"):
+            whole(self, name, 0)
+        for name, most in (("generations", 10**9), ("population", LIMITS["population"]),
+                           ("targets", LIMITS["goals"]), ("test_goals", LIMITS["goals"])):
+            if getattr(self, name) is not None:
+                whole(self, name, 1, most)
+        if self.population is not None and self.population < method.min_population:
+            raise ValueError(f"population must be >= {method.min_population} for {method.label}, got {self.population}")
+        if self.features is not None and self.features not in FEATURES:
+            raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
+        if self.hidden is not None:
+            whole(self, "hidden", method.min_hidden, LIMITS["hidden"])
+        if self.margin is not None:
+            real(self, "margin", 0, 10, "a number in [0, 10)", closed_above=False)
+        flag(self, "paper")
+        if isinstance(self.options, dict):  # the given values, checked by the method's own dataclass
+            method.options(**method.known_options(self.options))
+
+    def __getattr__(self, name: str):
+        """A method option read as config.<name> (config.sigma0), as before options had a class."""
+        options = self.__dict__.get("options")
+        if options is not None and not name.startswith("_") and name in type(options).names():
+            return getattr(options, name)
+        raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
+
+    @classmethod
+    def from_dict(cls, d: dict, strict: bool = True) -> "TrainConfig":
+        """A TrainConfig from to_dict()'s flat form: shared fields and the method's options by
+        name. An option of another method is refused by name, unless strict=False (files written
+        before options had a class hold every method's options: those are dropped)."""
+        if not isinstance(d, dict):
+            raise ValueError(f"a training configuration must be a mapping, got {type(d).__name__}")
+        if not strict:
+            own = methods.get(d.get("method", methods.DEFAULT_METHOD)).options.names()
+            others = {n for m in methods.all_methods() for n in m.options.names()} - set(own)
+            d = {k: v for k, v in d.items() if k not in others}
+        try:
+            return cls(**d)
+        except TypeError as e:  # a key that is neither a setting nor an option of any method
+            raise ValueError(f"not a training configuration: {e}") from None
+
+    @classmethod
+    def preset(cls, paper: bool = False, **overrides) -> "TrainConfig":
+        """The paper's literal method (paper=True) or this project's defaults, then overrides.
+        A None override leaves that setting to the preset (the CLI passes None for unset flags)."""
+        method = methods.get(overrides.get("method") or methods.DEFAULT_METHOD)
+        base = {"method": method.name}
+        if paper is True:
+            if method.paper is None:
+                raise ValueError(f"{method.label} has no paper preset (the paper has CMA-ES and NEAT)")
+            base.update(method.paper)
+        base.update({k: v for k, v in overrides.items() if v is not None})
+        return cls.from_dict({**base, "paper": paper})
+
+    def replace(self, **changes) -> "TrainConfig":
+        """A copy with some settings changed, options by name too; a new method starts from its
+        own default options unless they are given."""
+        d = self.to_dict()
+        if "method" in changes and changes["method"] != self.method:
+            d = {k: v for k, v in d.items() if k not in self.options.names()}
+        return TrainConfig.from_dict({**d, **changes})
+
+    def to_dict(self) -> dict:
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "options"}
+        return {**d, **self.options.to_dict()}
