@@ -143,6 +143,12 @@ class Arm:
         flat = hi - lo < 1e-9  # a coordinate that never moves: give it a unit range
         return np.where(flat, lo - 0.5, lo), np.where(flat, hi + 0.5, hi)
 
+    @functools.cached_property
+    def reach_radius(self) -> float:
+        """How far the end effector gets from the base origin [length]: the largest distance over
+        20,000 uniform joint samples (a fixed seed). Errors are reported in % of it."""
+        return float(np.linalg.norm(self.fk(self.sample_q(20_000, seed=1)), axis=-1).max())
+
     # ---------------------------------------------------------------- geometry
     def visual_model(self) -> pin.GeometryModel:
         """Visual geometry of the chain (meshes loaded on first call; may take ~1 s)."""

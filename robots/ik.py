@@ -130,3 +130,55 @@ def dls_ik(arm: Arm, goal, q0=None, *, damping: float = 0.02, tol: float | None 
         q = q_new
     q, err = best
     return IKResult(q=q, error=err, iterations=it, seconds=time.perf_counter() - t0, converged=err < tol)
+
+
+@dataclass(frozen=True)
+class RefineResult:
+    """q (n, nq) within the limits; error (n,) = ||g - reach(q)|| [length]; steps (n,) taken;
+    seconds of wall time for the whole batch."""
+
+    q: np.ndarray
+    error: np.ndarray
+    steps: np.ndarray
+    seconds: float
+
+
+def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, damping: float = 1e-3) -> RefineResult:
+    """A learned seed made exact: at most `steps` damped Gauss-Newton steps from q0 toward each goal.
+
+        q_{k+1} = q_k + J^T (J J^T + lambda^2 I)^-1 (g - p(q_k)),   within the limits,
+
+    J the translational rows of Pinocchio's frame Jacobian (LOCAL_WORLD_ALIGNED, end-effector
+    frame) on the task axes; lambda = damping x workspace_size (a small damping: near the
+    solution a Gauss-Newton step converges quadratically, the damping only guards singular
+    poses). A goal stops once its error is below tol (default 1e-4 x workspace_size); each
+    goal keeps its best iterate. goals (n, len(task_axes)), q0 (n, nq) (a network's output)."""
+    t0 = time.perf_counter()
+    goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
+    q = arm.within_limits(np.atleast_2d(np.asarray(q0, dtype=np.float64)))
+    axes = list(arm.task_axes)
+    if goals.shape[1] != len(axes) or q.shape != (len(goals), arm.nq):
+        raise ValueError(f"{arm.name}: goals must be (n, {len(axes)}) and q0 (n, {arm.nq}), "
+                         f"got {goals.shape} and {q.shape}")
+    size = workspace_size(arm)
+    lam2 = (damping * size) ** 2
+    tol = 1e-4 * size if tol is None else float(tol)
+    model, data, fid = arm.model, _data(arm), arm.ee_frame_id
+    direct = model.nq == arm.nq
+    out_q, out_err, taken = q.copy(), np.full(len(goals), np.inf), np.zeros(len(goals), np.int64)
+    eye = lam2 * np.eye(len(axes))
+    for i, goal in enumerate(goals):
+        qi = q[i]
+        for k in range(steps + 1):
+            q_pin = qi if direct else arm.to_pinocchio(qi)
+            pin.forwardKinematics(model, data, q_pin)
+            pin.updateFramePlacement(model, data, fid)
+            e = goal - data.oMf[fid].translation[axes]
+            err = float(np.sqrt(e @ e))
+            if err < out_err[i]:
+                out_q[i], out_err[i], taken[i] = qi, err, k
+            if err < tol or k == steps:
+                break
+            J = pin.computeFrameJacobian(model, data, q_pin, fid, pin.LOCAL_WORLD_ALIGNED)[:3][axes]  # (m, nq)
+            qi = arm.within_limits(qi + J.T @ np.linalg.solve(J @ J.T + eye, e))
+    return RefineResult(out_q, out_err, taken, time.perf_counter() - t0)

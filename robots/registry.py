@@ -24,15 +24,16 @@ class ArmSpec:
     urdf: str | None = None  # a file under robots/urdf/
     erd: str | None = None  # an example-robot-data name
     task_axes: tuple[int, ...] = (0, 1, 2)
+    kind: str = "real"  # "paper": the paper's arms, in its units; "real": a real arm, in metres
     xml_replace: tuple[tuple[str, str], ...] = ()
     description: str = ""
     extra: dict = field(default_factory=dict)
 
 
 SPECS: dict[str, ArmSpec] = {
-    "planar": ArmSpec("ee", urdf="planar.urdf", task_axes=(0, 1),
+    "planar": ArmSpec("ee", urdf="planar.urdf", task_axes=(0, 1), kind="paper",
                       description="the paper's three-link planar arm (Table 1, eq. 3)"),
-    "scara": ArmSpec("ee", urdf="scara.urdf",
+    "scara": ArmSpec("ee", urdf="scara.urdf", kind="paper",
                      description="the paper's SCARA arm (Table 2, eq. 4)"),
     "ur5": ArmSpec("tool0", erd="ur5", description="Universal Robots UR5, 6 DoF"),
     "ur10": ArmSpec("tool0", erd="ur10", description="Universal Robots UR10, 6 DoF"),
@@ -53,6 +54,13 @@ SPECS: dict[str, ArmSpec] = {
 def names() -> tuple[str, ...]:
     """Every name `load` accepts."""
     return tuple(SPECS)
+
+
+def kind(name: str) -> str:
+    """What kind of arm a name is: "paper" (the paper's two arms, in its units), "real" (a real
+    arm, in metres), or "custom" (an arm made with from_urdf under another name)."""
+    spec = SPECS.get(name) if isinstance(name, str) else None
+    return spec.kind if spec is not None else "custom"
 
 
 def load(name: str) -> Arm:

@@ -1,0 +1,80 @@
+"""Real arms: evolved IK by default settings, its held-out error, and a learned seed refined.
+
+For each arm: `lab.evolve(robot)` with no other argument (the method's defaults for that arm,
+budget included), timed; the position error ||goal - fk(net(goal))|| on 2,000 held-out goals from
+uniformly random joint vectors: median, 90th and 99th percentile in mm and in % of the arm's
+reach (the farthest end-effector position from the base over 20,000 joint samples). Then the
+practical use of a learned IK: the network's output refined by at most 3 damped Gauss-Newton
+steps on Pinocchio's frame Jacobian (robots.ik.refine), success = error < 0.1 mm, time per goal
+(one batched forward pass + the steps, per goal), beside damped least squares from the rest pose
+to the same tolerance (robots.ik.dls_ik, at most 500 iterations). Published for comparison:
+TRAC-IK, 99.2 % success on the UR5 at 0.37 ms per solve (full 6-D pose, Beeson and Ames 2015).
+
+    .venv/bin/python benchmarks/bench_arms.py                          # the 8 real arms (about 40 min)
+    .venv/bin/python benchmarks/bench_arms.py --robots ur5,planar --write-pretrained
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+import numpy as np  # noqa: E402
+
+import lab  # noqa: E402
+import robots  # noqa: E402
+from lab.experiments import arms  # noqa: E402
+
+REAL = tuple(n for n in robots.names() if robots.kind(n) == "real")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--robots", default=",".join(REAL), help=f"comma-separated (default: {','.join(REAL)})")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--dls-goals", type=int, default=500, help="held-out goals DLS is timed on (default 500)")
+    ap.add_argument("--write-pretrained", action="store_true",
+                    help="also write each run as the app's shipped controller (app/pretrained/)")
+    args = ap.parse_args()
+    rows = []
+    for name in args.robots.split(","):
+        arm = robots.load(name)
+        t0 = time.perf_counter()
+        run = lab.evolve(name, seed=args.seed)
+        wall = time.perf_counter() - t0
+        stats = arms.held_out(arm, run.controller)
+        goals = arms.held_out_goals(arm)
+        ref = arms.refined(arm, run.controller, goals)
+        dls = arms.dls_from_rest(arm, goals[: args.dls_goals])
+        c = run.config
+        rows.append((name, c, run, wall, stats, ref, dls))
+        print(f"{name}: {c.method} hidden {c.hidden}, {c.targets} goals, {c.generations} x {c.population}, "
+              f"{run.seconds:.0f} s (wall {wall:.0f} s); median {stats['median']:.1f} {stats['unit']} "
+              f"({stats['median_pct']:.2f} %), p90 {stats['p90_pct']:.2f} %, p99 {stats['p99_pct']:.2f} %; "
+              f"refined {100 * ref['success']:.1f} % in {ref['us_per_goal']:.0f} us/goal; "
+              f"DLS {100 * dls['success']:.1f} % in {dls['us_per_goal']:.0f} us/goal", flush=True)
+        if args.write_pretrained:
+            from app.startup import write_pretrained
+
+            print("  wrote", write_pretrained(run, stats))
+    print()
+    print("| arm | reach | training | median | p90 | p99 | refined: success, time/goal | DLS from rest: success, time/goal |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, c, run, wall, s, ref, dls in rows:
+        u = s["unit"]
+        print(f"| {name} | {s['reach']:.0f} {u} | {run.seconds:.0f} s, {c.generations:,} gen | "
+              f"{s['median']:.1f} {u} ({s['median_pct']:.2f} %) | {s['p90']:.1f} ({s['p90_pct']:.2f} %) | "
+              f"{s['p99']:.1f} ({s['p99_pct']:.2f} %) | {100 * ref['success']:.1f} %, {ref['us_per_goal']:.0f} µs | "
+              f"{100 * dls['success']:.1f} %, {dls['us_per_goal']:.0f} µs |")
+    worst = max(s["median_pct"] for *_, s, _r, _d in rows)
+    print(f"\nworst median: {worst:.2f} % of reach (target <= 2 %); refined success: "
+          f"{min(100 * r['success'] for *_, r, _d in rows):.1f} % at least (target >= 99 %)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,73 @@
+"""Real arms: a controller's held-out position error, and a learned seed made exact.
+
+    stats = held_out(arm, controller)           # median / p90 / p99 error, in the arm's unit and in % of reach
+    seed = refined(arm, controller, goals)      # the network's output + at most 3 Gauss-Newton steps
+    base = dls_from_rest(arm, goals)            # damped least squares from the rest pose, same tolerance
+
+Held-out goals are drawn from uniformly random joint vectors (arm.sample_goals with the held-out
+seed, as lab.problem.Problem's); reach = arm.reach_radius (the farthest end-effector position
+from the base origin over 20,000 joint samples). benchmarks/bench_arms.py prints these per arm,
+and `python -m app.startup` stores them with the app's shipped controllers.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+import robots
+from lab.problem.fitness import TEST_SEED_OFFSET
+from robots.ik import dls_ik, refine, workspace_size
+
+HELD_OUT = 2000
+
+
+def held_out_goals(arm: robots.Arm, n: int = HELD_OUT, goal_seed: int = 0) -> np.ndarray:
+    return arm.sample_goals(n, seed=goal_seed + TEST_SEED_OFFSET)
+
+
+def tolerance(arm: robots.Arm) -> float:
+    """'Exact' for a real arm: 0.1 mm; for the paper's arms the same fraction of the workspace (1e-4)."""
+    return 1e-4 if robots.kind(arm.name) != "paper" else 1e-4 * workspace_size(arm)
+
+
+def position_errors(arm: robots.Arm, controller, goals: np.ndarray) -> np.ndarray:
+    """||goal - reach(controller(goal))|| per goal [the arm's length unit]."""
+    return np.linalg.norm(arm.reach(controller(goals)) - goals, axis=1)
+
+
+def error_stats(arm: robots.Arm, errors: np.ndarray) -> dict:
+    """Median, 90th and 99th percentile of errors, in the arm's unit (mm for a real arm) and in % of reach."""
+    scale = 1000.0 if robots.kind(arm.name) != "paper" else 1.0
+    out = {"unit": "mm" if scale == 1000.0 else "paper units", "reach": arm.reach_radius * scale}
+    for name, q in (("median", 50), ("p90", 90), ("p99", 99)):
+        v = float(np.percentile(errors, q))
+        out[name], out[f"{name}_pct"] = v * scale, 100.0 * v / arm.reach_radius
+    return out
+
+
+def held_out(arm: robots.Arm, controller, n: int = HELD_OUT) -> dict:
+    return error_stats(arm, position_errors(arm, controller, held_out_goals(arm, n)))
+
+
+def refined(arm: robots.Arm, controller, goals: np.ndarray, steps: int = 3) -> dict:
+    """The network's output refined by at most `steps` Gauss-Newton steps (robots.ik.refine), timed
+    together (one batched forward pass + the steps): success = error below tolerance(arm)."""
+    t0 = time.perf_counter()
+    q0 = controller(goals)
+    r = refine(arm, goals, q0, steps=steps, tol=tolerance(arm))
+    seconds = time.perf_counter() - t0
+    ok = r.error < tolerance(arm)
+    return {"success": float(ok.mean()), "us_per_goal": 1e6 * seconds / len(goals),
+            "mean_steps": float(r.steps[ok].mean()) if ok.any() else float("nan"), "errors": r.error}
+
+
+def dls_from_rest(arm: robots.Arm, goals: np.ndarray, max_iter: int = 500) -> dict:
+    """Damped least squares (robots.ik.dls_ik) from the rest pose to the same tolerance."""
+    t0 = time.perf_counter()
+    results = [dls_ik(arm, g, tol=tolerance(arm), max_iter=max_iter) for g in goals]
+    seconds = time.perf_counter() - t0
+    ok = np.array([r.converged for r in results])
+    return {"success": float(ok.mean()), "us_per_goal": 1e6 * seconds / len(goals),
+            "mean_iterations": float(np.mean([r.iterations for r in results]))}
