@@ -2,8 +2,10 @@
 
 Each goal is a transform gizmo constrained to the task axes (the plane z = 0 for the planar
 arm), an arm drawn at q = controller(goal) (the first solid, the others translucent) and a
-label with the end-effector error ||goal - reach(q)||. The first goal also has a ghost arm at
-the damped least-squares IK solution (robots.ik) with its error, iterations and time.
+label with the end-effector error ||goal - reach(q)||. The first goal also has two ghost arms:
+the network's answer refined by at most 3 Gauss-Newton steps (robots.ik.refine: the practical
+use of a learned IK), and damped least squares from the rest pose (robots.ik.dls_ik), each with
+its error and time.
 
 A marker update moves its arm at once, in the callback (in viser's event loop: one network
 forward pass, one forward kinematics, nq pose messages, then a flush); the IK query runs in its own thread, at
@@ -16,6 +18,7 @@ most of the server's time while dragging).
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import threading
 import time
 from collections import deque
@@ -23,14 +26,16 @@ from collections import deque
 import numpy as np
 
 import robots
-from robots.ik import dls_ik
+from robots.ik import dls_ik, refine
 
 from app.ikworker import IK_WORKER
 from app.scene import ArmView, frame_workspace, to_world
 from app.viser_private import set_pose
 
 MAX_GOALS = 8
-GHOST = (120, 200, 255)
+GHOST = (120, 200, 255)  # damped least squares from the rest pose
+REFINED = (255, 170, 60)  # the network's answer refined
+REFINE_STEPS = 3
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 REDRAW_PERIOD = 0.2  # s: redraws caused by training (and table updates) at most 5 times a second
 SAME_POSE = 1e-4  # rad (or length): a redraw moves an arm only when a joint changes more than this
@@ -55,8 +60,10 @@ class GoalView:
         self.arm_view = ArmView(scene, arm, f"{base}/arm", opacity=None if index == 0 else 0.35)
         self.label = scene.add_label(f"{base}/label", "", position=position, anchor="bottom-left")
         self.ghost = ArmView(scene, arm, f"{base}/ik", opacity=0.3, tint=GHOST) if index == 0 else None
+        self.refined = ArmView(scene, arm, f"{base}/refined", opacity=0.45, tint=REFINED) if index == 0 else None
         self.error, self.net_s = np.nan, np.nan
         self.ik = None
+        self.seeded = None  # (error, steps, seconds) of the network's answer refined
         self.marker.on_update(self._on_update)
 
     @property
@@ -111,14 +118,21 @@ class GoalView:
             if text != self.label.text:
                 self.label.text = text
 
-    def set_ik(self, result) -> None:
+    def set_ik(self, result, seeded=None) -> None:
+        """The DLS answer (robots.ik.IKResult), and the refined network answer (RefineResult or None)."""
         self.ik = result
         with self.tab.client.atomic():
             self.ghost.set_q(result.q)
             self.ghost.visible = True
+            if seeded is not None:
+                self.seeded = (float(seeded.error[0]), int(seeded.steps[0]), seeded.seconds)
+                self.refined.set_q(seeded.q[0])
+            else:
+                self.seeded = None
+            self.refined.visible = seeded is not None
 
     def remove(self) -> None:
-        for view in (self.arm_view, self.ghost):
+        for view in (self.arm_view, self.ghost, self.refined):
             if view is not None:
                 view.remove()
         self.marker.remove()
@@ -141,7 +155,9 @@ class TabSession:
         with self.folder:
             self.add_button = gui.add_button("Add goal")  # no icons: viser reads each from a zip file
             self.remove_button = gui.add_button("Remove goal")
-            self.show_ik = gui.add_checkbox("IK ghost (damped least squares)", True)
+            self.show_ik = gui.add_checkbox("IK ghosts (refined network, DLS)", True,
+                                            hint="orange: the network's answer + at most 3 Gauss-Newton steps; "
+                                                 "blue: damped least squares from the rest pose")
             self.table = gui.add_markdown("")
         self.add_button.on_click(lambda e: self.add_goal())
         self.remove_button.on_click(lambda e: self.remove_goal())
@@ -185,7 +201,7 @@ class TabSession:
             self.goals.append(goal)
             goal.update(self.controller())
             if goal.ghost is not None:
-                goal.ghost.visible = False
+                goal.ghost.visible = goal.refined.visible = False
                 self.request_ik()
             self.write_table()
         return None
@@ -210,12 +226,18 @@ class TabSession:
         with self.lock:
             goal = self.goals[0] if self.goals and not self.closed else None
             arm, target = self.arm, goal.goal if goal is not None else None
+            controller = self.controller()
         if goal is None:
             return
         result = dls_ik(arm, target)
+        seeded = None
+        if controller is not None:  # the network's answer, made exact (timed with its forward pass)
+            t0 = time.perf_counter()
+            seeded = refine(arm, target[None], controller(target[None]), steps=REFINE_STEPS)
+            seeded = dataclasses.replace(seeded, seconds=time.perf_counter() - t0)
         with self.lock:
             if self.goals and self.goals[0] is goal and not self.closed:
-                goal.set_ik(result)
+                goal.set_ik(result, seeded)
                 self.client.flush()
                 self.table_dirty = True
                 if not np.allclose(goal.goal, target):
@@ -225,7 +247,7 @@ class TabSession:
         with self.lock:
             g = self.goals[0] if self.goals else None
             if g is not None and g.ghost is not None:
-                g.ghost.visible = False
+                g.ghost.visible = g.refined.visible = False
                 self.request_ik()
                 self.write_table()
 
@@ -257,16 +279,22 @@ class TabSession:
 
     def write_table(self, shown=None) -> None:
         shown, arm = shown or self.state.shown, self.arm
-        rows = ["| goal | network error | IK error |", "|---|---|---|"]
+        rows = ["| goal | network | refined | DLS |", "|---|---|---|---|"]
+        show = self.show_ik.value
         for g in self.goals:
-            ik = fmt_len(arm, g.ik.error) if g.index == 0 and g.ik is not None and self.show_ik.value else ""
-            rows.append(f"| {g.index + 1} | {fmt_len(arm, g.error)} | {ik} |")
+            first = g.index == 0 and show
+            ik = fmt_len(arm, g.ik.error) if first and g.ik is not None else ""
+            seeded = fmt_len(arm, g.seeded[0]) if first and g.seeded is not None else ""
+            rows.append(f"| {g.index + 1} | {fmt_len(arm, g.error)} | {seeded} | {ik} |")
         g0 = self.goals[0] if self.goals else None
         lines = [f"Controller: {shown.source}", "", *rows]
-        if g0 is not None and g0.ik is not None and self.show_ik.value and np.isfinite(g0.net_s):
-            lines += ["", f"Goal 1: network one forward pass {1e6 * g0.net_s:.0f} µs; "
-                          f"IK {g0.ik.iterations} iterations, {1e3 * g0.ik.seconds:.2f} ms"
-                          f"{'' if g0.ik.converged else ' (not converged)'}"]
+        if g0 is not None and g0.ik is not None and show and np.isfinite(g0.net_s):
+            line = f"Goal 1: network, one forward pass {1e6 * g0.net_s:.0f} µs"
+            if g0.seeded is not None:
+                line += f"; refined, {g0.seeded[1]} Gauss-Newton steps, {1e3 * g0.seeded[2]:.2f} ms"
+            line += (f"; DLS from rest, {g0.ik.iterations} iterations, {1e3 * g0.ik.seconds:.2f} ms"
+                     f"{'' if g0.ik.converged else ' (not converged)'}")
+            lines += ["", line]
         self.table.content = "\n".join(lines)
 
     def close(self) -> None:

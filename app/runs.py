@@ -147,7 +147,9 @@ class RunsPanel:
             msg = self.app.switch_robot(robot)
             if msg:
                 return self.refuse(client, msg)
-        self.state.show_replay(controller, source)
+        msg = self.state.show_replay(controller, source)
+        if msg:
+            return self.refuse(client, msg)
         self.message.content = ""
         return None
 
@@ -163,9 +165,9 @@ class RunsPanel:
             controller = lab.controller_from_dict(doc["controller"])
         except Exception as e:
             return self.refuse(client, f"refused: {e}")
-        self.state.show_replay(controller, f"replay {rec.path.name}, generation {generation} "
-                                           f"(logged at {int(doc['generation']) + 1}, best MSE {doc['best_mse']:.4g})")
-        return None
+        msg = self.state.show_replay(controller, f"replay {rec.path.name}, generation {generation} "
+                                                 f"(logged at {int(doc['generation']) + 1}, best MSE {doc['best_mse']:.4g})")
+        return self.refuse(client, msg) if msg else None
 
     def live(self) -> None:
         self.recording = None

@@ -12,49 +12,13 @@ maps errors to colours for the error map.
 
 from __future__ import annotations
 
-import functools
-import warnings
-
 import numpy as np
 import pinocchio as pin
 
 import robots
 from app.viser_private import set_pose
 from robots.ik import workspace_size
-
-
-@functools.lru_cache(maxsize=32)
-def _geometry(arm: robots.Arm) -> tuple:
-    """(joint, placement (pos, wxyz), kind, params, rgba) for each visual geometry; meshes as (V, F)."""
-    out = []
-    for g in arm.visual_model().geometryObjects:
-        geo = g.geometry
-        kind = type(geo).__name__
-        pos, wxyz = se3_pose(g.placement)
-        rgba = np.clip(np.asarray(g.meshColor, float), 0, 1)
-        if kind == "Box":
-            params = (2 * np.asarray(geo.halfSide),)
-        elif kind == "Cylinder":
-            params = (float(geo.radius), 2 * float(geo.halfLength))
-        elif kind == "Sphere":
-            params = (float(geo.radius),)
-        elif hasattr(geo, "num_tris"):  # BVH mesh, already scaled by Pinocchio
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", DeprecationWarning)
-                V = np.asarray(geo.vertices(), dtype=np.float32)
-                tris = (geo.tri_indices(i) for i in range(geo.num_tris))
-                F = np.array([(t[0], t[1], t[2]) for t in tris], dtype=np.uint32)
-            kind, params = "Mesh", (V, F.reshape(-1, 3))
-        else:
-            continue
-        out.append((int(g.parentJoint), pos, wxyz, kind, params, rgba))
-    return tuple(out)
-
-
-def se3_pose(M: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
-    """(position, wxyz) of an SE3 (Pinocchio quaternions are xyzw, viser's wxyz)."""
-    xyzw = pin.Quaternion(M.rotation).coeffs()
-    return np.array(M.translation, float), np.array([xyzw[3], xyzw[0], xyzw[1], xyzw[2]])
+from robots.visual import se3_pose, visual_geometry
 
 
 class ArmView:
@@ -64,9 +28,9 @@ class ArmView:
                  tint: tuple[int, int, int] | None = None):
         self.arm, self.name, self.scene = arm, name, scene
         self.data = arm.model.createData()
-        joints = sorted({j for j, *_ in _geometry(arm)} | set(range(1, arm.model.njoints)))
+        joints = sorted({j for j, *_ in visual_geometry(arm)} | set(range(1, arm.model.njoints)))
         self.frames = {j: scene.add_frame(f"{name}/j{j}", show_axes=False) for j in joints}
-        for i, (j, pos, wxyz, kind, params, rgba) in enumerate(_geometry(arm)):
+        for i, (j, pos, wxyz, kind, params, rgba) in enumerate(visual_geometry(arm)):
             color = tuple(int(255 * c) for c in rgba[:3]) if tint is None else tint
             kw = dict(position=pos, wxyz=wxyz, opacity=opacity, cast_shadow=opacity is None)
             node = f"{name}/j{j}/g{i}"

@@ -69,19 +69,19 @@ class LabApp:
                  notebook: str | Notebook = DEFAULT_PATH, recordings: str = "recordings", startup=True,
                  record: bool = True):
         """notebook: a Notebook or its path (NotebookError, before anything starts, if the path holds
-        something else). startup: True (the shipped or a quickly trained planar controller), a
-        controller, or None. Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
+        something else). startup: True (each arm's shipped controller, else a quickly trained one),
+        a controller (shown on the arm it was made for), or None. Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
         notebook = notebook if isinstance(notebook, Notebook) else Notebook(notebook)
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
-        if startup is True:
+        startups = None
+        if startup is True:  # each arm opens with its shipped controller (app/pretrained/)
             from app.startup import startup_controller
 
-            startup, self.startup_note = startup_controller()
-        else:
-            self.startup_note = "given" if startup is not None else "none"
+            startup, startups = None, startup_controller
         lab_worker.prestart()  # a warmed-up training process, so that Start trains at once
-        self.state = LabState(robot, notebook, startup=startup,
+        self.state = LabState(robot, notebook, startup=startup, startups=startups,
                               recorder=rerun_recorder(recordings) if record else None)
+        self.startup_note = self.state.shown.source
         self.recordings = recordings
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.host = host

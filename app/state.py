@@ -23,6 +23,7 @@ import robots
 from lab.running.worker import ProcessRunner
 
 from app.notebook import Notebook, entry_from_summary
+from app.startup import made_for
 
 log = logging.getLogger(__name__)
 
@@ -53,9 +54,11 @@ class _Tap:
 
 class LabState:
     def __init__(self, robot: str = "planar", notebook: Notebook | None = None, startup=None,
-                 recorder=None):
-        """startup: controller shown first (or None); recorder: callable(runner) -> object with
-        .path that records the run (lab.recording.logger.RerunLogger), or None for no recordings."""
+                 recorder=None, startups=None):
+        """startup: controller shown first (or None); startups: callable(robot name) -> (controller,
+        note), the controller an arm opens with (app.startup.startup_controller), called once per arm;
+        recorder: callable(runner) -> object with .path that records the run
+        (lab.recording.RerunLogger), or None for no recordings."""
         self._lock = threading.RLock()
         self.notebook = notebook or Notebook()
         self.recorder = recorder
@@ -63,9 +66,11 @@ class LabState:
         self.recording: str | None = None
         self.replaying = False  # the arms show a replayed controller, not the run's best
         self._startup = startup
+        self._startups, self._opened = startups, {}  # robot name -> (controller, note) it opened with
         self._version = 0
-        self._shown = Shown(robots.load(robot), startup, "startup controller" if startup else "none", 0)
+        self._shown = Shown(robots.load(robot), None, "none", 0)
         self._clear_history()
+        self._show_startup()
 
     # ------------------------------------------------------------------ reading
     @property
@@ -93,16 +98,23 @@ class LabState:
             )
 
     # ------------------------------------------------------------------ changing what is shown
-    def show(self, controller, source: str, arm: robots.Arm | None = None) -> None:
+    def show(self, controller, source: str, arm: robots.Arm | None = None) -> str | None:
+        """Show a controller on the arms (refused, with the reason, when it was made for another arm)."""
         with self._lock:
+            arm = arm or self._shown.arm
+            if controller is not None and not made_for(controller, arm):
+                return f"refused: this controller was not made for the {arm.name} arm ({source})"
             self._version += 1
-            self._shown = Shown(arm or self._shown.arm, controller, source, self._version)
+            self._shown = Shown(arm, controller, source, self._version)
+            return None
 
-    def show_replay(self, controller, source: str) -> None:
+    def show_replay(self, controller, source: str) -> str | None:
         """Show a replayed controller; training keeps going but no longer moves the arms."""
         with self._lock:
-            self.replaying = True
-            self.show(controller, source)
+            msg = self.show(controller, source)
+            if msg is None:
+                self.replaying = True
+            return msg
 
     def live(self) -> None:
         """Back to the run's best controller (or the startup controller when there is no run)."""
@@ -115,8 +127,20 @@ class LabState:
                 self._show_startup()
 
     def _show_startup(self) -> None:
-        start = self._startup if self._startup is not None and _robot_of(self._startup, self.arm) else None
-        self.show(start, "startup controller" if start else "none (train one)")
+        arm = self.arm
+        if self._startups is not None and arm.name not in self._opened:
+            try:
+                self._opened[arm.name] = self._startups(arm.name)
+            except Exception as e:  # noqa: BLE001 - an arm without a controller still shows
+                log.warning("no startup controller for %s: %s", arm.name, e)
+                self._opened[arm.name] = (None, "none (train one)")
+        if arm.name in self._opened:
+            start, note = self._opened[arm.name]
+        else:
+            start, note = self._startup, "startup controller"
+        if start is None or not made_for(start, arm):
+            start, note = None, "none (train one)"
+        self.show(start, note)
 
     def set_robot(self, name: str) -> str | None:
         if name == self.arm.name:
@@ -206,8 +230,3 @@ class LabState:
             log.exception("could not write the notebook entry of run %s", summary.run_id)
 
 
-def _robot_of(controller, arm: robots.Arm) -> bool:
-    """Whether a controller was made for this arm (its outputs are the arm's joints, in its limits)."""
-    enc = controller.encoding
-    return (tuple(enc.task_axes) == tuple(arm.task_axes) and len(enc.q_lo) == arm.nq
-            and np.allclose(enc.q_lo, arm.lower) and np.allclose(enc.q_hi, arm.upper))

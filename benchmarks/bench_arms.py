@@ -12,6 +12,7 @@ TRAC-IK, 99.2 % success on the UR5 at 0.37 ms per solve (full 6-D pose, Beeson a
 
     .venv/bin/python benchmarks/bench_arms.py                          # the 8 real arms (about 40 min)
     .venv/bin/python benchmarks/bench_arms.py --robots ur5,planar --write-pretrained
+    .venv/bin/python benchmarks/bench_arms.py --from-pretrained        # measure the shipped controllers
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -33,6 +33,13 @@ from lab.experiments import arms  # noqa: E402
 REAL = tuple(n for n in robots.names() if robots.kind(n) == "real")
 
 
+def measure(name: str, controller, dls_goals: int) -> tuple:
+    arm = robots.load(name)
+    goals = arms.held_out_goals(arm)
+    return (arms.held_out(arm, controller), arms.refined(arm, controller, goals),
+            arms.dls_from_rest(arm, goals[:dls_goals]))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robots", default=",".join(REAL), help=f"comma-separated (default: {','.join(REAL)})")
@@ -40,39 +47,49 @@ def main() -> None:
     ap.add_argument("--dls-goals", type=int, default=500, help="held-out goals DLS is timed on (default 500)")
     ap.add_argument("--write-pretrained", action="store_true",
                     help="also write each run as the app's shipped controller (app/pretrained/)")
+    ap.add_argument("--from-pretrained", action="store_true",
+                    help="measure the shipped controllers (app/pretrained/, written by a run of this benchmark "
+                         "with --write-pretrained) instead of training")
     args = ap.parse_args()
     rows = []
     for name in args.robots.split(","):
-        arm = robots.load(name)
-        t0 = time.perf_counter()
-        run = lab.evolve(name, seed=args.seed)
-        wall = time.perf_counter() - t0
-        stats = arms.held_out(arm, run.controller)
-        goals = arms.held_out_goals(arm)
-        ref = arms.refined(arm, run.controller, goals)
-        dls = arms.dls_from_rest(arm, goals[: args.dls_goals])
-        c = run.config
-        rows.append((name, c, run, wall, stats, ref, dls))
-        print(f"{name}: {c.method} hidden {c.hidden}, {c.targets} goals, {c.generations} x {c.population}, "
-              f"{run.seconds:.0f} s (wall {wall:.0f} s); median {stats['median']:.1f} {stats['unit']} "
-              f"({stats['median_pct']:.2f} %), p90 {stats['p90_pct']:.2f} %, p99 {stats['p99_pct']:.2f} %; "
-              f"refined {100 * ref['success']:.1f} % in {ref['us_per_goal']:.0f} us/goal; "
-              f"DLS {100 * dls['success']:.1f} % in {dls['us_per_goal']:.0f} us/goal", flush=True)
-        if args.write_pretrained:
-            from app.startup import write_pretrained
+        if args.from_pretrained:
+            import json
 
-            print("  wrote", write_pretrained(run, stats))
+            from app.startup import pretrained_path
+
+            with open(pretrained_path(name), encoding="utf-8") as f:
+                doc = json.load(f)
+            controller, settings, seconds = lab.controller_from_dict(doc["controller"]), doc["settings"], doc["seconds"]
+        else:
+            run = lab.evolve(name, seed=args.seed)
+            controller, settings, seconds = run.controller, run.config.to_dict(), run.seconds
+            if args.write_pretrained:
+                from app.startup import write_pretrained
+
+                print("  wrote", write_pretrained(run, arms.held_out(robots.load(name), controller)))
+        stats, ref, dls = measure(name, controller, args.dls_goals)
+        rows.append((name, settings, seconds, stats, ref, dls))
+        need = next((k + 1 for k, v in enumerate(ref["by_steps"]) if v >= 0.99), None)
+        print(f"{name}: {settings['method']} hidden {settings['hidden']}, {settings['targets']} goals, "
+              f"{settings['generations']} x {settings['population']}, {seconds:.0f} s; median {stats['median']:.1f} "
+              f"{stats['unit']} ({stats['median_pct']:.2f} %), p90 {stats['p90_pct']:.2f} %, p99 {stats['p99_pct']:.2f} %; "
+              f"refined (<= 3 steps) {100 * ref['success']:.1f} % in {ref['us_per_goal']:.0f} us/goal, "
+              f"99 % with {need or '> 8'} steps; DLS {100 * dls['success']:.1f} % in {dls['us_per_goal']:.0f} us/goal",
+              flush=True)
     print()
-    print("| arm | reach | training | median | p90 | p99 | refined: success, time/goal | DLS from rest: success, time/goal |")
-    print("|---|---|---|---|---|---|---|---|")
-    for name, c, run, wall, s, ref, dls in rows:
+    print("| arm | reach | training | median | p90 | p99 | refined, <= 3 steps: success, time/goal | steps for 99 % "
+          "| DLS from rest: success, time/goal |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name, c, seconds, s, ref, dls in rows:
         u = s["unit"]
-        print(f"| {name} | {s['reach']:.0f} {u} | {run.seconds:.0f} s, {c.generations:,} gen | "
+        need = next((k + 1 for k, v in enumerate(ref["by_steps"]) if v >= 0.99), None)
+        print(f"| {name} | {s['reach']:.0f} {u} | {seconds:.0f} s, {c['generations']:,} gen | "
               f"{s['median']:.1f} {u} ({s['median_pct']:.2f} %) | {s['p90']:.1f} ({s['p90_pct']:.2f} %) | "
               f"{s['p99']:.1f} ({s['p99_pct']:.2f} %) | {100 * ref['success']:.1f} %, {ref['us_per_goal']:.0f} µs | "
-              f"{100 * dls['success']:.1f} %, {dls['us_per_goal']:.0f} µs |")
+              f"{need or '> 8'} | {100 * dls['success']:.1f} %, {dls['us_per_goal']:.0f} µs |")
     worst = max(s["median_pct"] for *_, s, _r, _d in rows)
-    print(f"\nworst median: {worst:.2f} % of reach (target <= 2 %); refined success: "
+    print(f"\nworst median: {worst:.2f} % of reach (target <= 2 %); refined success with <= 3 steps: "
           f"{min(100 * r['success'] for *_, r, _d in rows):.1f} % at least (target >= 99 %)")
 
 

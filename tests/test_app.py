@@ -23,6 +23,10 @@ from app.goals import fmt_len
 from app.notebook import Notebook, NotebookError
 from app.probe import Probe
 from app.server import LabApp
+from app.startup import made_for
+
+import lab
+import robots
 
 # the render loop may redraw a tab in the instant between its socket closing and its session ending
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
@@ -166,7 +170,7 @@ def test_training_panel_runs_pauses_refuses_and_keeps_a_notebook(app, tab):
         assert entry["robot"] == "planar" and entry["settings"]["population"] == 20 and entry["test_mse"] > 0
         assert Notebook(state.notebook.path).entries()[-1]["run_id"] == entry["run_id"]  # kept on disk
         panel.buttons["Reset"].value = True
-        assert state.progress()["generation"] == 0 and state.shown.source == "startup controller"
+        assert state.progress()["generation"] == 0 and state.shown.source.startswith("shipped")
     finally:
         state.reset()
         panel.generations.value, panel.population.value = 1000, 50
@@ -266,19 +270,55 @@ def test_python_m_app_prints_the_url_it_really_serves(tmp_path):
         taken.close()
 
 
-def test_changing_the_robot_rebuilds_every_tab(app, tab):
+def test_changing_the_robot_rebuilds_every_tab_with_that_arms_controller(app, tab):
     session = session_of(app, tab)
     app.panel.robot.value = "scara"
     try:
-        assert app.state.arm.name == "scara" and app.state.shown.controller is None  # nothing trained yet
+        shown = app.state.shown
+        assert app.state.arm.name == "scara" and made_for(shown.controller, shown.arm)  # its own, at once
+        assert shown.source.startswith(("shipped", "trained at startup"))
+        assert app.panel.generations.value == lab.TrainConfig(robot="scara").generations  # the arm's defaults
         assert wait_until(lambda: session.arm.name == "scara")
         msg = tab.wait_for(lambda m: m["type"] == "TransformControlsMessage" and m["name"] == "/tab/goal0/marker"
                            and list(m["props"]["active_axes"]) == [True, True, True])
         assert msg["props"]["disable_rotations"]
-        assert wait_until(lambda: session.goals and "no controller" in session.goals[0].label.text)
+        assert wait_until(lambda: session.goals and "net " in session.goals[0].label.text)
     finally:
         app.panel.robot.value = "planar"
-    assert wait_until(lambda: session.arm.name == "planar") and app.state.shown.source == "startup controller"
+    assert wait_until(lambda: session.arm.name == "planar") and app.state.shown.source.startswith("shipped")
+
+
+def test_a_controller_never_meets_an_arm_it_was_not_made_for(app):
+    """A controller of another arm is refused with a message (the render loop never sees it)."""
+    planar = app.state.shown.controller
+    scara = robots.load("scara")
+    before = app.state.shown
+    msg = app.state.show(planar, "a test", arm=scara)
+    assert msg and "not made for the scara arm" in msg and app.state.shown is before
+    assert app.state.show_replay(planar, "a test") is None  # the planar arm's own is shown
+    app.state.live()
+
+
+@pytest.mark.parametrize("robot", ["ur5", "panda"])
+def test_a_real_arm_opens_with_its_own_controller_and_a_sensible_pose(robot, tmp_path):
+    """python -m app --robot NAME: that arm's shipped controller (never the planar one), and the
+    first goal's pose is close: its error is a few % of the arm's reach at most."""
+    lab_app = LabApp(port=0, robot=robot, notebook=str(tmp_path / "nb.json"), recordings=str(tmp_path / "rec"),
+                     record=False)
+    probe = Probe(lab_app.url).start()
+    try:
+        shown = lab_app.state.shown
+        assert shown.arm.name == robot and made_for(shown.controller, shown.arm)
+        probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+        session = session_of(lab_app, probe)
+        assert wait_until(lambda: np.isfinite(session.goals[0].error))
+        if shown.source.startswith("shipped"):
+            assert session.goals[0].error < 0.05 * shown.arm.reach_radius
+        assert wait_until(lambda: session.goals[0].seeded is not None, timeout=30)  # the refined ghost
+        assert session.goals[0].seeded[0] <= session.goals[0].error
+    finally:
+        probe.close()
+        lab_app.stop()
 
 
 def test_robot_switches_from_several_threads_at_once_rebuild_the_scene_cleanly(app):

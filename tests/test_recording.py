@@ -19,6 +19,7 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 import lab
+import robots
 from conftest import METHODS
 from lab.__main__ import main as cli
 from lab.recording.logger import RerunLogger, default_path
@@ -470,3 +471,29 @@ def test_a_shipped_example_is_a_complete_run_at_the_papers_budget_whose_controll
     controller = load_controller(path)
     assert problem.controller_mse(controller) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
     assert problem.controller_mse(controller, problem.test_goals) == pytest.approx(rec.summary["test_mse"], rel=0, abs=1e-9)
+
+
+def test_a_real_arms_recording_shows_its_meshes_posed_as_the_logged_controller(tmp_path):
+    """The arm's meshes are logged once (static Mesh3D under /world/robot), and each pose moves
+    its joints to Pinocchio's placements at the logged controller's answer for the first goal."""
+    from rerun.chunk import RrdReader
+
+    from robots.visual import joint_poses, visual_geometry
+
+    runner, logger, summary, _events = logged_run(tmp_path, "cmaes", robot="ur5", generations=12, targets=10)
+    logger.close(wait=True)
+    meshes, last = 0, {}
+    for ch in RrdReader(logger.path).stream():
+        if not ch.entity_path.startswith("/world/robot/"):
+            continue
+        rb = ch.to_record_batch()
+        if "Mesh3D:triangle_indices" in rb.schema.names:
+            meshes += 1
+        if ch.entity_path.count("/") == 3 and "Transform3D:translation" in rb.schema.names:  # a joint's pose
+            last[int(ch.entity_path.rsplit("/j", 1)[1])] = rb.column("Transform3D:translation").to_pylist()[-1][0]
+    arm = robots.load("ur5")
+    assert meshes == len(visual_geometry(arm)) > 0
+    controller = load_controller(logger.path)
+    q = controller(runner.problem.train_goals[:1])[0]
+    for j, (p, _wxyz) in joint_poses(arm, q).items():
+        assert np.allclose(last[j], p, atol=1e-6), j

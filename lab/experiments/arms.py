@@ -51,15 +51,20 @@ def held_out(arm: robots.Arm, controller, n: int = HELD_OUT) -> dict:
     return error_stats(arm, position_errors(arm, controller, held_out_goals(arm, n)))
 
 
-def refined(arm: robots.Arm, controller, goals: np.ndarray, steps: int = 3) -> dict:
+def refined(arm: robots.Arm, controller, goals: np.ndarray, steps: int = 3, most: int = 8) -> dict:
     """The network's output refined by at most `steps` Gauss-Newton steps (robots.ik.refine), timed
-    together (one batched forward pass + the steps): success = error below tolerance(arm)."""
+    together (one batched forward pass + the steps): success = error below tolerance(arm).
+    by_steps[k - 1]: the success rate with at most k steps, k = 1 .. most (untimed: a goal's first
+    k steps are the same whatever the limit, so one run of `most` steps gives them all)."""
     t0 = time.perf_counter()
     q0 = controller(goals)
     r = refine(arm, goals, q0, steps=steps, tol=tolerance(arm))
     seconds = time.perf_counter() - t0
     ok = r.error < tolerance(arm)
-    return {"success": float(ok.mean()), "us_per_goal": 1e6 * seconds / len(goals),
+    longer = refine(arm, goals, q0, steps=most, tol=tolerance(arm))
+    done = longer.error < tolerance(arm)
+    by_steps = [float(np.mean(done & (longer.steps <= k))) for k in range(1, most + 1)]
+    return {"success": float(ok.mean()), "us_per_goal": 1e6 * seconds / len(goals), "by_steps": by_steps,
             "mean_steps": float(r.steps[ok].mean()) if ok.any() else float("nan"), "errors": r.error}
 
 

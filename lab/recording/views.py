@@ -17,6 +17,7 @@ import rerun.blueprint as rrb
 
 import robots
 from lab.problem.controllers import network_layout
+from robots.visual import joint_poses, visual_geometry
 
 GREEN, BLUE, RED, GREY, ORANGE = [40, 170, 60], [60, 110, 220], [220, 60, 50], [150, 150, 150], [240, 150, 30]
 LAYER_DX, NODE_DY = 160.0, 70.0  # network layout, in the graph view's units
@@ -58,10 +59,40 @@ def pose(geo: Geometry, controller) -> dict:
     reached = geo.arm.to_3d(geo.arm.reach(q))
     r = geo.radius
     return {
+        **robot_pose(geo.arm, q[0]),
         "world/arm": rr.LineStrips3D(strips, radii=0.6 * r, colors=[*GREY, 110]),
         "world/reached": rr.Points3D(reached, radii=2.5 * r, colors=BLUE),
         "world/errors": rr.Arrows3D(origins=geo.goals3, vectors=reached - geo.goals3, radii=0.7 * r, colors=RED),
     }
+
+
+def _quaternion(wxyz: np.ndarray) -> rr.Quaternion:
+    return rr.Quaternion(xyzw=[wxyz[1], wxyz[2], wxyz[3], wxyz[0]])
+
+
+def robot_meshes(arm: robots.Arm) -> list:
+    """Logged once (static): the arm's visual geometry (robots.visual), one entity per object
+    under world/robot/j<joint>, placed in its joint's frame; robot_pose moves the joints."""
+    out = []
+    for i, g in enumerate(visual_geometry(arm)):
+        entity = f"world/robot/j{g.joint}/g{i}"
+        color = (255 * g.rgba).astype(np.uint8)
+        if g.kind == "Mesh":
+            shape = rr.Mesh3D(vertex_positions=g.params[0], triangle_indices=g.params[1], albedo_factor=color)
+        elif g.kind == "Box":
+            shape = rr.Boxes3D(half_sizes=[0.5 * np.asarray(g.params[0])], colors=color, fill_mode="solid")
+        elif g.kind == "Cylinder":
+            shape = rr.Cylinders3D(lengths=[g.params[1]], radii=[g.params[0]], colors=color, fill_mode="solid")
+        else:
+            shape = rr.Ellipsoids3D(half_sizes=[[g.params[0]] * 3], colors=color, fill_mode="solid")
+        out += [(entity, rr.Transform3D(translation=g.position, quaternion=_quaternion(g.wxyz))), (entity, shape)]
+    return out
+
+
+def robot_pose(arm: robots.Arm, q: np.ndarray) -> dict:
+    """The arm's meshes at joint values q (nq,): one Transform3D per joint (world/robot/j<joint>)."""
+    return {f"world/robot/j{j}": rr.Transform3D(translation=p, quaternion=_quaternion(wxyz))
+            for j, (p, wxyz) in joint_poses(arm, q).items()}
 
 
 def static_scene(geo: Geometry) -> list:
@@ -135,8 +166,9 @@ def about(config: dict, method: MethodView) -> str:
 
 Evolution of a neural inverse-kinematics controller ({config["generations"]} generations of {config["population"]}).
 
-- **3D view**: the arm at the best controller's joint values for every training goal (grey),
-  the goals (green), the points reached (blue) and the errors goal -> reached (red).
+- **3D view**: the arm's meshes at the best controller's joint values for the first training goal,
+  the arm as lines for every training goal (grey), the goals (green), the points reached (blue)
+  and the errors goal -> reached (red).
   Updated on improvement, at most every few generations.
 - **Training error**: best so far, median and worst (when finite) of each generation, as log10(MSE)
   (Rerun 0.41 has no log axis) and in a second tab on a linear scale.

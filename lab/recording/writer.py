@@ -155,7 +155,7 @@ class Writer:
         rec = self._rec
         rec.log("protocol", rr.TextDocument(json.dumps(protocol, indent=1, default=_jsonable)), static=True)
         rec.log("about", rr.TextDocument(views.about(c, self.method), media_type=rr.MediaType.MARKDOWN), static=True)
-        for entity, archetype in views.static_scene(self._geometry):
+        for entity, archetype in views.static_scene(self._geometry) + views.robot_meshes(arm):
             rec.log(entity, archetype, static=True)
 
 
