@@ -8,12 +8,13 @@ export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 export MKL_NUM_THREADS ?= 1
 
-.PHONY: install app test bench browser clean help
+.PHONY: install app test bench bench-arms browser clean help
 
 help:
 	@echo "make app      create .venv if missing, install, start the lab on http://127.0.0.1:8080"
 	@echo "make test     create .venv if missing, install, run the test suite"
 	@echo "make bench    run the benchmarks (prints ratios measured side by side)"
+	@echo "make bench-arms  train every real arm with its defaults and measure it (about 40 minutes)"
 	@echo "make clean    remove .venv and caches"
 
 $(STAMP): pyproject.toml
@@ -42,6 +43,9 @@ bench: install
 	$(PY) benchmarks/bench_fk.py --arms planar,scara,ur5,panda,kinova
 	$(PY) benchmarks/bench_speed.py --generations 1000 --rounds 3
 	$(PY) benchmarks/bench_recording.py
+
+bench-arms: install
+	$(PY) benchmarks/bench_arms.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache

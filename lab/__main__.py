@@ -81,10 +81,27 @@ def _replay_parser(sub) -> None:
     p.add_argument("--grpc-port", type=int, default=None, help="data server port (default: a free one)")
 
 
+def _replay_arguments(args) -> str | None:
+    """What is wrong with replay's numbers, or None (a NaN timeout never ended; a negative one or a
+    port out of range printed the URL of a viewer already gone)."""
+    import math
+
+    if args.timeout is not None and not (math.isfinite(args.timeout) and args.timeout > 0):
+        return f"--timeout must be a positive number of seconds, got {args.timeout}"
+    for name in ("web_port", "grpc_port"):
+        port = getattr(args, name)
+        if port is not None and not 1 <= port <= 65535:
+            return f"--{name.replace('_', '-')} must be in 1..65535, got {port}"
+    return None
+
+
 def replay(args) -> int:
     from lab.recording.replay import replay as show
 
     try:
+        bad = _replay_arguments(args)
+        if bad:
+            raise ValueError(bad)
         return show(args.path, web=args.web, timeout=args.timeout, web_port=args.web_port, grpc_port=args.grpc_port)
     except (OSError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)

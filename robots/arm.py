@@ -184,11 +184,17 @@ def from_urdf(
     """
     urdf_path = os.path.realpath(os.fspath(urdf_path))
     name = name or os.path.splitext(os.path.basename(urdf_path))[0]
+    axes = tuple(task_axes)
+    if not (1 <= len(axes) <= 3 and all(isinstance(a, (int, np.integer)) and not isinstance(a, bool)
+                                        and 0 <= a <= 2 for a in axes) and len(set(axes)) == len(axes)):
+        raise ValueError(f"{name}: task_axes must be distinct axes among 0, 1, 2 (x, y, z), got {axes!r}")
     try:
         with open(urdf_path, encoding="utf-8") as f:
             xml = f.read()
     except OSError as e:
         raise OSError(f"{name}: cannot read URDF {urdf_path}: {e.strerror}") from e
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{name}: {urdf_path} is not UTF-8 text (byte {e.start}): not a URDF file") from e
     for old, new in xml_replace:
         xml = xml.replace(old, new)
     try:
@@ -275,6 +281,9 @@ def _limits(model, chain, overrides, name) -> tuple[np.ndarray, np.ndarray]:
         else:
             i = chain.idx_q[k]
             lower[k], upper[k] = model.lowerPositionLimit[i], model.upperPositionLimit[i]
+            if np.isfinite(lower[k]) and np.isfinite(upper[k]) and lower[k] > upper[k]:
+                raise ValueError(f"{name}: joint {jname!r} has inverted limits in the URDF (lower {lower[k]:g} > "
+                                 f"upper {upper[k]:g}); fix the file or override them with limits=")
         if not (np.isfinite(lower[k]) and np.isfinite(upper[k]) and lower[k] < upper[k]):
             if chain.kind[k] == PRISMATIC:
                 raise ValueError(f"{name}: prismatic joint {jname!r} has no finite limits")

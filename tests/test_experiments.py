@@ -239,3 +239,16 @@ def test_ray_local_instance(tmp_path):
     assert (tmp_path / "table4.md").exists()
     assert exp.results["planar-neat-s001"]["history"] == train_run(
         exp.specs[3])["history"]  # the same run as in a local process, number for number
+
+
+@pytest.mark.parametrize("content", ["{not json", "[1, 2, 3]", '{"config": 5}'])
+def test_a_damaged_stored_run_is_named_and_done_again(tmp_path, content, capsys):
+    from lab.experiments.runs import RunSpec, RunStore
+
+    spec = RunSpec("planar", "cmaes", seed=0, generations=5, population=8)
+    store = RunStore(tmp_path / "runs")
+    store.folder.mkdir()
+    store.path(spec).write_text(content)
+    assert store.load(spec) is None
+    err = capsys.readouterr().err
+    assert str(store.path(spec)) in err and "done again" in err

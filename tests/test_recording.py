@@ -497,3 +497,38 @@ def test_a_real_arms_recording_shows_its_meshes_posed_as_the_logged_controller(t
     q = controller(runner.problem.train_goals[:1])[0]
     for j, (p, _wxyz) in joint_poses(arm, q).items():
         assert np.allclose(last[j], p, atol=1e-6), j
+
+
+def test_only_a_recording_is_overwritten_and_an_empty_path_is_refused(tmp_path):
+    precious = tmp_path / "precious.txt"
+    precious.write_text("my notes")
+    config = lab.TrainConfig(**SHORT)
+    with pytest.raises(FileExistsError, match="not a Rerun recording and was left as it is"):
+        RerunLogger(config, path=precious, overwrite=True)
+    assert precious.read_text() == "my notes"
+    with pytest.raises(ValueError, match="recording path is empty"):
+        RerunLogger(config, path="", overwrite=True)
+    assert cli(["train", "--generations", "2", "--recording", str(precious), "--overwrite", "--quiet"]) == 2
+    assert precious.read_text() == "my notes"
+
+
+@pytest.mark.parametrize("generation", ["3", 2.5, True])
+def test_a_generation_that_is_not_a_whole_number_is_refused_by_value(generation):
+    from lab.recording.replay import RecordingError  # noqa: F401
+
+    path = ROOT / "recordings" / "examples" / "planar-cmaes-s0.rrd"
+    rec = read_recording(path)
+    with pytest.raises(ValueError, match="generation must be a whole number"):
+        rec.best_at(generation)
+    with pytest.raises(ValueError, match="generation must be a whole number"):
+        load_controller(path, generation=generation)
+
+
+@pytest.mark.parametrize("argv,why", [(["--timeout", "nan"], "--timeout must be a positive"),
+                                      (["--timeout", "-1"], "--timeout must be a positive"),
+                                      (["--web-port", "99999"], "--web-port must be in 1..65535"),
+                                      (["--web-port", "-5"], "--web-port must be in 1..65535")])
+def test_replay_refuses_bad_numbers_before_starting_a_viewer(argv, why, capsys):
+    path = ROOT / "recordings" / "examples" / "planar-cmaes-s0.rrd"
+    assert cli(["replay", str(path), "--web", *argv]) == 2
+    assert why in capsys.readouterr().err

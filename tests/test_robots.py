@@ -407,3 +407,22 @@ def test_joint_poses_place_the_visual_geometry_where_pinocchio_does():
         assert np.allclose(R, data.oMi[j].rotation)
     geoms = visual_geometry(arm)
     assert geoms and all(g.kind == "Mesh" and g.params[0].shape[1] == 3 for g in geoms)
+
+
+def test_inverted_limits_bad_task_axes_and_non_utf8_files_are_refused_by_name(tmp_path):
+    text = open(os.path.join(os.path.dirname(robots.__file__), "urdf", "planar.urdf"), encoding="utf-8").read()
+    inverted = re.sub(r'lower="([^"]+)" upper="([^"]+)"', r'lower="\2" upper="\1"', text, count=1)
+    assert inverted != text
+    path = tmp_path / "inverted.urdf"
+    path.write_text(inverted)
+    with pytest.raises(ValueError, match="inverted limits"):
+        robots.from_urdf(path, "ee", task_axes=(0, 1))
+    good = tmp_path / "good.urdf"
+    good.write_text(text)
+    for axes in ((0, 0), (0, 3), (), (0, 1, 2, 0)):
+        with pytest.raises(ValueError, match="task_axes must be distinct axes"):
+            robots.from_urdf(good, "ee", task_axes=axes)
+    latin = tmp_path / "latin.urdf"
+    latin.write_bytes(text.replace("planar", "plan\xe4r").encode("latin-1"))
+    with pytest.raises(ValueError, match="not UTF-8"):
+        robots.from_urdf(latin, "ee", task_axes=(0, 1))

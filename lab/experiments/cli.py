@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
 from lab import methods
@@ -40,6 +41,10 @@ def main(args) -> int:
     from lab.experiments.reproduce import ReproduceConfig, reproduce
     from lab.experiments.runs import ConfigMismatch
 
+    cores = os.cpu_count() or 1
+    if args.workers is not None and args.workers > cores:
+        print(f"note: --workers {args.workers} capped at {cores}, this machine's cores", file=sys.stderr)
+        args.workers = cores
     try:
         config = ReproduceConfig(runs=args.runs, generations=args.generations, population=args.population,
                                  methods=_names(args.methods), robots=_names(args.robots), out=args.out,

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import sys
 import tempfile
 import time
 import traceback
@@ -112,9 +113,16 @@ class RunStore:
     def load(self, spec: RunSpec, overwrite: bool = False) -> dict | None:
         """The stored result, None if absent or unreadable; ConfigMismatch if made with other settings
         (None instead with overwrite: the run is redone)."""
+        path = self.path(spec)
         try:
-            data = json.loads(self.path(spec).read_text())
-        except (OSError, ValueError):
+            data = json.loads(path.read_text())
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError) as e:
+            print(f"note: {path} is damaged ({type(e).__name__}: {e}); the run is done again", file=sys.stderr)
+            return None
+        if not isinstance(data, dict) or not isinstance(data.get("config"), dict):
+            print(f"note: {path} is damaged (not a stored run); the run is done again", file=sys.stderr)
             return None
         expected = spec.config().to_dict()
         if data.get("config") != expected:

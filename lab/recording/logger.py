@@ -79,10 +79,22 @@ def not_a_folder(folder: str | os.PathLike) -> Path | None:
     return existing if existing is not None and not existing.is_dir() else None
 
 
+def _is_recording(path: Path) -> bool:
+    """Whether a file starts as a Rerun recording does (an empty file counts: nothing to lose)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(3)
+    except OSError:
+        return False
+    return head in (b"RRF", b"")
+
+
 def prepare_path(path: str | os.PathLike | None, config: TrainConfig, overwrite: bool = False) -> Path:
     """The file to write (a folder gets a default name); raises OSError/ValueError, naming the
     path, when it cannot be written, and FileExistsError when it names a file that is already
     there (unless overwrite). Creates missing folders."""
+    if path is not None and not str(path).strip():
+        raise ValueError("recording path is empty; give a .rrd file or a folder (or leave it out for the default)")
     if path is None:
         p = default_path(config)
     elif Path(path).is_dir() or str(path).endswith(("/", os.sep)):
@@ -94,6 +106,9 @@ def prepare_path(path: str | os.PathLike | None, config: TrainConfig, overwrite:
     if p.exists() and not overwrite:
         raise FileExistsError(f"recording {p} already exists and was left as it is; give another path "
                               "(or overwrite it: --overwrite, RerunLogger(..., overwrite=True))")
+    if p.exists() and not _is_recording(p):
+        raise FileExistsError(f"{p} is not a Rerun recording and was left as it is: only a recording is "
+                              "overwritten; give another path")
     blocker = not_a_folder(p.parent)
     if blocker is not None:
         raise OSError(f"cannot write the recording {p}: {blocker} is not a folder")

@@ -57,6 +57,7 @@ class Recording:
         return int(self.generations[-1]) if len(self.generations) else None
 
     def best_at(self, generation: int) -> float:
+        generation = _generation(generation)
         i = np.searchsorted(self.generations, generation, side="right") - 1
         if i < 0:
             raise RecordingError(f"{self.path}: no generation <= {generation} in the recording")
@@ -66,6 +67,7 @@ class Recording:
         """The document of the controller in force at `generation` (default: the last complete one)."""
         if not self.controllers:
             raise RecordingError(f"{self.path}: the recording holds no controller")
+        generation = None if generation is None else _generation(generation)
         if generation is None:
             generation = self.last_generation if self.last_generation is not None else self.controllers[-1][0]
         docs = [d for g, d in self.controllers if g <= generation]
@@ -73,6 +75,13 @@ class Recording:
             raise RecordingError(f"{self.path}: no controller was logged at or before generation {generation} "
                              f"(the first is at generation {self.controllers[0][0]})")
         return docs[-1]
+
+
+def _generation(generation) -> int:
+    """A generation index: a whole number (ValueError naming the value otherwise)."""
+    if isinstance(generation, (bool, np.bool_)) or not isinstance(generation, (int, np.integer)):
+        raise ValueError(f"generation must be a whole number, got {generation!r}")
+    return int(generation)
 
 
 def load_controller(path: str | os.PathLike, generation: int | None = None) -> Controller:
