@@ -25,8 +25,8 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
     p.add_argument("--port", type=int, default=8080, help="port; viser takes the next free one when taken")
     p.add_argument("--robot", default="planar", help="the arm shown first")
-    p.add_argument("--notebook", default=os.path.join("recordings", "notebook.json"),
-                   help="the runs list (JSON), kept across restarts")
+    p.add_argument("--notebook", default=os.path.join("recordings", "notebook.db"),
+                   help="the runs list (SQLite; a notebook.json of earlier versions is imported once), kept across restarts")
     p.add_argument("--recordings", default="recordings", help="folder of the runs' Rerun recordings")
     p.add_argument("--no-record", action="store_true", help="do not write Rerun recordings")
     return p.parse_args(argv)

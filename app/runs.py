@@ -51,6 +51,10 @@ class RunsPanel:
             return
         self._listed_at = now
         entries = self.state.notebook.entries()
+        skipped = self.state.notebook.skipped()
+        note = f"Notebook entries skipped (not runs): {', '.join(skipped)}" if skipped else ""
+        if note != getattr(self, "_skipped_note", ""):
+            self._skipped_note = self.message.content = note
         known = {os.path.realpath(e["recording"]) for e in entries if e.get("recording")}
         files = sorted(glob.glob(os.path.join(self.app.recordings, "**", "*.rrd"), recursive=True))
         listing = (tuple(e["run_id"] for e in entries), tuple(files))

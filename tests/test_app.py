@@ -201,27 +201,68 @@ def test_robot_change_is_refused_while_training(app):
 
 
 def test_notebook_survives_a_restart_and_a_bad_file(tmp_path):
-    path = tmp_path / "nb.json"
+    path = tmp_path / "nb.db"
     nb = Notebook(str(path))
     nb.add({"run_id": "abc", "robot": "planar", "method": "cmaes", "seed": 0, "generations": 3})
     assert Notebook(str(path)).get("abc")["generations"] == 3
-    # what it does not know is written back as it was: other keys, entries that are not runs
-    path.write_text(json.dumps({"comment": "my notes", "runs": [{"run_id": "a1"}, {"runid_typo": "b2"}]}))
-    nb = Notebook(str(path))
-    assert [e["run_id"] for e in nb.entries()] == ["a1"]
-    nb.add({"run_id": "c3", "robot": "planar"})
-    data = json.loads(path.read_text())
-    assert data["comment"] == "my notes" and data["runs"] == [{"run_id": "a1"}, {"runid_typo": "b2"},
-                                                              {"run_id": "c3", "robot": "planar"}]
-    for content in (b"{ not json", b'{"runs": 3}', b"[1, 2, 3]", b"RRF2\x00\xff binary"):  # refused, left as it is
-        path.write_bytes(content)
-        with pytest.raises(NotebookError, match=f"notebook {re.escape(str(path))} is not a lab notebook"):
-            Notebook(str(path))
-        assert path.read_bytes() == content and sorted(os.listdir(tmp_path)) == ["nb.json"]
+    for content in (b"{ not json", b"[1, 2, 3]", b"RRF2\x00\xff binary"):  # refused, left as it is
+        bad = tmp_path / "bad.db"
+        bad.write_bytes(content)
+        with pytest.raises(NotebookError, match=f"notebook {re.escape(str(bad))} is not a lab notebook"):
+            Notebook(str(bad))
+        assert bad.read_bytes() == content
     with pytest.raises(NotebookError, match="is a folder"):
         Notebook(str(tmp_path))
-    path.write_bytes(b"")
-    assert Notebook(str(path)).entries() == []
+    empty = tmp_path / "empty.db"
+    empty.write_bytes(b"")
+    assert Notebook(str(empty)).entries() == []
+
+
+def test_a_json_notebook_is_imported_once_and_left_in_place(tmp_path):
+    old = tmp_path / "notebook.json"
+    text = json.dumps({"comment": "my notes", "runs": [{"run_id": "a1", "robot": "planar", "method": "cmaes"},
+                                                       {"runid_typo": "b2"}]})
+    old.write_text(text)
+    nb = Notebook(str(tmp_path / "notebook.db"))
+    assert [e["run_id"] for e in nb.entries()] == ["a1"]
+    nb.add({"run_id": "c3", "robot": "planar", "method": "cmaes"})
+    old.write_text(json.dumps({"runs": [{"run_id": "zz", "robot": "planar", "method": "cmaes"}]}))
+    again = Notebook(str(tmp_path / "notebook.db"))  # imported once: a later change of the JSON is not
+    assert [e["run_id"] for e in again.entries()] == ["a1", "c3"]
+    assert Notebook(str(old)).path == str(tmp_path / "notebook.db")  # a .json path: its database beside it
+    bad = tmp_path / "other.json"
+    bad.write_bytes(b"[1, 2, 3]")
+    with pytest.raises(NotebookError, match="is not a lab notebook"):
+        Notebook(str(bad))
+    assert bad.read_bytes() == b"[1, 2, 3]" and not (tmp_path / "other.db").exists()
+
+
+def test_malformed_entries_are_skipped_by_name_and_the_others_stay_listed(tmp_path):
+    old = tmp_path / "notebook.json"
+    old.write_text(json.dumps({"runs": [{"run_id": "good1", "robot": "planar", "method": "cmaes"},
+                                        {"run_id": "norobot", "method": "cmaes"},
+                                        {"run_id": 42, "robot": "planar", "method": "cmaes"},
+                                        {"run_id": "good2", "robot": "scara", "method": "neat"}]}))
+    nb = Notebook(str(tmp_path / "notebook.db"))
+    assert [e["run_id"] for e in nb.entries()] == ["good1", "good2"]
+    assert nb.skipped() == ["'norobot'", "42"]
+    with pytest.raises(ValueError, match="needs a text run_id"):
+        nb.add({"run_id": 7, "robot": "planar", "method": "cmaes"})
+
+
+def test_two_apps_sharing_a_notebook_lose_no_entry(tmp_path):
+    """Two processes add runs to one notebook at once (as two `make app` do): every entry stays."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "notebook.db"
+    code = ("import sys; from app.notebook import Notebook\n"
+            "nb = Notebook(sys.argv[1])\n"
+            "for k in range(40): nb.add({'run_id': f'{sys.argv[2]}{k}', 'robot': 'planar', 'method': 'cmaes'})\n")
+    procs = [subprocess.Popen([sys.executable, "-c", code, str(path), who]) for who in ("a", "b")]
+    assert [p.wait(60) for p in procs] == [0, 0]
+    ids = {e["run_id"] for e in Notebook(str(path)).entries()}
+    assert ids == {f"{w}{k}" for w in "ab" for k in range(40)}
 
 
 def test_python_m_app_refuses_bad_paths_and_hosts_before_starting(tmp_path, capsys):
