@@ -14,6 +14,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import logging  # noqa: E402
+import signal  # noqa: E402
 import socket  # noqa: E402
 import sys  # noqa: E402
 import threading  # noqa: E402
@@ -82,14 +83,28 @@ def main(argv=None) -> int:
     if args.host in ("0.0.0.0", ""):
         print(f"  on this network: http://{socket.gethostname()}:{app.port}", flush=True)
     print(f"  startup controller: {app.startup_note}; runs list: {args.notebook}. Ctrl-C stops.", flush=True)
+    # every way of stopping (Ctrl-C, SIGTERM from a service manager, SIGHUP from a closing terminal)
+    # ends as Ctrl-C does: the run is stopped and noted, its recording closed; a second signal waits
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _interrupt)
     try:
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:
-        print("stopping", flush=True)
+        print("stopping: the run (if any) is stopped, noted in the notebook and its recording closed", flush=True)
     finally:
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, _already_stopping)
         app.stop()
     return 0
+
+
+def _interrupt(signum, _frame):
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def _already_stopping(signum, _frame):
+    print(f"{signal.Signals(signum).name}: already stopping", file=sys.stderr, flush=True)
 
 
 if __name__ == "__main__":

@@ -105,6 +105,11 @@ class Probe:
             arrived = next(t for t, m in self.messages[since:] if m.get("name", "").startswith(prefix))
         return arrived - t0
 
+    def click(self, label: str, timeout: float = 20.0) -> None:
+        """Press the GUI button with this label, as a browser does (its value set to True)."""
+        msg = self.wait_for(lambda m: m["type"] == "GuiButtonMessage" and m["props"]["label"] == label, timeout)
+        self.send(_messages.GuiUpdateMessage(uuid=msg["uuid"], updates={"value": True}))
+
     def close(self) -> None:
         """Close the socket (the server sees the tab go) and stop the client's loop; idempotent."""
         if not self._loop.is_running():

@@ -401,3 +401,41 @@ def test_neat_from_the_panel_draws_the_growing_network(app):
         state.reset()
         panel.method.value = "CMA-ES"
         panel.generations.value, panel.population.value = 1000, 50
+
+
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGHUP", "SIGINT"])
+def test_every_way_of_stopping_the_app_notes_the_run_and_closes_its_recording(tmp_path, sig):
+    """python -m app stopped by a signal during training: the run is in the notebook as stopped,
+    its recording reads back with its summary, no traceback, within a few seconds."""
+    import signal
+    import subprocess
+    import sys
+
+    from lab.recording.replay import read_recording
+
+    nb, rec = tmp_path / "nb.db", tmp_path / "rec"
+    proc = subprocess.Popen([sys.executable, "-m", "app", "--port", "0", "--notebook", str(nb), "--recordings", str(rec)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        url = None
+        for line in proc.stdout:
+            if "Neuro-IK Lab ready" in line:
+                url = line.rsplit(" ", 1)[-1].strip()
+                break
+        assert url is not None
+        probe = Probe(url).start()
+        probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+        probe.click("Start")  # the default planar run: 1000 generations, long enough
+        assert wait_until(lambda: any(rec.glob("*.rrd")), timeout=30)
+        time.sleep(2.0)  # generations go by
+        probe.close()
+    finally:
+        proc.send_signal(getattr(signal, sig))
+        t0 = time.monotonic()
+        out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0 and time.monotonic() - t0 < 10, out[-3000:]
+    assert "Traceback" not in out, out[-3000:]
+    entries = Notebook(str(nb)).entries()
+    assert len(entries) == 1 and entries[0]["state"] in ("stopped", "finished") and entries[0]["generations"] > 0
+    recording = read_recording(entries[0]["recording"])
+    assert recording.summary is not None and recording.summary["state"] == entries[0]["state"]
