@@ -146,8 +146,11 @@ class Arm:
     @functools.cached_property
     def reach_radius(self) -> float:
         """How far the end effector gets from the base origin [length]: the largest distance over
-        20,000 uniform joint samples (a fixed seed). Errors are reported in % of it."""
-        return float(np.linalg.norm(self.fk(self.sample_q(20_000, seed=1)), axis=-1).max())
+        20,000 uniform joint samples (a fixed seed) and the rest posture. Errors are reported in %
+        of it. The rest posture counts because uniform samples rarely stretch out a many-jointed
+        arm: a 20-link snake's farthest sample falls 9% short, its rest posture (straight) is exact."""
+        q = np.concatenate([self.sample_q(20_000, seed=1), self.rest[None]])
+        return float(np.linalg.norm(self.fk(q), axis=-1).max())
 
     # ---------------------------------------------------------------- geometry
     def visual_model(self) -> pin.GeometryModel:

@@ -352,10 +352,15 @@ def test_ik_gives_each_arm_its_own_pinocchio_data():
 
 
 # ---------------------------------------------------------------- real arms: reach, refinement, visuals
-def test_paper_arms_and_real_arms_are_told_apart():
+def test_paper_arms_snakes_and_real_arms_are_told_apart():
     assert [robots.kind(n) for n in ("planar", "scara")] == ["paper", "paper"]
-    assert all(robots.kind(n) == "real" for n in robots.names() if n not in ("planar", "scara"))
+    assert [robots.kind(n) for n in ("planar-10", "planar-20")] == ["snake", "snake"]
+    others = set(robots.names()) - {"planar", "scara", "planar-10", "planar-20"}
+    assert others and all(robots.kind(n) == "real" for n in others)
     assert robots.kind("my-own-urdf") == "custom"
+    # lengths: the paper's units for its arms and the snakes, metres for the rest
+    assert [robots.in_metres(n) for n in ("planar", "scara", "planar-10", "planar-20")] == [False] * 4
+    assert all(robots.in_metres(n) for n in others) and robots.in_metres("my-own-urdf")
 
 
 @pytest.mark.parametrize("name", ["planar", "ur5"])
@@ -365,6 +370,58 @@ def test_reach_radius_is_the_farthest_sampled_end_effector(name):
     assert np.linalg.norm(p, axis=1).max() <= arm.reach_radius * 1.02
     if name == "planar":  # 8.625 + 8.625 + 6.125 when stretched
         assert arm.reach_radius == pytest.approx(23.375, rel=1e-3)
+
+
+# ---------------------------------------------------------------- hyper-redundant planar snakes
+SNAKES = {"planar-10": 10, "planar-20": 20}
+
+
+def snake_closed_form(q, length):
+    """p = sum_i l (cos(sum_{k<=i} q_k), sin(sum_{k<=i} q_k)), z = 0."""
+    phi = np.cumsum(q, axis=-1)
+    return np.stack([length * np.cos(phi).sum(-1), length * np.sin(phi).sum(-1), np.zeros(q.shape[:-1])], -1)
+
+
+@pytest.mark.parametrize("name", SNAKES)
+def test_snake_fk_is_the_closed_form(name):
+    arm = robots.load(name)
+    n = SNAKES[name]
+    assert arm.nq == n and arm.task_axes == (0, 1) and arm.ee_frame == "ee"
+    assert arm.joint_names == tuple(f"theta{i}" for i in range(1, n + 1))
+    rng = np.random.default_rng(5)
+    q = np.concatenate([arm.sample_q(500, seed=2), rng.uniform(-4, 4, (200, n))])  # also beyond the limits
+    np.testing.assert_allclose(arm.fk(q), snake_closed_form(q, 23.375 / n), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(arm.fk(np.zeros(n)), [23.375, 0, 0], atol=1e-12)  # straight along x
+    # the base frame is at the first joint, as the planar arm's: joint 1 at the origin, joint k at
+    # the tip of link k - 1
+    chain = arm.joint_positions(q[:20])
+    np.testing.assert_allclose(chain[:, 1], 0, atol=1e-12)
+    for k in range(2, n + 1):
+        np.testing.assert_allclose(chain[:, k], snake_closed_form(q[:20, :k - 1], 23.375 / n), atol=1e-9)
+
+
+@pytest.mark.parametrize("name", SNAKES)
+def test_snake_limits_units_and_reach(name):
+    arm = robots.load(name)
+    np.testing.assert_array_equal(arm.lower, -np.pi / 2)
+    np.testing.assert_array_equal(arm.upper, np.pi / 2)
+    assert not arm.is_prismatic.any() and not arm.chain.continuous.any()
+    assert arm.reach_radius == pytest.approx(23.375, rel=1e-12)  # its rest posture is straight
+    p = arm.fk(arm.sample_q(5000, seed=9))
+    assert np.all(np.linalg.norm(p, axis=1) <= 23.375 + 1e-9) and np.all(p[:, 2] == 0)
+    geoms = arm.visual_model().geometryObjects
+    assert len(geoms) == 2 * arm.nq + 2  # base, a joint cylinder and a link box per link, the tip
+
+
+def test_snake_urdfs_are_the_generators_output():
+    """robots/urdf/planar-10.urdf and planar-20.urdf are robots.snake's text, not hand edits."""
+    from robots import snake
+
+    for name, n in snake.SNAKES.items():
+        with open(snake.urdf_path(name), encoding="utf-8") as f:
+            assert f.read() == snake.snake_urdf(n, name=name), "regenerate with python -m robots.snake"
+    with pytest.raises(ValueError, match="whole number of links"):
+        snake.snake_urdf(0)
 
 
 @pytest.mark.parametrize("name", ["ur5", "panda", "kinova"])
