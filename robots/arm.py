@@ -86,6 +86,14 @@ class Arm:
         flat, batch = self._as_batch(q)
         return self.chain.positions(flat).reshape(*batch, 3)
 
+    def jacobian(self, q) -> np.ndarray:
+        """Positional Jacobian of `fk`: q (..., nq) -> (..., 3, nq), d p_ee / d q in the base frame.
+        Column k: a_k x (p_ee - o_k) for a revolute joint (axis a_k through o_k; a continuous
+        joint's coordinate is its angle), a_k for a prismatic one. Equals Pinocchio's
+        computeFrameJacobian(..., ee, LOCAL_WORLD_ALIGNED)[:3] (the chain has nv == nq)."""
+        flat, batch = self._as_batch(q)
+        return self.chain.jacobian(flat).reshape(*batch, 3, self.nq)
+
     def joint_positions(self, q) -> np.ndarray:
         """Base, joint and end-effector origins: q (..., nq) -> (..., nq + 2, 3); a polyline of the arm."""
         flat, batch = self._as_batch(q)

@@ -80,6 +80,73 @@ def test_fk_of_any_serial_chain_equals_pinocchio(seed, tmp_path):
     np.testing.assert_allclose(arm.joint_positions(q)[:, -1], expected, rtol=0, atol=1e-9)
 
 
+# ---------------------------------------------------------------- the positional Jacobian
+def pinocchio_jacobian(arm, q):
+    """Pinocchio's frame Jacobian of the end effector, translational rows, one configuration at a time."""
+    data = arm.model.createData()
+    out = []
+    for x in arm.to_pinocchio(q):
+        out.append(pin.computeFrameJacobian(arm.model, data, x, arm.ee_frame_id, pin.LOCAL_WORLD_ALIGNED)[:3].copy())
+    return np.array(out)
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_jacobian_equals_pinocchio(name):
+    """Continuous joints (kinova) included: Pinocchio's velocity of a continuous joint is the
+    derivative with respect to its angle, our coordinate, so both have nq columns."""
+    arm = robots.load(name)
+    q = np.concatenate([arm.sample_q(100, seed=4), np.random.default_rng(8).uniform(-4, 4, (30, arm.nq))])
+    J = arm.jacobian(q)
+    assert J.shape == (130, 3, arm.nq) and arm.model.nv == arm.nq
+    np.testing.assert_allclose(J, pinocchio_jacobian(arm, q), rtol=0, atol=1e-9)
+
+
+def central_differences(arm, q, h=1e-6):
+    cols = []
+    for k in range(arm.nq):
+        dq = np.zeros(arm.nq)
+        dq[k] = h
+        cols.append((arm.fk(q + dq) - arm.fk(q - dq)) / (2 * h))
+    return np.stack(cols, axis=-1)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_jacobian_of_any_serial_chain_equals_pinocchio_and_finite_differences(seed, tmp_path):
+    """Unaligned revolute, continuous and prismatic axes at random placements."""
+    path = tmp_path / "chain.urdf"
+    path.write_text(random_chain_urdf(seed))
+    arm = robots.from_urdf(path, "tip")
+    q = arm.sample_q(40, seed=seed)
+    J = arm.jacobian(q)
+    np.testing.assert_allclose(J, pinocchio_jacobian(arm, q), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(J, central_differences(arm, q), rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["planar", "scara", "planar-20", "ur5", "kinova"])
+def test_jacobian_equals_finite_differences_and_keeps_batch_shapes(name):
+    arm = robots.load(name)
+    q = arm.sample_q(50, seed=6)
+    scale = max(1.0, arm.reach_radius)  # central differences: error ~ h^2 x (third derivative ~ length)
+    np.testing.assert_allclose(arm.jacobian(q), central_differences(arm, q), rtol=0, atol=1e-6 * scale)
+    assert arm.jacobian(q[0]).shape == (3, arm.nq)
+    assert arm.jacobian(q.reshape(5, 10, arm.nq)).shape == (5, 10, 3, arm.nq)
+    np.testing.assert_array_equal(arm.jacobian(q.reshape(5, 10, arm.nq)).reshape(50, 3, arm.nq), arm.jacobian(q))
+
+
+def test_snake_jacobian_is_the_closed_form():
+    """dp/dq_k = sum_{i>=k} l (-sin phi_i, cos phi_i), phi_i = q_1 + ... + q_i."""
+    arm = robots.load("planar-10")
+    q = arm.sample_q(30, seed=1)
+    phi = np.cumsum(q, axis=1)
+    l = 23.375 / 10
+    tail_x = np.cumsum((-l * np.sin(phi))[:, ::-1], axis=1)[:, ::-1]
+    tail_y = np.cumsum((l * np.cos(phi))[:, ::-1], axis=1)[:, ::-1]
+    J = arm.jacobian(q)
+    np.testing.assert_allclose(J[:, 0], tail_x, atol=1e-9)
+    np.testing.assert_allclose(J[:, 1], tail_y, atol=1e-9)
+    np.testing.assert_array_equal(J[:, 2], 0)
+
+
 @pytest.mark.parametrize("name", ALL)
 def test_chain_model_is_fixed_base_and_arm_only(name):
     arm = robots.load(name)
