@@ -45,7 +45,7 @@ def fmt_len(arm: robots.Arm, d: float) -> str:
     """A length in the arm's units: metres as mm, the paper's units as they are."""
     if not np.isfinite(d):
         return "∞"
-    return f"{1000 * d:.1f} mm" if arm.name not in ("planar", "scara") else f"{d:.3f}"
+    return f"{1000 * d:.1f} mm" if robots.in_metres(arm.name) else f"{d:.3f}"
 
 
 class GoalView:

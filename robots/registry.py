@@ -1,4 +1,4 @@
-"""The arms `robots.load` knows: the paper's two arms and serial arms of example-robot-data.
+"""The arms `robots.load` knows: the paper's two arms, two planar snakes and serial arms of example-robot-data.
 
 Each entry names where the URDF comes from, the end-effector frame and the task axes.
 example-robot-data URDFs are located without building their (slow) mesh models:
@@ -12,6 +12,7 @@ import os
 from dataclasses import dataclass, field
 
 from robots.arm import Arm, from_urdf
+from robots.snake import SNAKES
 
 URDF_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "urdf")
 
@@ -24,7 +25,8 @@ class ArmSpec:
     urdf: str | None = None  # a file under robots/urdf/
     erd: str | None = None  # an example-robot-data name
     task_axes: tuple[int, ...] = (0, 1, 2)
-    kind: str = "real"  # "paper": the paper's arms, in its units; "real": a real arm, in metres
+    kind: str = "real"  # "paper": the paper's arms, in its units; "real": a real arm, in metres;
+    # "snake": a hyper-redundant planar arm of equal links (robots/snake.py), in the paper's units
     xml_replace: tuple[tuple[str, str], ...] = ()
     description: str = ""
     extra: dict = field(default_factory=dict)
@@ -35,6 +37,10 @@ SPECS: dict[str, ArmSpec] = {
                       description="the paper's three-link planar arm (Table 1, eq. 3)"),
     "scara": ArmSpec("ee", urdf="scara.urdf", kind="paper",
                      description="the paper's SCARA arm (Table 2, eq. 4)"),
+    **{name: ArmSpec("ee", urdf=f"{name}.urdf", task_axes=(0, 1), kind="snake",
+                     description=f"hyper-redundant planar snake, {n} equal links of total reach 23.375 "
+                                 "(robots/snake.py)")
+       for name, n in SNAKES.items()},
     "ur5": ArmSpec("tool0", erd="ur5", description="Universal Robots UR5, 6 DoF"),
     "ur10": ArmSpec("tool0", erd="ur10", description="Universal Robots UR10, 6 DoF"),
     "panda": ArmSpec("panda_hand_tcp", erd="panda", description="Franka Emika Panda, 7 DoF (fingers locked)"),
@@ -57,10 +63,17 @@ def names() -> tuple[str, ...]:
 
 
 def kind(name: str) -> str:
-    """What kind of arm a name is: "paper" (the paper's two arms, in its units), "real" (a real
-    arm, in metres), or "custom" (an arm made with from_urdf under another name)."""
+    """What kind of arm a name is: "paper" (the paper's two arms, in its units), "snake" (a
+    hyper-redundant planar arm of robots/snake.py, in the paper's units), "real" (a real arm, in
+    metres), or "custom" (an arm made with from_urdf under another name)."""
     spec = SPECS.get(name) if isinstance(name, str) else None
     return spec.kind if spec is not None else "custom"
+
+
+def in_metres(name: str) -> bool:
+    """Whether an arm's lengths are metres (real and custom arms) rather than the paper's units
+    (the paper's arms and the snakes): what error reports scale to mm."""
+    return kind(name) not in ("paper", "snake")
 
 
 def load(name: str) -> Arm:

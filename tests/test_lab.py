@@ -314,6 +314,9 @@ def test_logged_hyperparameters_are_the_ones_the_optimizer_runs_with(method):
     if method == "cmaes":
         es = backend.es
         assert (settings["dim"], settings["popsize"], settings["sigma0"]) == (es.N, es.popsize, es.sigma0)
+    elif method == "gradient":
+        assert settings["dim"] == backend.w.size and settings["learning_rate"] == backend.options.learning_rate
+        assert settings["evaluations_per_step"] == 1 + problem.arm.nq
     else:
         genome, pop = backend.neat_config.genome_config, backend.neat_config
         assert settings["pop_size"] == pop.pop_size == len(backend.population.population)
@@ -497,7 +500,9 @@ def test_subscribers_get_every_generation_in_order(method, caplog):
     assert np.array_equal(summary.history, best)
     for i, e in enumerate(a.events):
         assert e is b.events[i]
-        assert e.evaluations == (e.index + 1) * P
+        # a population method counts its population per generation; the gradient method 1 + nq per step
+        per_step = 1 + r.problem.arm.nq if method == "gradient" else P
+        assert e.evaluations == (e.index + 1) * per_step
         assert r.problem.controller_mse(e.controller) == pytest.approx(e.best, rel=0, abs=1e-9)
         assert e.best <= e.gen_best <= e.median <= e.worst
         assert e.improved == (i == 0 or e.best < a.events[i - 1].best)
@@ -536,9 +541,10 @@ def test_snapshot_during_an_improvement_is_consistent(method, monkeypatch):
     builds the new best controller."""
     r = lab.Runner(lab.TrainConfig(method=method, generations=15, population=10, targets=20, test_goals=20))
     snaps = []
-    if method == "cmaes":
-        import lab.methods.cmaes as mod
+    if lab.methods.get(method).controller == "mlp":  # cmaes, gradient
+        import importlib
 
+        mod = importlib.import_module(f"lab.methods.{method}")
         real, name = mod.MLPController, "MLPController"
     else:
         import lab.methods.neat as mod

@@ -111,7 +111,8 @@ def test_mse_series_and_search_extras(run):
         np.testing.assert_allclose(rows["/log10_mse", e.index], np.log10(expected), rtol=1e-12)
         keys = sorted(k for k, v in e.extras.items() if isinstance(v, (int, float)))
         assert rows["/search", e.index] == [float(e.extras[k]) for k in keys]
-    wanted = {"cmaes": {"sigma", "restarts"}, "neat": {"species", "nodes", "connections"}}[runner.config.method]
+    wanted = {"cmaes": {"sigma", "restarts"}, "neat": {"species", "nodes", "connections"},
+              "gradient": {"gradient_norm", "learning_rate"}}[runner.config.method]
     assert wanted <= set(events[0].extras)
 
 

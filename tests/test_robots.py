@@ -80,6 +80,73 @@ def test_fk_of_any_serial_chain_equals_pinocchio(seed, tmp_path):
     np.testing.assert_allclose(arm.joint_positions(q)[:, -1], expected, rtol=0, atol=1e-9)
 
 
+# ---------------------------------------------------------------- the positional Jacobian
+def pinocchio_jacobian(arm, q):
+    """Pinocchio's frame Jacobian of the end effector, translational rows, one configuration at a time."""
+    data = arm.model.createData()
+    out = []
+    for x in arm.to_pinocchio(q):
+        out.append(pin.computeFrameJacobian(arm.model, data, x, arm.ee_frame_id, pin.LOCAL_WORLD_ALIGNED)[:3].copy())
+    return np.array(out)
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_jacobian_equals_pinocchio(name):
+    """Continuous joints (kinova) included: Pinocchio's velocity of a continuous joint is the
+    derivative with respect to its angle, our coordinate, so both have nq columns."""
+    arm = robots.load(name)
+    q = np.concatenate([arm.sample_q(100, seed=4), np.random.default_rng(8).uniform(-4, 4, (30, arm.nq))])
+    J = arm.jacobian(q)
+    assert J.shape == (130, 3, arm.nq) and arm.model.nv == arm.nq
+    np.testing.assert_allclose(J, pinocchio_jacobian(arm, q), rtol=0, atol=1e-9)
+
+
+def central_differences(arm, q, h=1e-6):
+    cols = []
+    for k in range(arm.nq):
+        dq = np.zeros(arm.nq)
+        dq[k] = h
+        cols.append((arm.fk(q + dq) - arm.fk(q - dq)) / (2 * h))
+    return np.stack(cols, axis=-1)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_jacobian_of_any_serial_chain_equals_pinocchio_and_finite_differences(seed, tmp_path):
+    """Unaligned revolute, continuous and prismatic axes at random placements."""
+    path = tmp_path / "chain.urdf"
+    path.write_text(random_chain_urdf(seed))
+    arm = robots.from_urdf(path, "tip")
+    q = arm.sample_q(40, seed=seed)
+    J = arm.jacobian(q)
+    np.testing.assert_allclose(J, pinocchio_jacobian(arm, q), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(J, central_differences(arm, q), rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["planar", "scara", "planar-20", "ur5", "kinova"])
+def test_jacobian_equals_finite_differences_and_keeps_batch_shapes(name):
+    arm = robots.load(name)
+    q = arm.sample_q(50, seed=6)
+    scale = max(1.0, arm.reach_radius)  # central differences: error ~ h^2 x (third derivative ~ length)
+    np.testing.assert_allclose(arm.jacobian(q), central_differences(arm, q), rtol=0, atol=1e-6 * scale)
+    assert arm.jacobian(q[0]).shape == (3, arm.nq)
+    assert arm.jacobian(q.reshape(5, 10, arm.nq)).shape == (5, 10, 3, arm.nq)
+    np.testing.assert_array_equal(arm.jacobian(q.reshape(5, 10, arm.nq)).reshape(50, 3, arm.nq), arm.jacobian(q))
+
+
+def test_snake_jacobian_is_the_closed_form():
+    """dp/dq_k = sum_{i>=k} l (-sin phi_i, cos phi_i), phi_i = q_1 + ... + q_i."""
+    arm = robots.load("planar-10")
+    q = arm.sample_q(30, seed=1)
+    phi = np.cumsum(q, axis=1)
+    l = 23.375 / 10
+    tail_x = np.cumsum((-l * np.sin(phi))[:, ::-1], axis=1)[:, ::-1]
+    tail_y = np.cumsum((l * np.cos(phi))[:, ::-1], axis=1)[:, ::-1]
+    J = arm.jacobian(q)
+    np.testing.assert_allclose(J[:, 0], tail_x, atol=1e-9)
+    np.testing.assert_allclose(J[:, 1], tail_y, atol=1e-9)
+    np.testing.assert_array_equal(J[:, 2], 0)
+
+
 @pytest.mark.parametrize("name", ALL)
 def test_chain_model_is_fixed_base_and_arm_only(name):
     arm = robots.load(name)
@@ -352,10 +419,15 @@ def test_ik_gives_each_arm_its_own_pinocchio_data():
 
 
 # ---------------------------------------------------------------- real arms: reach, refinement, visuals
-def test_paper_arms_and_real_arms_are_told_apart():
+def test_paper_arms_snakes_and_real_arms_are_told_apart():
     assert [robots.kind(n) for n in ("planar", "scara")] == ["paper", "paper"]
-    assert all(robots.kind(n) == "real" for n in robots.names() if n not in ("planar", "scara"))
+    assert [robots.kind(n) for n in ("planar-10", "planar-20")] == ["snake", "snake"]
+    others = set(robots.names()) - {"planar", "scara", "planar-10", "planar-20"}
+    assert others and all(robots.kind(n) == "real" for n in others)
     assert robots.kind("my-own-urdf") == "custom"
+    # lengths: the paper's units for its arms and the snakes, metres for the rest
+    assert [robots.in_metres(n) for n in ("planar", "scara", "planar-10", "planar-20")] == [False] * 4
+    assert all(robots.in_metres(n) for n in others) and robots.in_metres("my-own-urdf")
 
 
 @pytest.mark.parametrize("name", ["planar", "ur5"])
@@ -365,6 +437,58 @@ def test_reach_radius_is_the_farthest_sampled_end_effector(name):
     assert np.linalg.norm(p, axis=1).max() <= arm.reach_radius * 1.02
     if name == "planar":  # 8.625 + 8.625 + 6.125 when stretched
         assert arm.reach_radius == pytest.approx(23.375, rel=1e-3)
+
+
+# ---------------------------------------------------------------- hyper-redundant planar snakes
+SNAKES = {"planar-10": 10, "planar-20": 20}
+
+
+def snake_closed_form(q, length):
+    """p = sum_i l (cos(sum_{k<=i} q_k), sin(sum_{k<=i} q_k)), z = 0."""
+    phi = np.cumsum(q, axis=-1)
+    return np.stack([length * np.cos(phi).sum(-1), length * np.sin(phi).sum(-1), np.zeros(q.shape[:-1])], -1)
+
+
+@pytest.mark.parametrize("name", SNAKES)
+def test_snake_fk_is_the_closed_form(name):
+    arm = robots.load(name)
+    n = SNAKES[name]
+    assert arm.nq == n and arm.task_axes == (0, 1) and arm.ee_frame == "ee"
+    assert arm.joint_names == tuple(f"theta{i}" for i in range(1, n + 1))
+    rng = np.random.default_rng(5)
+    q = np.concatenate([arm.sample_q(500, seed=2), rng.uniform(-4, 4, (200, n))])  # also beyond the limits
+    np.testing.assert_allclose(arm.fk(q), snake_closed_form(q, 23.375 / n), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(arm.fk(np.zeros(n)), [23.375, 0, 0], atol=1e-12)  # straight along x
+    # the base frame is at the first joint, as the planar arm's: joint 1 at the origin, joint k at
+    # the tip of link k - 1
+    chain = arm.joint_positions(q[:20])
+    np.testing.assert_allclose(chain[:, 1], 0, atol=1e-12)
+    for k in range(2, n + 1):
+        np.testing.assert_allclose(chain[:, k], snake_closed_form(q[:20, :k - 1], 23.375 / n), atol=1e-9)
+
+
+@pytest.mark.parametrize("name", SNAKES)
+def test_snake_limits_units_and_reach(name):
+    arm = robots.load(name)
+    np.testing.assert_array_equal(arm.lower, -np.pi / 2)
+    np.testing.assert_array_equal(arm.upper, np.pi / 2)
+    assert not arm.is_prismatic.any() and not arm.chain.continuous.any()
+    assert arm.reach_radius == pytest.approx(23.375, rel=1e-12)  # its rest posture is straight
+    p = arm.fk(arm.sample_q(5000, seed=9))
+    assert np.all(np.linalg.norm(p, axis=1) <= 23.375 + 1e-9) and np.all(p[:, 2] == 0)
+    geoms = arm.visual_model().geometryObjects
+    assert len(geoms) == 2 * arm.nq + 2  # base, a joint cylinder and a link box per link, the tip
+
+
+def test_snake_urdfs_are_the_generators_output():
+    """robots/urdf/planar-10.urdf and planar-20.urdf are robots.snake's text, not hand edits."""
+    from robots import snake
+
+    for name, n in snake.SNAKES.items():
+        with open(snake.urdf_path(name), encoding="utf-8") as f:
+            assert f.read() == snake.snake_urdf(n, name=name), "regenerate with python -m robots.snake"
+    with pytest.raises(ValueError, match="whole number of links"):
+        snake.snake_urdf(0)
 
 
 @pytest.mark.parametrize("name", ["ur5", "panda", "kinova"])

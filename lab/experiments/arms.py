@@ -29,7 +29,7 @@ def held_out_goals(arm: robots.Arm, n: int = HELD_OUT, goal_seed: int = 0) -> np
 
 def tolerance(arm: robots.Arm) -> float:
     """'Exact' for a real arm: 0.1 mm; for the paper's arms the same fraction of the workspace (1e-4)."""
-    return 1e-4 if robots.kind(arm.name) != "paper" else 1e-4 * workspace_size(arm)
+    return 1e-4 if robots.in_metres(arm.name) else 1e-4 * workspace_size(arm)
 
 
 def position_errors(arm: robots.Arm, controller, goals: np.ndarray) -> np.ndarray:
@@ -39,7 +39,7 @@ def position_errors(arm: robots.Arm, controller, goals: np.ndarray) -> np.ndarra
 
 def error_stats(arm: robots.Arm, errors: np.ndarray) -> dict:
     """Median, 90th and 99th percentile of errors, in the arm's unit (mm for a real arm) and in % of reach."""
-    scale = 1000.0 if robots.kind(arm.name) != "paper" else 1.0
+    scale = 1000.0 if robots.in_metres(arm.name) else 1.0
     out = {"unit": "mm" if scale == 1000.0 else "paper units", "reach": arm.reach_radius * scale}
     for name, q in (("median", 50), ("p90", 90), ("p99", 99)):
         v = float(np.percentile(errors, q))

@@ -8,6 +8,7 @@
 - base.py: Options (a method's settings), Backend (one step = one generation), StepResult;
 - registry.py: Method (what the lab knows of a method), register, get, names;
 - cmaes.py: CMA-ES on the paper's MLP (pycma);
+- gradient.py: Adam on the same MLP, gradient by backpropagation through the arm's Jacobian;
 - neat.py: NEAT (neat-python) with its faster genome and species code (neat_genome.py,
   neat_species.py), bit for bit neat-python's.
 """
@@ -25,7 +26,7 @@ def make_backend(problem, config) -> Backend:
     return get(config.method).backend(problem, config)
 
 
-from lab.methods import cmaes, neat  # noqa: E402,F401  (each registers itself)
+from lab.methods import cmaes, gradient, neat  # noqa: E402,F401  (each registers itself)
 
 load_plugins(os.environ.get("LAB_METHODS"))
 

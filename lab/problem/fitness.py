@@ -45,6 +45,38 @@ class Problem:
         kernels.mlp_mse(XT, goalsT, self._axes, W, int(hidden), self._qmap, self._chain, out)
         return out
 
+    def mlp_gradient(self, w: np.ndarray, hidden: int, test: bool = False) -> tuple[float, np.ndarray]:
+        """(MSE, d MSE / d w) of one MLP weight vector w (D,) on the goals, by backpropagation.
+
+        Forward: h = tanh([x, 1] w_i), a = tanh(h w_o), q = clip(offset + (a + 1) scale, lo, hi)
+        (the encoding's mapping, clipped as the fitness kernel clips), p = fk(q)[task_axes],
+        MSE = mean_g ||p_g - goal_g||^2. Backward: dMSE/dq = (2/n) J^T (p - goal) with J the arm's
+        positional Jacobian (robots.Arm.jacobian) on the task axes; the clip passes the gradient
+        only where the unclipped value is within the limits; then through the two tanh layers.
+        The MSE is numpy's (it equals mlp_mse's to rounding; mlp_mse is the fitness)."""
+        enc = self.encoding
+        XT, goalsT = self._split(test)
+        X, goals = XT.T, goalsT.T  # (n, ni), (n, k)
+        n, ni = X.shape
+        nh, no = int(hidden), enc.n_outputs
+        w = np.asarray(w, dtype=np.float64)
+        w_i = w[: (ni + 1) * nh].reshape(ni + 1, nh)
+        w_o = w[(ni + 1) * nh:].reshape(nh, no)
+        H = np.tanh(X @ w_i[:ni] + w_i[ni])
+        A = np.tanh(H @ w_o)
+        raw = enc.q_offset + (A + 1.0) * enc.q_scale
+        q = np.clip(raw, enc.q_lo, enc.q_hi)
+        axes = list(self.arm.task_axes)
+        err = self.arm.fk(q)[:, axes] - goals  # (n, k)
+        mse = float(np.mean(np.sum(err * err, axis=1)))
+        J = self.arm.jacobian(q)[:, axes, :]  # (n, k, nq)
+        dq = (2.0 / n) * np.einsum("gk,gkj->gj", err, J)
+        dA = dq * ((raw >= enc.q_lo) & (raw <= enc.q_hi)) * enc.q_scale
+        dZo = dA * (1.0 - A * A)
+        dZh = (dZo @ w_o.T) * (1.0 - H * H)
+        grad = np.concatenate([(X.T @ dZh).ravel(), dZh.sum(axis=0), (H.T @ dZo).ravel()])
+        return (mse if np.isfinite(mse) else np.inf), grad
+
     def outputs_mse(self, A: np.ndarray, test: bool = False) -> np.ndarray:
         """MSE of network outputs A (P, n, nq) in [-1, 1] on the goals: (P,)."""
         _, goalsT = self._split(test)
