@@ -57,7 +57,8 @@ def rerun_recorder(folder: str):
         return None
 
     def record(runner):
-        logger = RerunLogger(runner, path=folder.rstrip("/") + "/")
+        # the app does not wait for the writer at a run's end (it may be behind): it finishes the file itself
+        logger = RerunLogger(runner, path=folder.rstrip("/") + "/", block_on_end=False)
         runner.subscribe(logger)
         return logger
 

@@ -433,9 +433,10 @@ def test_every_way_of_stopping_the_app_notes_the_run_and_closes_its_recording(tm
         proc.send_signal(getattr(signal, sig))
         t0 = time.monotonic()
         out, _ = proc.communicate(timeout=30)
-    assert proc.returncode == 0 and time.monotonic() - t0 < 10, out[-3000:]
+    assert proc.returncode == 0 and time.monotonic() - t0 < 5, out[-3000:]
     assert "Traceback" not in out, out[-3000:]
     entries = Notebook(str(nb)).entries()
     assert len(entries) == 1 and entries[0]["state"] in ("stopped", "finished") and entries[0]["generations"] > 0
-    recording = read_recording(entries[0]["recording"])
-    assert recording.summary is not None and recording.summary["state"] == entries[0]["state"]
+    # the writer process finishes the file on its own after the app has gone (it may be behind)
+    assert wait_until(lambda: read_recording(entries[0]["recording"]).summary is not None, timeout=30)
+    assert read_recording(entries[0]["recording"]).summary["state"] == entries[0]["state"]

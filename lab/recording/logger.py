@@ -136,12 +136,13 @@ class RerunLogger:
 
     def __init__(self, source, problem: Problem | None = None, path: str | os.PathLike | None = None, *,
                  pose_every: int = 10, compact: bool = True, hyperparameters: dict | None = None,
-                 overwrite: bool = False):
+                 overwrite: bool = False, block_on_end: bool = True):
         config, problem, run_id = _resolve_source(source, problem)
         if not (isinstance(pose_every, int) and pose_every >= 1):
             raise ValueError(f"pose_every must be an integer >= 1, got {pose_every!r}")
         self.path = prepare_path(path, config, overwrite)
         self.config, self.problem, self.pose_every, self.compact = config, problem, pose_every, compact
+        self.block_on_end = block_on_end
         method = methods.get(config.method)
         if hyperparameters is None:
             hyperparameters = method.backend.settings(problem, config)  # builds no backend
@@ -170,13 +171,15 @@ class RerunLogger:
         self._send(("event", self._rows(event)))
 
     def on_end(self, summary) -> None:
-        self.close(summary)
+        self.close(summary, block=self.block_on_end)
 
-    def close(self, summary=None, wait: bool = False) -> None:
+    def close(self, summary=None, wait: bool = False, block: bool = True) -> None:
         """Write the summary, then wait until the writer has closed the file (with its footer).
         Idempotent. The file is complete and readable when this returns; the writer then
         compacts it (compact=True), replacing it atomically with the same data in fewer chunks.
-        wait=True (or wait()) waits for that too."""
+        wait=True (or wait()) waits for that too. block=False returns once the summary is sent:
+        the writer process finishes the file on its own, even after this process has exited
+        (the app stops within a second or two, however far the writer is behind)."""
         with self._lock:
             if self._closed:
                 if wait:
@@ -189,6 +192,12 @@ class RerunLogger:
         except RuntimeError:
             pass  # the writer is gone: reported below
         self._proc.stdin.close()
+        if not block:
+            threading.Thread(target=self._finish, name=f"rerun-writer-{self.path.name}", daemon=True).start()
+            return
+        self._finish(wait)
+
+    def _finish(self, wait: bool = False) -> None:
         closed = self._proc.stdout.read(1) == b"C"
         self._proc.stdout.close()
         if not closed:

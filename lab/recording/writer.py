@@ -160,7 +160,10 @@ class Writer:
 
 
 def main() -> int:
+    # Ctrl-C and a closing terminal reach the whole process group: the writer ends when its
+    # input does (the logger closes it), so that the file is always closed with its footer
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
     os.nice(10)  # the optimizer (and the app) first when the two cores are busy; the pipe waits
     ack = claim_stdout()
     stream = messages(sys.stdin.fileno())
@@ -190,7 +193,10 @@ def main() -> int:
         writer.end(summary)
     finally:
         writer.close()
-        os.write(ack, b"C")
+        try:
+            os.write(ack, b"C")
+        except OSError:  # the logger no longer listens (its process has ended): the file is closed all the same
+            pass
     if clean and header["compact"]:
         compact(writer.path)
     return 0

@@ -143,6 +143,7 @@ def _spawn(spare: bool) -> subprocess.Popen:
 # ---------------------------------------------------------------------- the worker process
 def main(argv: list[str]) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which stops the run
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)  # so does a closing terminal
     out = pipes.claim_stdout()
     if "--spare" in argv:
         from lab.running.warmup import compile_kernels
