@@ -842,3 +842,23 @@ def test_chatter_on_a_workers_stdout_cannot_corrupt_its_messages():
     got = [m for batch in pipes.messages(proc.stdout.fileno()) for m in batch]
     assert got == [("event", [1.5, None])]
     assert proc.wait() == 0 and b"some library talking" in proc.stderr.read()
+
+
+def test_continuous_joints_span_two_turns_and_the_fitness_equals_the_controllers_error():
+    """A continuous joint's output maps onto two turns and is turned into its range: the controller's
+    q stays within the limits, and the compiled fitness (on the unturned angle) equals the MSE of
+    the controller's own q through arm.fk (forward kinematics takes an angle modulo a turn)."""
+    arm = robots.load("kinova")
+    enc = Encoding.for_arm(arm, "reach", 0.0)
+    assert enc.wrap.tolist() == np.asarray(arm.chain.continuous, bool).tolist() and enc.wrap.any()
+    assert np.allclose(enc.q_scale[enc.wrap], 2 * np.pi)
+    prob = Problem(arm, enc, targets=40, test_goals=10)
+    W = np.random.default_rng(3).normal(0, 1.0, (5, mlp_size(enc.n_inputs, 6, enc.n_outputs)))
+    fit = prob.mlp_mse(W, 6)
+    for w, f in zip(W, fit):
+        c = MLPController(enc, 6, w)
+        q = c(prob.train_goals)
+        assert np.all((q >= arm.lower) & (q <= arm.upper))
+        assert f == pytest.approx(prob.controller_mse(c), rel=1e-9, abs=1e-12)
+    again = Encoding.from_dict(json.loads(json.dumps(enc.to_dict())))
+    assert again.wrap.tolist() == enc.wrap.tolist()

@@ -13,11 +13,16 @@ Inputs (features):
                  is unbounded; in s it is almost linear (the SCARA's theta2 = 2 acos(1 - s^2) is
                  within 6% of 2.83 s over its range), so a small tanh network needs no steep units.
 Outputs: a network output a in [-1, 1] maps linearly onto the joint range widened by a
-margin m on each side, then clipped to the limits:
+margin m on each side, then clipped to the limits (a continuous joint: see below):
     q = clip(lower - m h + (a + 1) (1 + m) h, lower, upper),   h = (upper - lower) / 2.
 m = 0 is the paper's mapping (q = lower + (a + 1) h). With m > 0 a tanh output reaches a joint
 limit at a finite pre-activation: the paper's goals are drawn uniformly in joint space, so many
 sit at a limit, where m = 0 asks the output tanh to saturate.
+A continuous joint (no limit: an angle in [-pi, pi] here) maps onto two turns, [c - 2 pi, c + 2 pi]
+(c its range's middle), and is turned by whole turns into its range instead of clipped: the network
+can then reach every angle from either side, with no seam where -pi meets pi (the Kinova's base
+had its held-out median error at 3.3 % of reach with its range as the paper maps it, 2.1 % with
+two turns, and 1.6 % at the default budget).
 """
 
 from __future__ import annotations
@@ -44,8 +49,13 @@ class Encoding:
     q_hi: np.ndarray  # (nq,) joint upper limits
     margin: float = 0.0  # output range widening (fraction of the half range), then clipped
     r_max: float = 0.0  # "reach": the largest distance from the base axis in the workspace
+    wrap: np.ndarray | None = None  # (nq,) True for a continuous joint: two turns, wrapped (None: none)
 
     def __post_init__(self):
+        wrap = np.zeros(len(self.q_lo), bool) if self.wrap is None else np.asarray(self.wrap, bool).reshape(-1)
+        if wrap.shape != (len(self.q_lo),):
+            raise ValueError(f"wrap must hold one flag per joint ({len(self.q_lo)}), got {len(wrap)}")
+        object.__setattr__(self, "wrap", wrap)
         if self.features not in FEATURES:
             raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
         if not 0 <= self.margin < 10:
@@ -69,7 +79,8 @@ class Encoding:
         lo, hi = raw.min(axis=0), raw.max(axis=0)
         flat = hi - lo < 1e-9
         lo, hi = np.where(flat, lo - 0.5, lo), np.where(flat, hi + 0.5, hi)
-        return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy(), float(margin), r_max)
+        return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy(), float(margin), r_max,
+                   np.asarray(arm.chain.continuous, bool).copy())
 
     @property
     def n_inputs(self) -> int:
@@ -96,18 +107,32 @@ class Encoding:
 
     @property
     def q_offset(self) -> np.ndarray:
-        """lower - m h: the joint value an output of -1 maps to before clipping."""
-        return self.q_lo - self.margin * 0.5 * (self.q_hi - self.q_lo)
+        """lower - m h: the joint value an output of -1 maps to before clipping (a continuous joint: c - 2 pi)."""
+        mid = 0.5 * (self.q_lo + self.q_hi)
+        return np.where(self.wrap, mid - 2 * np.pi, self.q_lo - self.margin * 0.5 * (self.q_hi - self.q_lo))
 
     @property
     def q_scale(self) -> np.ndarray:
-        """(1 + m) h: the change of joint value per unit of output above -1."""
-        return (1.0 + self.margin) * 0.5 * (self.q_hi - self.q_lo)
+        """(1 + m) h: the change of joint value per unit of output above -1 (a continuous joint: 2 pi)."""
+        return np.where(self.wrap, 2 * np.pi, (1.0 + self.margin) * 0.5 * (self.q_hi - self.q_lo))
+
+    @property
+    def clip_lo(self) -> np.ndarray:
+        """Where the fitness clips joint values from below: the limits (-inf for a continuous joint,
+        whose angle forward kinematics takes modulo a turn)."""
+        return np.where(self.wrap, -np.inf, self.q_lo)
+
+    @property
+    def clip_hi(self) -> np.ndarray:
+        return np.where(self.wrap, np.inf, self.q_hi)
 
     def joints(self, a: np.ndarray) -> np.ndarray:
         """Network outputs in [-1, 1] (..., nq) -> joint values (..., nq) within the limits (NaN stays NaN)."""
         q = self.q_offset + (np.asarray(a) + 1.0) * self.q_scale
-        return q if self.margin == 0 else np.clip(q, self.q_lo, self.q_hi)
+        if self.wrap.any():  # by whole turns into [lower, lower + 2 pi), then clipped like the others
+            turned = self.q_lo + np.mod(q - self.q_lo, 2 * np.pi)
+            q = np.where(self.wrap, np.minimum(turned, self.q_hi), q)
+        return q if self.margin == 0 and not self.wrap.any() else np.clip(q, self.q_lo, self.q_hi)
 
     def to_dict(self) -> dict:
         return {
@@ -115,13 +140,14 @@ class Encoding:
             "in_lo": self.in_lo.tolist(), "in_hi": self.in_hi.tolist(),
             "q_lo": self.q_lo.tolist(), "q_hi": self.q_hi.tolist(), "margin": self.margin,
             **({"r_max": self.r_max} if self.features == "reach" else {}),
+            **({"wrap": self.wrap.tolist()} if self.wrap.any() else {}),
         }
 
     @classmethod
     def from_dict(cls, d: dict) -> "Encoding":
         return cls(d["features"], tuple(d["task_axes"]),
                    *(np.atleast_1d(np.asarray(d[k], float)) for k in ("in_lo", "in_hi", "q_lo", "q_hi")),
-                   float(d.get("margin", 0.0)), float(d.get("r_max", 0.0)))
+                   float(d.get("margin", 0.0)), float(d.get("r_max", 0.0)), d.get("wrap"))
 
 
 def _raw_features(goals: np.ndarray, features: str, k: int, r_max: float = 0.0) -> np.ndarray:

@@ -31,7 +31,7 @@ class Problem:
         self._train = (_t(encoding.inputs(self.train_goals)), _t(self.train_goals))
         self._test = (_t(encoding.inputs(self.test_goals)), _t(self.test_goals))
         self._axes = np.asarray(arm.task_axes, dtype=np.int64)
-        self._qmap = (encoding.q_offset, encoding.q_scale, encoding.q_lo, encoding.q_hi)
+        self._qmap = (encoding.q_offset, encoding.q_scale, encoding.clip_lo, encoding.clip_hi)
         self._chain = arm.chain.arrays
 
     def _split(self, test: bool):
@@ -65,13 +65,13 @@ class Problem:
         H = np.tanh(X @ w_i[:ni] + w_i[ni])
         A = np.tanh(H @ w_o)
         raw = enc.q_offset + (A + 1.0) * enc.q_scale
-        q = np.clip(raw, enc.q_lo, enc.q_hi)
+        q = np.clip(raw, enc.clip_lo, enc.clip_hi)
         axes = list(self.arm.task_axes)
         err = self.arm.fk(q)[:, axes] - goals  # (n, k)
         mse = float(np.mean(np.sum(err * err, axis=1)))
         J = self.arm.jacobian(q)[:, axes, :]  # (n, k, nq)
         dq = (2.0 / n) * np.einsum("gk,gkj->gj", err, J)
-        dA = dq * ((raw >= enc.q_lo) & (raw <= enc.q_hi)) * enc.q_scale
+        dA = dq * ((raw >= enc.clip_lo) & (raw <= enc.clip_hi)) * enc.q_scale
         dZo = dA * (1.0 - A * A)
         dZh = (dZo @ w_o.T) * (1.0 - H * H)
         grad = np.concatenate([(X.T @ dZh).ravel(), dZh.sum(axis=0), (H.T @ dZo).ravel()])
