@@ -172,8 +172,10 @@ def main(argv=None) -> int:
     _train_parser(sub)
     _replay_parser(sub)
     experiments_cli.add_parser(sub)
+    experiments_cli.add_claims_parser(sub)
     args = parser.parse_args(argv)
-    return {"train": train, "replay": replay, "reproduce": experiments_cli.main}[args.command](args)
+    return {"train": train, "replay": replay, "reproduce": experiments_cli.main,
+            "claims": experiments_cli.claims_main}[args.command](args)
 
 
 if __name__ == "__main__":

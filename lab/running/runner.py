@@ -203,6 +203,22 @@ class RunBase:
         self._done.set()
 
 
+class TimeLimit:
+    """A subscriber that stops a run once its run time (event.seconds: optimizer time, pauses and
+    subscribers excluded) reaches `seconds`: runner.subscribe(TimeLimit(runner, 3.0)). The run
+    then ends "stopped" after the generation that crossed the limit; how many generations that is
+    depends on the machine's speed and load."""
+
+    def __init__(self, runner: "RunBase", seconds: float):
+        if not seconds > 0:
+            raise ValueError(f"a time limit must be positive seconds, got {seconds!r}")
+        self.runner, self.seconds = runner, float(seconds)
+
+    def __call__(self, event: GenerationEvent) -> None:
+        if event.seconds >= self.seconds:
+            self.runner.stop(wait=False)
+
+
 class Runner(RunBase):
     def __init__(self, config: TrainConfig, problem: Problem | None = None, blas_threads: int | None = 1):
         super().__init__(config, problem)
