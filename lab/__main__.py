@@ -59,6 +59,9 @@ def _train_parser(sub) -> None:
     p.add_argument("--features", default=None, choices=FEATURES, help="network inputs")
     p.add_argument("--margin", type=float, default=None, help="output range widening before clipping to the limits")
     p.add_argument("--test-goals", type=int, default=None, help="held-out goals (default 1000)")
+    p.add_argument("--resample", action="store_true",
+                   help="draw new training goals every generation (the paper: fixed goals); the best so far "
+                        "is kept by its MSE on the fixed goals")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     rec = p.add_mutually_exclusive_group()
     rec.add_argument("--recording", metavar="PATH", default=None,
@@ -118,7 +121,8 @@ def train(args) -> int:
         config = TrainConfig.preset(
             paper=args.paper, robot=args.robot, method=args.method, generations=args.generations,
             population=args.population, targets=args.targets, seed=args.seed, hidden=args.hidden,
-            features=args.features, margin=args.margin, test_goals=args.test_goals, **given_options(args))
+            features=args.features, margin=args.margin, test_goals=args.test_goals, resample=args.resample,
+            **given_options(args))
     except (ValueError, TypeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
