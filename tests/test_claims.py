@@ -143,3 +143,24 @@ def test_a_stored_run_with_another_time_limit_is_refused(tmp_path):
     with pytest.raises(ConfigMismatch, match="seconds"):
         store.load(other)
     assert store.load(other, overwrite=True) is None
+
+
+def test_ray_local_instance(tmp_path):
+    """--ray: the same runs on a local Ray instance; an equal-budget run is the same, number for
+    number, as in a local process (the equal-time runs depend on the machine's speed)."""
+    ray = pytest.importorskip("ray", reason="ray is an optional extra: pip install -e '.[ray]'")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        result = C.claims(C.ClaimsConfig(out=tmp_path, runs=1, generations=5, ray="auto", progress=False))
+    finally:
+        ray.shutdown()
+    exp = result.experiment
+    assert len(exp.results) == len(exp.specs) and not exp.failures and exp.executor.startswith("Ray")
+    assert (tmp_path / "claims.md").exists()
+    for spec in exp.specs:
+        if spec.kind == "evaluations" and spec.robot == "scara":
+            local = C.train_claim(spec)
+            for key in ("curve", "checkpoints"):
+                local[key].pop("seconds"), exp.results[spec.name][key].pop("seconds")
+            for key in ("held_out", "train_mse", "evaluations", "curve", "checkpoints", "controller"):
+                assert exp.results[spec.name][key] == local[key], (spec.name, key)
