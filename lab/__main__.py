@@ -59,6 +59,9 @@ def _train_parser(sub) -> None:
     p.add_argument("--features", default=None, choices=FEATURES, help="network inputs")
     p.add_argument("--margin", type=float, default=None, help="output range widening before clipping to the limits")
     p.add_argument("--test-goals", type=int, default=None, help="held-out goals (default 1000)")
+    p.add_argument("--resample", action="store_true",
+                   help="draw new training goals every generation (the paper: fixed goals); the best so far "
+                        "is kept by its MSE on the fixed goals")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     rec = p.add_mutually_exclusive_group()
     rec.add_argument("--recording", metavar="PATH", default=None,
@@ -118,7 +121,8 @@ def train(args) -> int:
         config = TrainConfig.preset(
             paper=args.paper, robot=args.robot, method=args.method, generations=args.generations,
             population=args.population, targets=args.targets, seed=args.seed, hidden=args.hidden,
-            features=args.features, margin=args.margin, test_goals=args.test_goals, **given_options(args))
+            features=args.features, margin=args.margin, test_goals=args.test_goals, resample=args.resample,
+            **given_options(args))
     except (ValueError, TypeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -172,8 +176,10 @@ def main(argv=None) -> int:
     _train_parser(sub)
     _replay_parser(sub)
     experiments_cli.add_parser(sub)
+    experiments_cli.add_claims_parser(sub)
     args = parser.parse_args(argv)
-    return {"train": train, "replay": replay, "reproduce": experiments_cli.main}[args.command](args)
+    return {"train": train, "replay": replay, "reproduce": experiments_cli.main,
+            "claims": experiments_cli.claims_main}[args.command](args)
 
 
 if __name__ == "__main__":

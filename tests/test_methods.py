@@ -55,6 +55,8 @@ def test_every_method_trains_and_its_config_round_trips(method):
     assert summary.evaluations == backend.evaluations >= 4
     if all(r.evaluations is None for r in steps):
         assert summary.evaluations == 4 * config.population
+    # what the method declares a step counts (experiments at equal budget rely on it)
+    assert summary.evaluations == 4 * m.evaluations_per_step(runner.problem.arm, config)
     assert np.isfinite(summary.train_mse) and summary.controller.kind == m.controller
 
 
@@ -118,6 +120,8 @@ def test_the_custom_method_example_trains_records_and_reloads(tmp_path):
 
 # ---------------------------------------------------------------- nobody asks which method runs
 PAPER_PLACE = ROOT / "lab" / "experiments" / "paper.py"
+# the claims experiment declares the methods it compares in one tuple there (claims.METHODS)
+CLAIMS_PLACE = ROOT / "lab" / "experiments" / "claims.py"
 
 
 def _method_literals(path: Path) -> list[str]:
@@ -131,9 +135,12 @@ def _method_literals(path: Path) -> list[str]:
 
 
 def test_no_code_outside_the_methods_package_names_a_method():
-    """Outside lab/methods only the paper's experiment names the paper's two methods (in one
-    place, lab/experiments/paper.py); the rest reads the registry."""
+    """Outside lab/methods only the experiments name methods, each in one place: the paper's two
+    in lab/experiments/paper.py, the claims experiment's in lab/experiments/claims.py (one tuple);
+    the rest reads the registry."""
     files = [p for d in ("lab", "app", "robots", "benchmarks", "examples") for p in (ROOT / d).rglob("*.py")
              if "methods" not in p.relative_to(ROOT).parts[:2]]
     naming = {str(p.relative_to(ROOT)): lits for p in files if (lits := _method_literals(p))}
-    assert set(naming) <= {str(PAPER_PLACE.relative_to(ROOT))}, naming
+    assert set(naming) <= {str(PAPER_PLACE.relative_to(ROOT)), str(CLAIMS_PLACE.relative_to(ROOT))}, naming
+    claims = naming.get(str(CLAIMS_PLACE.relative_to(ROOT)), [])
+    assert len(claims) == len(set(claims)), claims  # each named once: the one tuple

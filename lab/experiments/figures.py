@@ -26,12 +26,32 @@ def _positive(h: np.ndarray) -> np.ndarray:
     return np.clip(np.asarray(h, dtype=np.float64), np.finfo(float).tiny, None)
 
 
-def convergence_figure(exp, robot: str, out: Path) -> Path:
+def pyplot():
+    """matplotlib.pyplot with the Agg backend (no display needed)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def band(ax, xs, ys, color: str, label: str) -> None:
+    """Curves sampled at the same checkpoints (one per run): their median (line, at the median x)
+    and their range, lowest to highest run (band), on log axes."""
+    n = min(len(x) for x in xs)
+    X = np.array([np.asarray(x, dtype=np.float64)[:n] for x in xs])
+    Y = np.array([_positive(np.asarray(y)[:n]) for y in ys])
+    x = _positive(np.median(X, axis=0))
+    ax.plot(x, np.median(Y, axis=0), color=color, lw=2.0, label=f"{label}: median of {len(xs)} runs")
+    ax.fill_between(x, Y.min(axis=0), Y.max(axis=0), color=color, alpha=0.18, lw=0)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.grid(True, which="both", alpha=0.25)
+
+
+def convergence_figure(exp, robot: str, out: Path) -> Path:
+    plt = pyplot()
     fig, (ax_all, ax_best) = plt.subplots(2, 1, figsize=(8, 8), sharex=True, constrained_layout=True)
     n_fig = FIGURE_NUMBER.get(robot)
     for method in exp.config.methods:

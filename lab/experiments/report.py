@@ -151,7 +151,7 @@ def _what_was_run(exp) -> list[str]:
             f"- Executed: {exp.executed} runs in this call on {exp.executor}; resumed from `runs/`: {exp.resumed}."]
 
 
-def _machine(exp) -> list[str]:
+def machine_lines(exp) -> list[str]:
     loaded = exp.load_before and exp.load_before[0] > 0.5
     return ["\n## Machine and versions\n",
             f"- {platform.node()}: {_cpu_model()}, {os.cpu_count()} cores, {platform.platform()}.",
@@ -161,7 +161,7 @@ def _machine(exp) -> list[str]:
             f"- {_versions()}; lab commit {_git()}."]
 
 
-def _time_taken(exp, outputs_seconds: float) -> list[str]:
+def time_lines(exp, outputs_seconds: float) -> list[str]:
     ran = [exp.results[s.name] for s in exp.specs if s.name in exp.results]
     run_seconds = sum(d.get("wall_seconds", d["seconds"]) for d in ran)
     cpu_seconds = sum(d.get("cpu_seconds", 0.0) for d in ran)
@@ -177,7 +177,7 @@ def _time_taken(exp, outputs_seconds: float) -> list[str]:
     return ["\n## Time taken\n", line]
 
 
-def _failures(exp) -> list[str]:
+def failure_lines(exp) -> list[str]:
     if not (exp.failures or exp.retried):
         return []
     return ["## Failures\n",
@@ -200,11 +200,11 @@ def _files(c) -> list[str]:
 def report_md(exp, outputs_seconds: float) -> str:
     md = ["# Reproduction of Martin H. & de Lope (2009), Tables 3-5 and Figures 5-6\n",
           f"Command: `{command(exp.config)}`  \nStarted {exp.started}.\n",
-          *_what_was_run(exp), *_machine(exp), *_time_taken(exp, outputs_seconds),
+          *_what_was_run(exp), *machine_lines(exp), *time_lines(exp, outputs_seconds),
           "\n## Headline: this experiment against the paper\n",
           "Final training MSE (Table 3's statistics):\n", _headline(exp),
           "Welch's t-test: p one-sided is in the direction of the observed difference (the paper's "
           "*Significance*); two-sided is twice that. table4.md and table5.md add the paper's own Table 3 "
           "recomputed.\n" if set(paper.METHODS) <= set(exp.config.methods) else "",
-          *_failures(exp), *_files(exp.config)]
+          *failure_lines(exp), *_files(exp.config)]
     return "\n".join(md)

@@ -110,11 +110,6 @@ class Experiment:
                 if s.robot == robot and s.method == method and s.name in self.results]
 
 
-def _cost(spec: RunSpec) -> float:
-    """Rough relative run time (each method's declared cost): longest runs are submitted first."""
-    return methods.get(spec.method).cost * robots.load(spec.robot).nq
-
-
 def _log(msg: str) -> None:
     from tqdm import tqdm
 
@@ -167,11 +162,12 @@ def _execute(exp: Experiment, pending: list[RunSpec], executor, train, store: Ru
                 bar.set_postfix(failed=len(exp.failures))
 
 
-def reproduce(config: ReproduceConfig, train=train_run, write: bool = True) -> Experiment:
+def reproduce(config: ReproduceConfig, train=train_run, write: bool = True, desc: str = "reproduce") -> Experiment:
     """Run (or resume) the experiment, then write its outputs to config.out (unless write=False).
 
     train(spec) -> result dict is the function each worker calls (runs.train_run); it must be
-    importable by the workers (a module-level function).
+    importable by the workers (a module-level function). Other experiments (claims.py) schedule
+    their runs with it too: config needs specs(), out, overwrite, workers, ray, progress, retries.
     """
     from tqdm import tqdm
 
@@ -190,9 +186,9 @@ def reproduce(config: ReproduceConfig, train=train_run, write: bool = True) -> E
         else:
             exp.results[spec.name] = stored
     exp.resumed, exp.executed = len(specs) - len(pending), len(pending)
-    pending.sort(key=_cost, reverse=True)
+    pending.sort(key=lambda spec: spec.cost(), reverse=True)  # longest runs first
     executor = RayExecutor(config.ray) if config.ray else ProcessExecutor(config.workers)
-    with tqdm(total=len(specs), initial=exp.resumed, unit="run", desc="reproduce",
+    with tqdm(total=len(specs), initial=exp.resumed, unit="run", desc=desc,
               disable=not config.progress, dynamic_ncols=True) as bar:
         if pending:
             with executor:

@@ -6,9 +6,9 @@
     store.save(spec, result)        # runs/planar-cmaes-s003.json, written atomically (temp file + os.replace)
     store.load(spec)                # the stored dict, or None when the run has not finished
 
-A run is finished when its JSON exists and its stored config equals spec.config(): a rerun with
-the same settings skips it. A run that failed twice is kept as runs/<name>.failed.json (error and
-traceback) until a later attempt succeeds.
+A run is finished when its JSON exists and its stored config equals spec.config() (and its stored
+spec the spec): a rerun with the same settings skips it. A run that failed twice is kept as
+runs/<name>.failed.json (error and traceback) until a later attempt succeeds.
 """
 
 from __future__ import annotations
@@ -23,6 +23,8 @@ import traceback
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import robots
+from lab import methods
 from lab.running.config import TrainConfig
 
 
@@ -40,6 +42,11 @@ class RunSpec:
     @property
     def name(self) -> str:
         return f"{self.robot}-{self.method}-s{self.seed:03d}"
+
+    def cost(self) -> float:
+        """Rough relative run time (the method's declared cost x the arm's joints), to submit the
+        longest runs first."""
+        return methods.get(self.method).cost * robots.load(self.robot).nq
 
     def config(self) -> TrainConfig:
         """The TrainConfig lab.evolve builds for this run (validated)."""
@@ -125,11 +132,13 @@ class RunStore:
             print(f"note: {path} is damaged (not a stored run); the run is done again", file=sys.stderr)
             return None
         expected = spec.config().to_dict()
-        if data.get("config") != expected:
+        # a spec may hold more than its config (claims.ClaimSpec: a time limit): both must match
+        stored_spec, asked_spec = data.get("spec", asdict(spec)), asdict(spec)
+        if data.get("config") != expected or stored_spec != asked_spec:
             if overwrite:
                 return None
-            diff = {k: (data.get("config", {}).get(k), v) for k, v in expected.items()
-                    if data.get("config", {}).get(k) != v}
+            stored = {**(stored_spec if isinstance(stored_spec, dict) else {}), **data.get("config", {})}
+            diff = {k: (stored.get(k), v) for k, v in {**asked_spec, **expected}.items() if stored.get(k) != v}
             raise ConfigMismatch(f"{self.path(spec)} was made with other settings "
                                  f"(stored vs asked: {diff}); use another --out or --overwrite")
         return data

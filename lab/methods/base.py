@@ -91,7 +91,9 @@ class Backend(ABC):
     def _step(self) -> StepResult: ...
 
     def step(self) -> StepResult:
-        """Evaluate and update one generation."""
+        """Evaluate and update one generation (on new training goals if the problem resamples them)."""
+        if self.problem.resampling:
+            self.problem.draw_goals(self.generation)
         result = self._step()
         self.generation += 1
         self.evaluations += len(result.fitness) if result.evaluations is None else int(result.evaluations)
@@ -108,7 +110,20 @@ class Backend(ABC):
         return self.settings(self.problem, self.config)
 
     def _offer(self, mse: float, make_controller) -> None:
-        """Keep the best controller so far (make_controller is only called on improvement)."""
+        """Keep the best controller so far (make_controller is only called on improvement).
+
+        With resampled training goals, mse (on this generation's goals) is not comparable with
+        earlier generations': the candidate is scored on the problem's fixed reference goals
+        instead, and kept by that MSE (one more controller evaluation per generation, not counted
+        in `evaluations`: it steers no search, only which controller is reported)."""
+        if self.problem.resampling:
+            if not np.isfinite(mse):
+                return
+            candidate = make_controller()
+            mse = self.problem.controller_mse(candidate, self.problem.reference_goals)
+            if np.isfinite(mse) and mse < self.best_mse:
+                self.best_mse, self.best = float(mse), candidate
+            return
         if np.isfinite(mse) and mse < self.best_mse:
             self.best_mse = float(mse)
             self.best = make_controller()

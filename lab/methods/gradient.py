@@ -118,5 +118,6 @@ METHOD = register(Method(
     defaults=defaults, paper=None, min_population=1, min_hidden=1,
     search_title="Adam: gradient norm and learning rate",
     search_series="the norm of the loss gradient and the learning rate per step",
-    cost=1.0, ablations=("margin=0.0", "margin=0.5", "hidden=16", "learning_rate=0.01", "final_rate=1.0"),
+    cost=1.0, step_evaluations=lambda arm, config: 1 + arm.nq,
+    ablations=("margin=0.0", "margin=0.5", "hidden=16", "learning_rate=0.01", "final_rate=1.0"),
 ))

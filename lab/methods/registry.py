@@ -52,6 +52,9 @@ class Method:
     search_title / search_series: its /search plot (StepResult.extras) in words, for the
         recording's views; cost: CPU per evaluation relative to CMA-ES, to schedule experiments;
     ablations: settings compared with its defaults in benchmarks/bench_quality.py ("sigma0=0.4").
+    step_evaluations(arm, config) -> int: the evaluations one step() counts (StepResult.evaluations);
+        None: one per controller of the population (config.population). Experiments at equal
+        budget (lab/experiments/claims.py) derive generations from it.
     reference: the bare library's loop that benchmarks/bench_speed.py times this method's backend
         against (None: nothing to compare with).
     """
@@ -70,6 +73,7 @@ class Method:
     search_title: str = "search state"
     search_series: str = "the method's own numbers per generation"
     cost: float = 1.0
+    step_evaluations: Callable | None = field(default=None, compare=False)
     ablations: tuple[str, ...] = ()
     reference: SpeedReference | None = field(default=None, compare=False)
 
@@ -89,6 +93,10 @@ class Method:
             cls = getattr(importlib.import_module(module), name)
             object.__setattr__(self, "backend_class", cls)
         return self.backend_class
+
+    def evaluations_per_step(self, arm, config) -> int:
+        """Evaluations one step (generation) of this method counts on arm with config."""
+        return int(self.step_evaluations(arm, config)) if self.step_evaluations else int(config.population)
 
     @property
     def hex(self) -> str:

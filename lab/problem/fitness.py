@@ -3,6 +3,14 @@
 Fitness (paper, section 4.3): the mean over the training goals of ||p - p'||^2, p' the
 end-effector position the controller's joint values reach (task coordinates only).
 Lower is better; NaN or infinite becomes +inf.
+
+Resampled training goals (resample_seed not None; TrainConfig.resample): the paper keeps its 70
+training goals fixed for the whole run. With resampling, `draw_goals(generation)` replaces them
+before every generation by as many new goals, drawn from a stream seeded by (goal_seed, the
+run's seed, generation), so a run is still reproducible by its seed. `reference_goals` keeps the
+fixed set of goal_seed (the goals a fixed run trains on): fitness values of different generations
+are then on different goals, so methods keep their best controller so far by its MSE on the
+reference goals (lab.methods.base.Backend._offer).
 """
 
 from __future__ import annotations
@@ -15,17 +23,20 @@ from lab.problem.controllers import Controller, compile_programs
 from lab.problem.encoding import Encoding
 
 TEST_SEED_OFFSET = 1_000_003  # held-out goals come from another stream than the training goals
+RESAMPLE_STREAM = 2_000_003  # resampled training goals: yet another stream
 
 
 class Problem:
     """Training and held-out goals of one arm, with batched fitness evaluation."""
 
     def __init__(self, arm: robots.Arm, encoding: Encoding, targets: int = 70, test_goals: int = 1000,
-                 goal_seed: int = 0):
+                 goal_seed: int = 0, resample_seed: int | None = None):
         self.arm = arm
         self.encoding = encoding
         self.goal_seed = int(goal_seed)
         self.train_goals = arm.sample_goals(targets, seed=self.goal_seed)
+        self.reference_goals = self.train_goals  # fixed: what the best so far is kept by when resampling
+        self.resample_seed = resample_seed
         self.test_goals = arm.sample_goals(test_goals, seed=self.goal_seed + TEST_SEED_OFFSET)
         # the kernels take goals along the last, contiguous axis
         self._train = (_t(encoding.inputs(self.train_goals)), _t(self.train_goals))
@@ -33,6 +44,18 @@ class Problem:
         self._axes = np.asarray(arm.task_axes, dtype=np.int64)
         self._qmap = (encoding.q_offset, encoding.q_scale, encoding.clip_lo, encoding.clip_hi)
         self._chain = arm.chain.arrays
+
+    @property
+    def resampling(self) -> bool:
+        """Whether the training goals are drawn anew every generation (draw_goals)."""
+        return self.resample_seed is not None
+
+    def draw_goals(self, generation: int) -> None:
+        """Replace the training goals by new ones, the same for the same (goal_seed, resample_seed,
+        generation) whatever came before."""
+        seq = np.random.SeedSequence([self.goal_seed, RESAMPLE_STREAM, int(self.resample_seed), int(generation)])
+        self.train_goals = self.arm.sample_goals(len(self.reference_goals), seed=int(seq.generate_state(1)[0]))
+        self._train = (_t(self.encoding.inputs(self.train_goals)), _t(self.train_goals))
 
     def _split(self, test: bool):
         return self._test if test else self._train
@@ -97,8 +120,8 @@ class Problem:
         return out
 
     def controller_mse(self, controller: Controller, goals: np.ndarray | None = None) -> float:
-        """MSE of one controller on goals (the training goals by default), through `arm.fk`."""
-        goals = self.train_goals if goals is None else goals
+        """MSE of one controller on goals (the fixed training goals by default), through `arm.fk`."""
+        goals = self.reference_goals if goals is None else goals
         return float(goal_errors(self.arm, controller, goals).mean())
 
 

@@ -51,19 +51,21 @@ class TrainConfig:
     hidden: int | None = None  # MLP hidden units; graph methods: hidden nodes of the first networks
     options: Options | dict | None = None  # the method's own settings (a dict is checked and converted)
     paper: bool = False  # record that this is the paper's literal method (see preset)
+    resample: bool = False  # new training goals every generation (the paper: fixed; lab.problem.fitness)
 
     def __init__(self, robot: str = "planar", method: str = methods.DEFAULT_METHOD, generations: int | None = None,
                  population: int | None = None, targets: int | None = None, seed: int = 0, test_goals: int = 1000,
                  goal_seed: int = 0, features: str | None = None, margin: float | None = None,
                  hidden: int | None = None, options: Options | dict | None = None, paper: bool = False,
-                 **option_values):
+                 resample: bool = False, **option_values):
         if option_values:
             base = options.to_dict() if isinstance(options, Options) else dict(options or {})
             options = {**base, **option_values}
         for name, value in (("robot", robot), ("method", method), ("generations", generations),
                             ("population", population), ("targets", targets), ("seed", seed),
                             ("test_goals", test_goals), ("goal_seed", goal_seed), ("features", features),
-                            ("margin", margin), ("hidden", hidden), ("options", options), ("paper", paper)):
+                            ("margin", margin), ("hidden", hidden), ("options", options), ("paper", paper),
+                            ("resample", resample)):
             object.__setattr__(self, name, value)
         self.__post_init__()
 
@@ -97,6 +99,7 @@ class TrainConfig:
         if self.margin is not None:
             real(self, "margin", 0, 10, "a number in [0, 10)", closed_above=False)
         flag(self, "paper")
+        flag(self, "resample")
         if isinstance(self.options, dict):  # the given values, checked by the method's own dataclass
             method.options(**method.known_options(self.options))
 
@@ -146,4 +149,6 @@ class TrainConfig:
 
     def to_dict(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "options"}
+        if not self.resample:  # the paper's fixed goals: written as before resampling existed, so
+            del d["resample"]  # stored runs, recordings and notebooks made earlier still compare equal
         return {**d, **self.options.to_dict()}

@@ -89,7 +89,8 @@ class RunSummary:
 def build_problem(config: TrainConfig) -> Problem:
     arm = robots.load(config.robot)
     enc = Encoding.for_arm(arm, config.features, config.margin)
-    return Problem(arm, enc, targets=config.targets, test_goals=config.test_goals, goal_seed=config.goal_seed)
+    return Problem(arm, enc, targets=config.targets, test_goals=config.test_goals, goal_seed=config.goal_seed,
+                   resample_seed=config.seed if config.resample else None)
 
 
 class RunBase:
@@ -200,6 +201,22 @@ class RunBase:
                 except Exception:
                     log.exception("subscriber %r failed at the end of the run", callback)
         self._done.set()
+
+
+class TimeLimit:
+    """A subscriber that stops a run once its run time (event.seconds: optimizer time, pauses and
+    subscribers excluded) reaches `seconds`: runner.subscribe(TimeLimit(runner, 3.0)). The run
+    then ends "stopped" after the generation that crossed the limit; how many generations that is
+    depends on the machine's speed and load."""
+
+    def __init__(self, runner: "RunBase", seconds: float):
+        if not seconds > 0:
+            raise ValueError(f"a time limit must be positive seconds, got {seconds!r}")
+        self.runner, self.seconds = runner, float(seconds)
+
+    def __call__(self, event: GenerationEvent) -> None:
+        if event.seconds >= self.seconds:
+            self.runner.stop(wait=False)
 
 
 class Runner(RunBase):
