@@ -19,6 +19,7 @@ import sys
 import threading
 import time
 import warnings
+import weakref
 from collections import deque
 
 import numpy as np
@@ -57,11 +58,14 @@ def rerun_recorder(folder: str):
         return None
 
     def record(runner):
-        # the app does not wait for the writer at a run's end (it may be behind): it finishes the file itself
-        logger = RerunLogger(runner, path=folder.rstrip("/") + "/", block_on_end=False)
+        logger = RerunLogger(runner, path=folder.rstrip("/") + "/")
         runner.subscribe(logger)
+        record.live.add(logger)
         return logger
 
+    # a run's end waits for its recording to be complete (the Runs list then shows whole files), but
+    # not when the app stops: LabApp.stop lets the writers finish their files on their own
+    record.live = weakref.WeakSet()
     return record
 
 
@@ -229,6 +233,8 @@ class LabApp:
 
     def stop(self) -> None:
         self._stop.set()
+        for logger in list(getattr(self.state.recorder, "live", ())):
+            logger.block_on_end = False  # the writer finishes the file after we have gone
         self.state.reset() if self.state.running else None
         self._thread.join(timeout=5)
         self.server.stop()
