@@ -150,6 +150,7 @@ def test_outputs_exist_and_parse(tiny):
     assert (out / "generalization.md").read_text().count("| 0 |") == 4  # seed 0 of each arm and method
     report = (out / "report.md").read_text()
     assert "tuned defaults" in report and "Time taken" in report and "table4.md" in report
+    assert report.startswith("# Reproduction of Martín H., de Lope and Santos (2009)")  # the paper's three authors
 
     import matplotlib.image
 

@@ -1,4 +1,4 @@
-"""The paper's own numbers (Martin H. and de Lope, 2009), as printed, for side-by-side tables.
+"""The paper's own numbers (Martín H., de Lope and Santos, 2009), as printed, for side-by-side tables.
 
 paper/table3.csv: Table 3, the 30 final training MSEs per arm and method, sorted (columns
 `planar_cmaes`, ...). paper/tables4-5.csv: Tables 4 and 5 (t, df, p, decision), where p is the
@@ -13,6 +13,10 @@ import io
 from importlib import resources
 
 import numpy as np
+
+AUTHORS = "Martín H., de Lope and Santos"  # José Antonio Martín H., Javier de Lope, Matilde Santos
+YEAR = 2009
+TITLE = "A method to learn the inverse kinematics of multi-link robots by evolving neuro-controllers"
 
 # The paper's two methods, compared in its Tables 3-5 (x = CMA-ES, y = NEAT in the Welch tests):
 # the one place outside lab/methods that names methods.

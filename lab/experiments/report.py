@@ -198,7 +198,7 @@ def _files(c) -> list[str]:
 
 
 def report_md(exp, outputs_seconds: float) -> str:
-    md = ["# Reproduction of Martin H. & de Lope (2009), Tables 3-5 and Figures 5-6\n",
+    md = [f"# Reproduction of {paper.AUTHORS} ({paper.YEAR}), Tables 3-5 and Figures 5-6\n",
           f"Command: `{command(exp.config)}`  \nStarted {exp.started}.\n",
           *_what_was_run(exp), *machine_lines(exp), *time_lines(exp, outputs_seconds),
           "\n## Headline: this experiment against the paper\n",
