@@ -24,7 +24,7 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from lab import Runner, TrainConfig  # noqa: E402
+from lab import Runner, TrainConfig, methods  # noqa: E402
 from lab.recording.logger import RerunLogger  # noqa: E402
 
 
