@@ -7,6 +7,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: runs share two cores with others
 
 import argparse  # noqa: E402
+import signal  # noqa: E402
 import sys  # noqa: E402
 
 import robots  # noqa: E402
@@ -170,6 +171,10 @@ def train(args) -> int:
     return 0
 
 
+def _interrupt(signum, _frame):
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m lab", description="Neuro-IK Lab: evolve neuro-controllers.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -178,6 +183,10 @@ def main(argv=None) -> int:
     experiments_cli.add_parser(sub)
     experiments_cli.add_claims_parser(sub)
     args = parser.parse_args(argv)
+    # a service manager's SIGTERM and a closing terminal's SIGHUP stop a command as Ctrl-C does: a
+    # training is stopped after its generation, an experiment's workers are ended, nothing is left running
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _interrupt)
     return {"train": train, "replay": replay, "reproduce": experiments_cli.main,
             "claims": experiments_cli.claims_main}[args.command](args)
 

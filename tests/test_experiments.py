@@ -253,3 +253,42 @@ def test_a_damaged_stored_run_is_named_and_done_again(tmp_path, content, capsys)
     assert store.load(spec) is None
     err = capsys.readouterr().err
     assert str(store.path(spec)) in err and "done again" in err
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGKILL"])
+def test_reproduce_stopped_by_a_signal_leaves_no_worker_running(tmp_path, sig, wait_ended):
+    """`lab reproduce` ended by SIGTERM (a service manager) or even SIGKILL: its pool workers end with it."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "lab", "reproduce", "--runs", "4", "--generations", "100000",
+                             "--population", "8", "--robots", "planar", "--methods", "cmaes", "--out",
+                             str(tmp_path / "out"), "--no-recording", "--quiet", "--workers", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    workers = []
+    while time.monotonic() < deadline and len(workers) < 2:
+        time.sleep(0.5)
+        workers = [c for c in _children(proc.pid) if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+    assert len(workers) >= 2, "no pool workers started"
+    time.sleep(2.0)  # they are training now
+    proc.send_signal(getattr(signal, sig))
+    proc.wait(30)
+    for pid in workers:
+        wait_ended(pid, timeout=15)
+    if sig == "SIGTERM":
+        assert proc.returncode == 130 and "the same command resumes" in proc.stderr.read()

@@ -84,6 +84,12 @@ def _report(exp, out) -> int:
     return 1 if exp.failures else 0
 
 
+def _stopped(args) -> int:
+    """Ctrl-C, SIGTERM or SIGHUP: the workers are ended (the executor does it), the finished runs stay stored."""
+    print(f"stopped: the finished runs are stored in {args.out}/runs; the same command resumes", file=sys.stderr)
+    return 130
+
+
 def _refused(e: Exception) -> int:
     print(f"error: {e}", file=sys.stderr)
     return 2
@@ -104,6 +110,8 @@ def main(args) -> int:
         exp = reproduce(config)
     except REFUSED as e:
         return _refused(e)
+    except KeyboardInterrupt:
+        return _stopped(args)
     return _report(exp, config.out)
 
 
@@ -117,4 +125,6 @@ def claims_main(args) -> int:
         result = claims(config)
     except REFUSED as e:
         return _refused(e)
+    except KeyboardInterrupt:
+        return _stopped(args)
     return _report(result.experiment, config.out)

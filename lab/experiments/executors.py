@@ -13,19 +13,45 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import threading
+import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
 from lab.experiments.runs import attempt
 
+PARENT_VAR = "LAB_EXPERIMENT_PARENT"
 ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
 
 
 def _init_worker() -> None:
+    _end_with_parent()
     os.environ.update(ONE_THREAD)  # for anything the worker starts later
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(1)
+
+
+def _end_with_parent() -> None:
+    """A worker ends with the process that started it, however that one ends (even SIGKILL): the
+    kernel sends it SIGKILL then (Linux prctl PR_SET_PDEATHSIG), and a thread checks the parent too."""
+    parent = int(os.environ.get(PARENT_VAR) or os.getppid())  # the executor's process, set before the spawn
+    if os.getppid() != parent:  # it ended while this worker was starting
+        os._exit(1)
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # not Linux: the thread below still ends it
+        pass
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
 class ProcessExecutor:
@@ -40,8 +66,8 @@ class ProcessExecutor:
 
     def __enter__(self) -> "ProcessExecutor":
         # spawned workers inherit this environment when they start, before importing numpy
-        self._saved_env = {k: os.environ.get(k) for k in ONE_THREAD}
-        os.environ.update(ONE_THREAD)
+        self._saved_env = {k: os.environ.get(k) for k in (*ONE_THREAD, PARENT_VAR)}
+        os.environ.update(ONE_THREAD, **{PARENT_VAR: str(os.getpid())})
         return self
 
     def __exit__(self, exc_type, *exc) -> None:
