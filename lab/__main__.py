@@ -82,7 +82,8 @@ def _replay_parser(sub) -> None:
     p.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
                    help="end the viewer after this many seconds (default: when it is closed, or Ctrl-C)")
     p.add_argument("--web-port", type=int, default=None, help="web viewer port (default: a free one)")
-    p.add_argument("--grpc-port", type=int, default=None, help="data server port (default: a free one)")
+    p.add_argument("--grpc-port", "--data-port", dest="grpc_port", type=int, default=None,
+                   help="port of the HTTP server the web viewer loads the recording from (default: a free one)")
 
 
 def _replay_arguments(args) -> str | None:

@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 
@@ -533,3 +534,19 @@ def test_replay_refuses_bad_numbers_before_starting_a_viewer(argv, why, capsys):
     path = ROOT / "recordings" / "examples" / "planar-cmaes-s0.rrd"
     assert cli(["replay", str(path), "--web", *argv]) == 2
     assert why in capsys.readouterr().err
+
+
+def test_the_web_viewer_loads_the_recording_from_a_file_server_of_ours(tmp_path):
+    """replay --web serves the .rrd over HTTP (with CORS for the viewer's page) instead of Rerun's
+    gRPC proxy, which kept a core busy with no browser attached; other paths are 404."""
+    from lab.recording.replay import serve_file
+
+    path = ROOT / "recordings" / "examples" / "planar-cmaes-s0.rrd"
+    server, url = serve_file(path, 0)
+    try:
+        with urllib.request.urlopen(url, timeout=5) as r:
+            assert r.read() == path.read_bytes() and r.headers["Access-Control-Allow-Origin"] == "*"
+        with pytest.raises(urllib.error.HTTPError):
+            urllib.request.urlopen(url.rsplit("/", 1)[0] + "/etc-passwd", timeout=5)
+    finally:
+        server.shutdown()

@@ -12,6 +12,7 @@ Only the file is needed (lab/recording.py describes its contents). A file withou
 
 from __future__ import annotations
 
+import http.server
 import json
 import os
 import signal
@@ -19,6 +20,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -174,8 +176,45 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def web_url(web_port: int, grpc_port: int) -> str:
-    return f"http://127.0.0.1:{web_port}/?url=" + quote(f"rerun+http://127.0.0.1:{grpc_port}/proxy", safe="")
+def web_url(web_port: int, data_url: str) -> str:
+    return f"http://127.0.0.1:{web_port}/?url=" + quote(data_url, safe="")
+
+
+class _OneFile(http.server.BaseHTTPRequestHandler):
+    """Serves one file (the recording) to the web viewer, with the CORS header its page needs."""
+
+    path_served: Path
+    name: str
+
+    def do_GET(self) -> None:  # noqa: N802 - http.server's naming
+        self._serve(body=True)
+
+    def do_HEAD(self) -> None:  # noqa: N802
+        self._serve(body=False)
+
+    def _serve(self, body: bool) -> None:
+        if self.path.split("?")[0] != f"/{self.name}":
+            self.send_error(404)
+            return
+        data = self.path_served.read_bytes()
+        self.send_response(200)
+        self.send_header("Content-Type", "application/octet-stream")
+        self.send_header("Content-Length", str(len(data)))
+        self.send_header("Access-Control-Allow-Origin", "*")
+        self.end_headers()
+        if body:
+            self.wfile.write(data)
+
+    def log_message(self, *args) -> None:  # quiet
+        pass
+
+
+def serve_file(path: Path, port: int) -> tuple[http.server.ThreadingHTTPServer, str]:
+    """An HTTP server on 127.0.0.1:port (0: a free one) serving `path`, in a thread; (server, its URL)."""
+    handler = type("Handler", (_OneFile,), {"path_served": Path(path), "name": quote(Path(path).name)})
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", port), handler)
+    threading.Thread(target=server.serve_forever, name="replay-file-server", daemon=True).start()
+    return server, f"http://127.0.0.1:{server.server_address[1]}/{handler.name}"
 
 
 def replay(path: str | os.PathLike, web: bool | None = None, timeout: float | None = None,
@@ -189,17 +228,29 @@ def replay(path: str | os.PathLike, web: bool | None = None, timeout: float | No
     with tempfile.TemporaryDirectory(prefix="lab-replay-") as tmp:
         shown = salvage(path, Path(tmp) / path.name) if rec.salvaged else path
         web = (not has_display()) if web is None else web
-        cmd = [rerun_binary(), str(shown)]
+        cmd, files = [rerun_binary(), str(shown)], None
         if web:
-            web_port, grpc_port = web_port or free_port(), grpc_port or free_port()
-            cmd += ["--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port),
-                    "--web-viewer-port", str(web_port)]
-        proc = subprocess.Popen(cmd, start_new_session=True, stdin=subprocess.DEVNULL)
+            # the web viewer alone (no gRPC proxy: `--serve-web FILE` kept a whole core busy with no
+            # browser attached), loading the recording over HTTP from a file server of ours: idle
+            # when nobody watches
+            files, data_url = serve_file(shown, grpc_port or 0)
+            web_port = web_port or free_port()
+            cmd = [rerun_binary(), "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(web_port), data_url]
+        try:
+            proc = subprocess.Popen(cmd, start_new_session=True, stdin=subprocess.DEVNULL)
+        except BaseException:
+            if files is not None:
+                files.shutdown()
+            raise
         print(f"replaying {path} ({len(rec.generations)} generations{', salvaged' if rec.salvaged else ''}); "
               f"viewer process {proc.pid}", file=out, flush=True)
         if web:
-            print(f"web viewer: {web_url(web_port, grpc_port)}", file=out, flush=True)
-        return _wait_and_end(proc, timeout)
+            print(f"web viewer: {web_url(web_port, data_url)}", file=out, flush=True)
+        try:
+            return _wait_and_end(proc, timeout)
+        finally:
+            if files is not None:
+                files.shutdown()
 
 
 def _wait_and_end(proc: subprocess.Popen, timeout: float | None) -> int:
