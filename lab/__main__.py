@@ -156,7 +156,10 @@ def train(args) -> int:
         summary = runner.join()
     finally:
         if logger is not None:
-            logger.close(wait=True)  # the run's end has closed it: waits for the compaction
+            try:
+                logger.close(wait=True)  # the run's end has closed it: waits for the compaction
+            except RuntimeError:
+                pass  # said in one line when it happened (logger.failure())
     bar.close()
     if summary.state == "failed":
         print(f"error: training failed: {summary.error}", file=sys.stderr)
@@ -167,7 +170,7 @@ def train(args) -> int:
           f"parameters {run.n_params}  time {run.seconds:.1f} s")
     print(f"training MSE  {run.train_mse:.6g}  ({config.targets} goals)")
     print(f"held-out MSE  {run.test_mse:.6g}  ({config.test_goals} goals)")
-    if logger is not None:
+    if logger is not None and logger.failure() is None:
         print(f"recording     {logger.path}  (python -m lab replay {logger.path})")
     return 0
 

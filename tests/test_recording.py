@@ -238,8 +238,10 @@ def test_a_writer_that_dies_does_not_take_the_run_down(tmp_path, caplog):
     finally:
         runner.stop()
     assert runner.join(30).state == "stopped"
-    assert "failed; unsubscribed" in caplog.text and "Rerun writer of" in caplog.text
-    with pytest.raises(RuntimeError, match=f"Rerun writer of {logger.path}"):
+    said = [r.getMessage() for r in caplog.records if "stopped:" in r.getMessage()]
+    assert len(said) == 1 and f"recording {logger.path} stopped: its writer process exited" in said[0]
+    assert "can be read back" in said[0] and "Traceback" not in caplog.text
+    with pytest.raises(RuntimeError, match=f"recording {logger.path} stopped"):
         logger.close()
     assert read_recording(logger.path).last_generation >= 10  # what it had written still loads
 
@@ -550,3 +552,25 @@ def test_the_web_viewer_loads_the_recording_from_a_file_server_of_ours(tmp_path)
             urllib.request.urlopen(url.rsplit("/", 1)[0] + "/etc-passwd", timeout=5)
     finally:
         server.shutdown()
+
+
+def test_a_full_disk_keeps_the_results_and_says_so_in_one_line(tmp_path):
+    """A recording on a full filesystem: the run's results are printed, the recording's failure is
+    one line naming the file, the cause and what can be read back; no traceback (needs root to mount
+    a small tmpfs; skipped elsewhere)."""
+    tiny = tmp_path / "tiny"
+    tiny.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=300k", "tmpfs", str(tiny)], capture_output=True).returncode:
+        pytest.skip("cannot mount a small tmpfs here (needs root)")
+    try:
+        done = subprocess.run([sys.executable, "-m", "lab", "train", "--robot", "ur5", "--generations", "200",
+                               "--test-goals", "100", "--quiet", "--recording", str(tiny / "run.rrd")],
+                              cwd=ROOT, capture_output=True, text=True, timeout=240)
+    finally:
+        subprocess.run(["umount", str(tiny)], capture_output=True)
+    out = done.stdout + done.stderr
+    assert done.returncode == 0, out[-3000:]
+    assert "training MSE" in done.stdout and "held-out MSE" in done.stdout
+    lines = [line for line in out.splitlines() if "stopped:" in line]
+    assert len(lines) == 1 and str(tiny / "run.rrd") in lines[0] and "disk is full" in lines[0], out[-3000:]
+    assert "Traceback" not in out and "ERROR" not in out, out[-3000:]

@@ -150,7 +150,10 @@ class RerunLogger:
         self._lock = threading.Lock()
         self._closed = False
         self._error: str | None = None
-        self._proc = pipes.start("lab.recording.writer")
+        self._failure: str | None = None  # failure()'s line, once made
+        self._said = False
+        # Rerun's own log lines off (unless RUST_LOG says otherwise): a failure is one line of ours (failure())
+        self._proc = pipes.start("lab.recording.writer", env={"RUST_LOG": "off"})
         self._fd = self._proc.stdin.fileno()
         pipes.grow(self._fd)
         self._send(("start", {
@@ -168,10 +171,36 @@ class RerunLogger:
     def __call__(self, event) -> None:
         if self._closed:
             raise RuntimeError(f"the recording {self.path} is closed")
-        self._send(("event", self._rows(event)))
+        if self._error is not None:  # the writer has stopped: said once, the run goes on
+            return
+        try:
+            self._send(("event", self._rows(event)))
+        except RuntimeError:
+            log.warning("%s", self.failure())
 
     def on_end(self, summary) -> None:
-        self.close(summary, block=self.block_on_end)
+        try:
+            self.close(summary, block=self.block_on_end)
+        except RuntimeError:
+            if not self._said:
+                log.warning("%s", self.failure())
+
+    def failure(self) -> str | None:
+        """One line on a writer that stopped (None while it works): the file, why (its own words: a
+        full disk is named), and what of the file is readable."""
+        if self._error is None:
+            return None
+        if self._failure is None:
+            try:
+                self._proc.wait(10)
+                said = self._proc.stdout.read() if not self._proc.stdout.closed else b""
+            except (OSError, ValueError, subprocess.TimeoutExpired):
+                said = b""
+            why = said[1:].decode("utf-8", "replace").strip() if said.startswith(b"E") else \
+                f"its writer process exited (code {self._proc.returncode})"
+            self._failure = f"recording {self.path} stopped: {why}; {_readable(self.path)}"
+            self._said = True
+        return self._failure
 
     def close(self, summary=None, wait: bool = False, block: bool = True) -> None:
         """Write the summary, then wait until the writer has closed the file (with its footer).
@@ -182,6 +211,8 @@ class RerunLogger:
         (the app stops within a second or two, however far the writer is behind)."""
         with self._lock:
             if self._closed:
+                if self._failure is not None:
+                    raise RuntimeError(self._failure)
                 if wait:
                     self.wait()
                 return
@@ -193,16 +224,29 @@ class RerunLogger:
             pass  # the writer is gone: reported below
         self._proc.stdin.close()
         if not block:
-            threading.Thread(target=self._finish, name=f"rerun-writer-{self.path.name}", daemon=True).start()
+            threading.Thread(target=self._finish_quietly, name=f"rerun-writer-{self.path.name}", daemon=True).start()
             return
         self._finish(wait)
 
+    def _finish_quietly(self) -> None:
+        try:
+            self._finish()
+        except RuntimeError:
+            if not self._said:
+                log.warning("%s", self.failure())
+
     def _finish(self, wait: bool = False) -> None:
-        closed = self._proc.stdout.read(1) == b"C"
+        first = self._proc.stdout.read(1)
+        if first != b"C":
+            self._error = self._error or "the writer failed"
+            rest = self._proc.stdout.read() if first else b""
+            self._proc.stdout.close()
+            self._proc.wait()
+            if first == b"E":  # its reason, for failure()
+                why = rest.decode("utf-8", "replace").strip()
+                self._failure = f"recording {self.path} stopped: {why}; {_readable(self.path)}"
+            raise RuntimeError(self.failure())
         self._proc.stdout.close()
-        if not closed:
-            code = self._proc.wait()
-            raise RuntimeError(f"the Rerun writer of {self.path} failed (exit code {code}; any error it printed is on stderr)")
         if wait:
             self.wait()
         else:  # reaps the writer when it is done compacting
@@ -272,6 +316,18 @@ def _resolve_source(source, problem):
     if hasattr(source, "config") and hasattr(source, "problem") and hasattr(source, "run_id"):
         return source.config, source.problem, source.run_id
     raise TypeError(f"RerunLogger needs a Runner, a TrainConfig or (config, problem), got {type(source).__name__}")
+
+
+def _readable(path: Path) -> str:
+    """What of a recording can be read back, in words."""
+    try:
+        from lab.recording.replay import read_recording
+
+        last = read_recording(path).last_generation
+    except Exception:  # noqa: BLE001 - nothing usable
+        return "nothing in it can be read back"
+    return "nothing in it can be read back" if last is None else \
+        f"generations 0..{last} can be read back (python -m lab replay {path})"
 
 
 def _close_at_exit(ref) -> None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import signal
 import sys
 import time
@@ -39,6 +40,11 @@ WRITE_INTERVAL = 0.02  # seconds: at most this often a write and flush of what t
 DISPLAY_INTERVAL = 0.1  # seconds between writes of the display-only series (log10 MSE, search state)
 
 
+# a flush that has not reached the file in this long never will (Rerun's file sink thread died:
+# a full disk); healthy ones take milliseconds
+FLUSH_TIMEOUT = 15.0
+
+
 class Writer:
     """The recording of one run (see lab/recording.py for what goes where)."""
 
@@ -53,7 +59,7 @@ class Writer:
         self._rec.save(self.path, default_blueprint=views.blueprint(self.method, self._geometry))
         self._rec.send_recording_name(f"{config['robot']} {config['method']} seed {config['seed']}")
         self._log_static(header)
-        self._rec.flush()
+        self._rec.flush(timeout_sec=FLUSH_TIMEOUT)
         self._logged = None  # the last controller written
         self._posed = (None, -(10**9))  # (controller, generation) of the last pose written
         self._search_keys: list | None = None  # the backend's numeric extras, in a fixed order
@@ -84,12 +90,12 @@ class Writer:
             self._rec.log("summary", rr.TextDocument(json.dumps(summary, indent=1)), static=True)
 
     def flush(self) -> None:
-        self._rec.flush()
+        self._rec.flush(timeout_sec=FLUSH_TIMEOUT)
 
     def close(self) -> None:
         """Flush and close the file (with its footer)."""
         try:
-            self._rec.flush()
+            self._rec.flush(timeout_sec=FLUSH_TIMEOUT)
         finally:
             self._rec.disconnect()
 
@@ -172,6 +178,16 @@ def main() -> int:
         print("rerun writer: no start message on stdin", file=sys.stderr)
         return 2
     header = first[0][1]
+    try:
+        return _write(header, first, stream, ack)
+    except Exception as e:  # a full disk, a vanished folder: one line to the logger, no traceback
+        _tell(ack, b"E" + _why(e, header["path"]).encode("utf-8", "replace"))
+        # at once: Rerun's RecordingStream flushes, with no time limit, when it is dropped, and a
+        # dead file sink never finishes that flush
+        os._exit(1)
+
+
+def _write(header: dict, first: list, stream, ack: int) -> int:
     writer = Writer(header)
     decode, summary, clean, batch = EventDecoder(header["run_id"]), None, False, first[1:]
     t0 = time.monotonic()
@@ -193,13 +209,29 @@ def main() -> int:
         writer.end(summary)
     finally:
         writer.close()
-        try:
-            os.write(ack, b"C")
-        except OSError:  # the logger no longer listens (its process has ended): the file is closed all the same
-            pass
+    _tell(ack, b"C")
     if clean and header["compact"]:
         compact(writer.path)
     return 0
+
+
+def _tell(ack: int, message: bytes) -> None:
+    try:
+        os.write(ack, message)
+    except OSError:  # the logger no longer listens (its process has ended): the file is closed all the same
+        pass
+
+
+def _why(e: Exception, path: str) -> str:
+    """Why writing failed, in words: a full disk is named as such (Rerun's file sink only says that
+    its thread shut down)."""
+    try:
+        free = shutil.disk_usage(os.path.dirname(os.path.abspath(path))).free
+    except OSError:
+        free = None
+    if free is not None and free < (1 << 20):
+        return f"the disk is full ({free:,} bytes free on its filesystem)"
+    return f"{type(e).__name__}: {e}"
 
 
 class _Column:

@@ -20,11 +20,14 @@ PIPE_BYTES = 1 << 20  # F_SETPIPE_SZ: Linux's default limit for unprivileged pro
 _F_SETPIPE_SZ = 1031
 
 
-def start(module: str, *args: str) -> subprocess.Popen:
+def start(module: str, *args: str, env: dict | None = None) -> subprocess.Popen:
     """`python -m module args` with pipes on stdin and stdout (unbuffered), this checkout first on
-    its path and one BLAS thread (unless set): a process that works beside this one."""
-    root = str(Path(__file__).resolve().parents[1])
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([root] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+    its path and one BLAS thread (unless set): a process that works beside this one. env: variables
+    to set there, unless they are set here already."""
+    root = str(Path(__file__).resolve().parents[2])  # the checkout: lab/running/pipes.py -> ../..
+    extra = {k: v for k, v in (env or {}).items() if k not in os.environ}
+    env = dict(os.environ, **extra,
+               PYTHONPATH=os.pathsep.join([root] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env.setdefault(var, "1")
     return subprocess.Popen([sys.executable, "-m", module, *args], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
