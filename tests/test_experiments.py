@@ -292,3 +292,29 @@ def test_reproduce_stopped_by_a_signal_leaves_no_worker_running(tmp_path, sig, w
         wait_ended(pid, timeout=15)
     if sig == "SIGTERM":
         assert proc.returncode == 130 and "the same command resumes" in proc.stderr.read()
+
+
+def test_an_unwritable_out_is_refused_before_any_run(tmp_path, capsys):
+    import stat
+
+    from lab.__main__ import main as lab_main
+
+    import subprocess
+
+    out = tmp_path / "locked"
+    out.mkdir()
+    out.chmod(stat.S_IRUSR | stat.S_IXUSR)
+    mounted = False
+    if os.access(out, os.W_OK):  # root ignores the mode: a read-only filesystem instead
+        mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(out)],
+                                 capture_output=True).returncode == 0
+        if not mounted:
+            pytest.skip("no read-only folder can be made here")
+    try:
+        assert lab_main(["reproduce", "--runs", "1", "--generations", "2", "--out", str(out), "--quiet",
+                         "--no-recording"]) == 2
+        assert f"cannot write the runs to {out / 'runs'}" in capsys.readouterr().err
+    finally:
+        if mounted:
+            subprocess.run(["umount", str(out)], capture_output=True)
+        out.chmod(stat.S_IRWXU)

@@ -178,6 +178,7 @@ def reproduce(config: ReproduceConfig, train=train_run, write: bool = True, desc
     exp = Experiment(config, specs, started=time.strftime("%Y-%m-%d %H:%M:%S %z"),
                      load_before=os.getloadavg())
     store = RunStore(config.out / "runs")
+    store.check_writable()  # before any run: an --out that cannot take files was found after the first
     pending = []
     for spec in specs:
         stored = store.load(spec, overwrite=config.overwrite)

@@ -111,6 +111,16 @@ class RunStore:
     def __init__(self, folder: Path):
         self.folder = Path(folder)
 
+    def check_writable(self) -> None:
+        """Create the folder and write a probe file there; OSError naming the folder if it cannot be."""
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            fd, probe = tempfile.mkstemp(dir=self.folder, prefix=".write-test-")
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as e:
+            raise OSError(f"cannot write the runs to {self.folder}: {e.strerror or e}") from e
+
     def path(self, spec: RunSpec) -> Path:
         return self.folder / f"{spec.name}.json"
 
