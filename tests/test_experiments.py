@@ -318,3 +318,12 @@ def test_an_unwritable_out_is_refused_before_any_run(tmp_path, capsys):
         if mounted:
             subprocess.run(["umount", str(out)], capture_output=True)
         out.chmod(stat.S_IRWXU)
+
+
+def test_more_workers_than_cores_are_capped_with_a_note(tmp_path, capsys):
+    from lab.__main__ import main as lab_main
+
+    assert lab_main(["reproduce", "--runs", "1", "--generations", "2", "--population", "8", "--robots", "planar",
+                     "--methods", "cmaes", "--workers", "100000", "--out", str(tmp_path), "--quiet",
+                     "--no-recording"]) == 0
+    assert f"--workers 100000 capped at {os.cpu_count()}" in capsys.readouterr().err
