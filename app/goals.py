@@ -42,10 +42,13 @@ SAME_POSE = 1e-4  # rad (or length): a redraw moves an arm only when a joint cha
 
 
 def fmt_len(arm: robots.Arm, d: float) -> str:
-    """A length in the arm's units: metres as mm, the paper's units as they are."""
+    """A length in the arm's units: metres as mm (below 1 mm in µm, so a refined answer's 0.01 mm
+    does not read as 0.0 or 0.1 mm), the paper's units as they are."""
     if not np.isfinite(d):
         return "∞"
-    return f"{1000 * d:.1f} mm" if robots.in_metres(arm.name) else f"{d:.3f}"
+    if not robots.in_metres(arm.name):
+        return f"{d:.3f}" if d >= 1e-3 else f"{d:.1e}"
+    return f"{1000 * d:.1f} mm" if d >= 1e-3 else f"{1e6 * d:.0f} µm"
 
 
 class GoalView:
