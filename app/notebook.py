@@ -73,10 +73,17 @@ class Notebook:
     def _connect(self) -> sqlite3.Connection:
         folder = os.path.dirname(self.path) or "."
         os.makedirs(folder, exist_ok=True)
-        db = sqlite3.connect(self.path, timeout=30, isolation_level=None)  # explicit transactions below
-        db.execute("PRAGMA journal_mode=WAL")
-        db.execute("PRAGMA busy_timeout=30000")
-        return _Transaction(db)
+        for attempt in range(5):
+            db = sqlite3.connect(self.path, timeout=30, isolation_level=None)  # explicit transactions below
+            try:
+                db.execute("PRAGMA busy_timeout=30000")
+                db.execute("PRAGMA journal_mode=WAL")  # switching a new file to WAL can meet another opener
+                return _Transaction(db)
+            except sqlite3.OperationalError as e:
+                db.close()
+                if "locked" not in str(e) or attempt == 4:
+                    raise
+                time.sleep(0.1 * (attempt + 1))
 
     def _check(self, path: str, sqlite: bool) -> None:
         if os.path.isdir(path):

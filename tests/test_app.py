@@ -259,8 +259,10 @@ def test_two_apps_sharing_a_notebook_lose_no_entry(tmp_path):
     code = ("import sys; from app.notebook import Notebook\n"
             "nb = Notebook(sys.argv[1])\n"
             "for k in range(40): nb.add({'run_id': f'{sys.argv[2]}{k}', 'robot': 'planar', 'method': 'cmaes'})\n")
-    procs = [subprocess.Popen([sys.executable, "-c", code, str(path), who]) for who in ("a", "b")]
-    assert [p.wait(60) for p in procs] == [0, 0]
+    procs = [subprocess.Popen([sys.executable, "-c", code, str(path), who], stderr=subprocess.PIPE, text=True)
+             for who in ("a", "b")]
+    errors = [p.communicate(timeout=60)[1] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], errors
     ids = {e["run_id"] for e in Notebook(str(path)).entries()}
     assert ids == {f"{w}{k}" for w in "ab" for k in range(40)}
 
