@@ -24,13 +24,15 @@ import sys
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import numpy as np  # noqa: E402
 
 import lab  # noqa: E402
 import robots  # noqa: E402
 from lab.experiments import arms  # noqa: E402
 
 REAL = tuple(n for n in robots.names() if robots.kind(n) == "real")
+# the defaults every arm had before the real-arm defaults (commit 6712b02): the paper arms' settings
+BEFORE = dict(generations=1000, population=50, targets=70, hidden=5, margin=2.0, features="reach", sigma0=0.2,
+              separable=False, diagonal=100)
 
 
 def measure(name: str, controller, dls_goals: int) -> tuple:
@@ -50,7 +52,16 @@ def main() -> None:
     ap.add_argument("--from-pretrained", action="store_true",
                     help="measure the shipped controllers (app/pretrained/, written by a run of this benchmark "
                          "with --write-pretrained) instead of training")
+    ap.add_argument("--before", action="store_true",
+                    help="train with the settings every arm had before the real-arm defaults (BEFORE) and print "
+                         "the held-out median error only")
     args = ap.parse_args()
+    if args.before:
+        for name in args.robots.split(","):
+            run = lab.evolve(name, seed=args.seed, **BEFORE)
+            s = arms.held_out(robots.load(name), run.controller)
+            print(f"| {name} | {s['median']:.0f} {s['unit']} ({s['median_pct']:.1f} %) | {run.seconds:.0f} s |", flush=True)
+        return
     rows = []
     for name in args.robots.split(","):
         if args.from_pretrained:

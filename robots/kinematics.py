@@ -153,13 +153,14 @@ _NO_JOINTS = np.empty((0, 0, 3))
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def chain_point(q, i, rot, pos, kind, identity, ee_pos, joints):
+def chain_point(q, i, rot, pos, kind, identity, ee_pos, joints, axes=None):
     """End-effector position (x, y, z) of configuration q[i] (compiled; for use in other kernels).
 
     The running rotation R = [r00 .. r22] and position p = (px, py, pz) live in scalars:
     per joint k,  p += R pos[k];  R = R rot[k];  then a revolute joint mixes columns 0 and 1
     of R by (cos q, sin q), a prismatic one adds q R[:, 2] to p. If joints has rows, the
-    origin of each joint (before its own motion) is written to joints[i, k + 1].
+    origin of each joint (before its own motion) is written to joints[i, k + 1]; if axes is given,
+    each joint's axis in the base frame (R[:, 2] once its fixed placement is applied) to axes[k].
     """
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
     px, py, pz = 0.0, 0.0, 0.0
@@ -183,6 +184,8 @@ def chain_point(q, i, rot, pos, kind, identity, ee_pos, joints):
             a21 = r20 * m[0, 1] + r21 * m[1, 1] + r22 * m[2, 1]
             a22 = r20 * m[0, 2] + r21 * m[1, 2] + r22 * m[2, 2]
             r00, r01, r02, r10, r11, r12, r20, r21, r22 = a00, a01, a02, a10, a11, a12, a20, a21, a22
+        if axes is not None:
+            axes[k, 0], axes[k, 1], axes[k, 2] = r02, r12, r22
         x = q[i, k]
         if kind[k] == 0:  # revolute about local z
             c = np.cos(x)
@@ -212,54 +215,20 @@ def _chain_kernel(q, rot, pos, kind, identity, ee_pos, out, joints):
 def _jacobian_kernel(q, rot, pos, kind, identity, ee_pos, J):
     """J (N, 3, n) <- the end effector's positional Jacobian at every row of q (N, n).
 
-    The chain is walked as in chain_point; joint k's axis is the third column of the running
-    rotation once its fixed placement is applied (the axis is folded to local z) and its origin the
-    running position there. Column k is  a_k x (p_ee - o_k)  for a revolute joint and  a_k  for a
-    prismatic one (the derivative of fk with respect to that joint's coordinate: for a continuous
-    joint, its angle).
+    The chain is walked by chain_point, which gives the end effector and each joint's origin o_k
+    and axis a_k in the base frame. Column k is  a_k x (p_ee - o_k)  for a revolute joint and  a_k
+    for a prismatic one (the derivative of fk with respect to that joint's coordinate: for a
+    continuous joint, its angle).
     """
     n = rot.shape[0]
     axes = np.empty((n, 3))
-    origins = np.empty((n, 3))
+    origins = np.empty((q.shape[0], n + 2, 3))
     for i in range(q.shape[0]):
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
-        px, py, pz = 0.0, 0.0, 0.0
-        for k in range(n):
-            px += r00 * pos[k, 0] + r01 * pos[k, 1] + r02 * pos[k, 2]
-            py += r10 * pos[k, 0] + r11 * pos[k, 1] + r12 * pos[k, 2]
-            pz += r20 * pos[k, 0] + r21 * pos[k, 1] + r22 * pos[k, 2]
-            if not identity[k]:
-                m = rot[k]
-                a00 = r00 * m[0, 0] + r01 * m[1, 0] + r02 * m[2, 0]
-                a01 = r00 * m[0, 1] + r01 * m[1, 1] + r02 * m[2, 1]
-                a02 = r00 * m[0, 2] + r01 * m[1, 2] + r02 * m[2, 2]
-                a10 = r10 * m[0, 0] + r11 * m[1, 0] + r12 * m[2, 0]
-                a11 = r10 * m[0, 1] + r11 * m[1, 1] + r12 * m[2, 1]
-                a12 = r10 * m[0, 2] + r11 * m[1, 2] + r12 * m[2, 2]
-                a20 = r20 * m[0, 0] + r21 * m[1, 0] + r22 * m[2, 0]
-                a21 = r20 * m[0, 1] + r21 * m[1, 1] + r22 * m[2, 1]
-                a22 = r20 * m[0, 2] + r21 * m[1, 2] + r22 * m[2, 2]
-                r00, r01, r02, r10, r11, r12, r20, r21, r22 = a00, a01, a02, a10, a11, a12, a20, a21, a22
-            axes[k, 0], axes[k, 1], axes[k, 2] = r02, r12, r22
-            origins[k, 0], origins[k, 1], origins[k, 2] = px, py, pz
-            x = q[i, k]
-            if kind[k] == 0:  # revolute about local z: the z column does not change
-                c = np.cos(x)
-                s = np.sin(x)
-                r00, r01 = c * r00 + s * r01, c * r01 - s * r00
-                r10, r11 = c * r10 + s * r11, c * r11 - s * r10
-                r20, r21 = c * r20 + s * r21, c * r21 - s * r20
-            else:  # prismatic along local z
-                px += x * r02
-                py += x * r12
-                pz += x * r22
-        ex = px + r00 * ee_pos[0] + r01 * ee_pos[1] + r02 * ee_pos[2]
-        ey = py + r10 * ee_pos[0] + r11 * ee_pos[1] + r12 * ee_pos[2]
-        ez = pz + r20 * ee_pos[0] + r21 * ee_pos[1] + r22 * ee_pos[2]
+        ex, ey, ez = chain_point(q, i, rot, pos, kind, identity, ee_pos, origins, axes)
         for k in range(n):
             ax, ay, az = axes[k, 0], axes[k, 1], axes[k, 2]
             if kind[k] == 0:
-                dx, dy, dz = ex - origins[k, 0], ey - origins[k, 1], ez - origins[k, 2]
+                dx, dy, dz = ex - origins[i, k + 1, 0], ey - origins[i, k + 1, 1], ez - origins[i, k + 1, 2]
                 J[i, 0, k] = ay * dz - az * dy
                 J[i, 1, k] = az * dx - ax * dz
                 J[i, 2, k] = ax * dy - ay * dx

@@ -283,25 +283,31 @@ def test_python_m_app_refuses_bad_paths_and_hosts_before_starting(tmp_path, caps
     assert sorted(os.listdir(tmp_path)) == ["run.rrd"]
 
 
+def start_app_process(*args: str):
+    """`python -m app ARGS` in a child process: (the process, the URL it prints as ready)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "app", *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    url = None
+    for line in proc.stdout:
+        if "Neuro-IK Lab ready" in line:
+            url = line.rsplit(" ", 1)[-1].strip()
+            break
+    return proc, url
+
+
 def test_python_m_app_prints_the_url_it_really_serves(tmp_path):
     import signal
     import socket
-    import subprocess
-    import sys
 
     taken = socket.socket()
     taken.bind(("127.0.0.1", 0))
     taken.listen()
     port = taken.getsockname()[1]
-    proc = subprocess.Popen([sys.executable, "-m", "app", "--port", str(port), "--no-record",
-                             "--notebook", str(tmp_path / "nb.json")],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc, url = start_app_process("--port", str(port), "--no-record", "--notebook", str(tmp_path / "nb.json"))
     try:
-        url = None
-        for line in proc.stdout:
-            if "Neuro-IK Lab ready" in line:
-                url = line.rsplit(" ", 1)[-1].strip()
-                break
         assert url is not None and url.startswith("http://127.0.0.1:")
         served = int(url.rsplit(":", 1)[1])
         assert served != port  # the taken port was skipped, and the URL says which one is used
@@ -410,20 +416,12 @@ def test_every_way_of_stopping_the_app_notes_the_run_and_closes_its_recording(tm
     """python -m app stopped by a signal during training: the run is in the notebook as stopped,
     its recording reads back with its summary, no traceback, within a few seconds."""
     import signal
-    import subprocess
-    import sys
 
     from lab.recording.replay import read_recording
 
     nb, rec = tmp_path / "nb.db", tmp_path / "rec"
-    proc = subprocess.Popen([sys.executable, "-m", "app", "--port", "0", "--notebook", str(nb), "--recordings", str(rec)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc, url = start_app_process("--port", "0", "--notebook", str(nb), "--recordings", str(rec))
     try:
-        url = None
-        for line in proc.stdout:
-            if "Neuro-IK Lab ready" in line:
-                url = line.rsplit(" ", 1)[-1].strip()
-                break
         assert url is not None
         probe = Probe(url).start()
         probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")

@@ -98,33 +98,32 @@ def _refused(e: Exception) -> int:
 REFUSED = (ValueError, TypeError, OSError, RuntimeError)  # runs.ConfigMismatch is a ValueError
 
 
-def main(args) -> int:
-    from lab.experiments.reproduce import ReproduceConfig, reproduce
-
+def _run(args, make_config, run, experiment) -> int:
+    """Build the config, run, report; a refused setting is one line, Ctrl-C/SIGTERM keep what is stored."""
     try:
-        config = ReproduceConfig(runs=args.runs, generations=args.generations, population=args.population,
-                                 methods=_names(args.methods), robots=_names(args.robots), out=args.out,
-                                 paper=args.paper, seed=args.seed, workers=_workers(args), ray=args.ray,
-                                 overwrite=args.overwrite, progress=not args.quiet,
-                                 recording=not args.no_recording)
-        exp = reproduce(config)
+        config = make_config()
+        result = run(config)
     except REFUSED as e:
         return _refused(e)
     except KeyboardInterrupt:
         return _stopped(args)
-    return _report(exp, config.out)
+    return _report(experiment(result), config.out)
+
+
+def main(args) -> int:
+    from lab.experiments.reproduce import ReproduceConfig, reproduce
+
+    return _run(args, lambda: ReproduceConfig(
+        runs=args.runs, generations=args.generations, population=args.population, methods=_names(args.methods),
+        robots=_names(args.robots), out=args.out, paper=args.paper, seed=args.seed, workers=_workers(args),
+        ray=args.ray, overwrite=args.overwrite, progress=not args.quiet, recording=not args.no_recording),
+        reproduce, lambda exp: exp)
 
 
 def claims_main(args) -> int:
     from lab.experiments.claims import ClaimsConfig, claims
 
-    try:
-        config = ClaimsConfig(runs=args.runs, generations=args.generations, seconds=args.seconds, out=args.out,
-                              seed=args.seed, workers=_workers(args), ray=args.ray, overwrite=args.overwrite,
-                              progress=not args.quiet)
-        result = claims(config)
-    except REFUSED as e:
-        return _refused(e)
-    except KeyboardInterrupt:
-        return _stopped(args)
-    return _report(result.experiment, config.out)
+    return _run(args, lambda: ClaimsConfig(
+        runs=args.runs, generations=args.generations, seconds=args.seconds, out=args.out, seed=args.seed,
+        workers=_workers(args), ray=args.ray, overwrite=args.overwrite, progress=not args.quiet),
+        claims, lambda result: result.experiment)

@@ -34,6 +34,9 @@ def _cma():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "Could not import matplotlib"
         import cma
+    # sep-CMA-ES's diagonal decoding warns of a large step of one weight: not an error (filtered
+    # once here, not per generation on the hot path)
+    warnings.filterwarnings("ignore", "elements of z2", UserWarning)
     return cma
 
 
@@ -91,10 +94,7 @@ class CMAESBackend(Backend):
         f = self.problem.mlp_mse(X, self.config.hidden)
         finite = np.isfinite(f)
         worst = f[finite].max() if finite.any() else 1.0
-        with warnings.catch_warnings():
-            # sep-CMA-ES's diagonal decoding warns of a large step of one weight: not an error
-            warnings.filterwarnings("ignore", "elements of z2", UserWarning)
-            self.es.tell(list(X), np.where(finite, f, 10.0 * worst + 1e6).tolist())
+        self.es.tell(list(X), np.where(finite, f, 10.0 * worst + 1e6).tolist())
         if self.es.sm.randn is np.random.randn:
             # pycma 4.x switches from the diagonal to the full sampler (CMA_diagonal) with a new
             # sampler that draws from numpy's global, unseeded generator: give it ours back
