@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "LAB_THREADS"):
     os.environ.setdefault(_var, "1")  # before numpy: training shares the cores with the server
 
 import argparse  # noqa: E402

@@ -372,6 +372,49 @@ def test_same_seed_same_history_in_another_process():
         assert other[method] == here, method
 
 
+def test_fitness_in_threads_equals_one_thread_bit_for_bit(monkeypatch):
+    """Problem.mlp_mse splits a population over `threads` slices; every candidate's MSE is the same
+    number whatever slice it lands in, and a run is the same run with LAB_THREADS 1 or 3."""
+    arm = robots.load("ur5")
+    enc = Encoding.for_arm(arm, "reach", 0.0)
+    W = np.random.default_rng(3).normal(0, 0.3, (50, mlp_size(enc.n_inputs, 16, enc.n_outputs)))
+    one = Problem(arm, enc, targets=120, threads=1).mlp_mse(W, 16)
+    for threads in (2, 3, 4):
+        assert np.array_equal(Problem(arm, enc, targets=120, threads=threads).mlp_mse(W, 16), one)
+    runs = []
+    for threads in ("1", "3"):
+        monkeypatch.setenv("LAB_THREADS", threads)
+        runs.append(lab.evolve(robot="ur5", generations=30, population=24, seed=4, targets=60))
+    assert np.array_equal(runs[0].history, runs[1].history) and runs[0].test_mse == runs[1].test_mse
+
+
+def test_a_bad_thread_count_is_refused_by_name(monkeypatch):
+    from lab.problem.fitness import default_threads
+
+    monkeypatch.setenv("LAB_THREADS", "two")
+    with pytest.raises(ValueError, match="LAB_THREADS must be an integer >= 1, got 'two'"):
+        default_threads()
+    monkeypatch.setenv("LAB_THREADS", "2")
+    assert default_threads() == 2
+    monkeypatch.delenv("LAB_THREADS")
+    assert 1 <= default_threads() <= 4
+
+
+def test_processes_that_work_beside_others_get_one_fitness_thread():
+    from lab.experiments.executors import ONE_THREAD
+    from lab.running import pipes
+
+    assert ONE_THREAD["LAB_THREADS"] == "1"
+    proc = pipes.start("lab.running.worker")  # it waits for its run on stdin: only its environment is read
+    try:
+        env = open(f"/proc/{proc.pid}/environ", "rb").read().split(b"\0")
+    finally:
+        proc.kill()
+        proc.wait()
+    if "LAB_THREADS" not in os.environ:
+        assert b"LAB_THREADS=1" in env
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_runners_in_threads_equal_sequential_runs(method):
     cfgs = [lab.TrainConfig(method=method, seed=s, **RUN[method]) for s in (0, 1)]

@@ -509,6 +509,29 @@ def test_refine_makes_a_close_seed_exact_within_three_steps(name):
     assert np.all((r.q >= arm.lower - 1e-12) & (r.q <= arm.upper + 1e-12))
 
 
+@pytest.mark.parametrize("name", ["z1", "panda"])
+def test_refine_holds_a_joint_at_its_limit_instead_of_clipping_the_step(name):
+    """Goals whose solution has a joint 0.02 rad from a limit, seeds ~3 cm off: a full step pushes
+    that joint past the limit. Clipping the step there (the first version) converged on 91 % (Z1)
+    and 86 % (Panda) of these goals; holding the joint and solving with the others, plus halving a
+    step that does not lower the error, on 99 % and more."""
+    from robots.ik import refine
+
+    arm = robots.load(name)
+    n = 300
+    rng = np.random.default_rng(1)
+    q_true = arm.sample_q(n, seed=5)
+    j = rng.integers(0, arm.nq, n)
+    near = np.where(rng.random(n) < 0.5, arm.lower[j] + 0.02, arm.upper[j] - 0.02)
+    q_true[np.arange(n), j] = np.where(arm.chain.continuous[j].astype(bool), q_true[np.arange(n), j], near)
+    goals = arm.reach(q_true)
+    seeds = arm.within_limits(q_true + rng.normal(0, 0.05, q_true.shape))
+    r = refine(arm, goals, seeds, steps=3, tol=1e-4)
+    assert np.mean(r.error < 1e-4) >= 0.98
+    assert np.all((r.q >= arm.lower - 1e-12) & (r.q <= arm.upper + 1e-12))
+    assert np.allclose(np.linalg.norm(arm.reach(r.q) - goals, axis=1), r.error)
+
+
 def test_refine_refuses_mismatched_shapes():
     from robots.ik import refine
 

@@ -21,7 +21,8 @@ from concurrent.futures.process import BrokenProcessPool
 from lab.experiments.runs import attempt
 
 PARENT_VAR = "LAB_EXPERIMENT_PARENT"
-ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
+ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1",
+              "LAB_THREADS": "1"}
 
 
 def _init_worker() -> None:

@@ -11,9 +11,19 @@ run's seed, generation), so a run is still reproducible by its seed. `reference_
 fixed set of goal_seed (the goals a fixed run trains on): fitness values of different generations
 are then on different goals, so methods keep their best controller so far by its MSE on the
 reference goals (lab.methods.base.Backend._offer).
+
+Threads: a population's MLPs are evaluated in `threads` slices side by side (the kernels release
+the GIL; each candidate's MSE is computed the same way whatever slice it is in, so the numbers are
+the same bit for bit). The default is LAB_THREADS from the environment, else the cores this process
+may use, at most 4. Processes that work beside others set LAB_THREADS=1: the app's training worker
+and the Rerun writer (lab.running.pipes.start), parallel experiment runs (lab.experiments.executors).
 """
 
 from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -24,14 +34,46 @@ from lab.problem.encoding import Encoding
 
 TEST_SEED_OFFSET = 1_000_003  # held-out goals come from another stream than the training goals
 RESAMPLE_STREAM = 2_000_003  # resampled training goals: yet another stream
+THREADS_VAR = "LAB_THREADS"
+MAX_THREADS = 4  # 50 candidates of a few hundred goals: more slices cost more than they save
+_MIN_SLICE = 8  # candidates per slice below which a thread is not worth its hand-off
+
+_pools: dict[int, ThreadPoolExecutor] = {}
+_pools_lock = threading.Lock()
+
+
+def default_threads() -> int:
+    """LAB_THREADS if set (an integer >= 1), else the cores this process may use, at most MAX_THREADS."""
+    raw = os.environ.get(THREADS_VAR)
+    if raw is not None:
+        try:
+            n = int(raw)
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise ValueError(f"{THREADS_VAR} must be an integer >= 1, got {raw!r}")
+        return n
+    return max(1, min(MAX_THREADS, len(os.sched_getaffinity(0))))
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    """One shared pool per thread count, made on first use."""
+    with _pools_lock:
+        pool = _pools.get(n)
+        if pool is None:
+            pool = _pools[n] = ThreadPoolExecutor(n, thread_name_prefix="lab-fitness")
+        return pool
 
 
 class Problem:
     """Training and held-out goals of one arm, with batched fitness evaluation."""
 
     def __init__(self, arm: robots.Arm, encoding: Encoding, targets: int = 70, test_goals: int = 1000,
-                 goal_seed: int = 0, resample_seed: int | None = None):
+                 goal_seed: int = 0, resample_seed: int | None = None, threads: int | None = None):
         self.arm = arm
+        self.threads = default_threads() if threads is None else int(threads)
+        if self.threads < 1:
+            raise ValueError(f"threads must be >= 1, got {threads!r}")
         self.encoding = encoding
         self.goal_seed = int(goal_seed)
         self.train_goals = arm.sample_goals(targets, seed=self.goal_seed)
@@ -65,7 +107,15 @@ class Problem:
         XT, goalsT = self._split(test)
         W = np.ascontiguousarray(W, dtype=np.float64)
         out = np.empty(len(W))
-        kernels.mlp_mse(XT, goalsT, self._axes, W, int(hidden), self._qmap, self._chain, out)
+        slices = min(self.threads, len(W) // _MIN_SLICE)
+        if slices <= 1:
+            kernels.mlp_mse(XT, goalsT, self._axes, W, int(hidden), self._qmap, self._chain, out)
+            return out
+        edges = np.linspace(0, len(W), slices + 1).astype(int)
+        jobs = [_pool(slices).submit(kernels.mlp_mse, XT, goalsT, self._axes, W[a:b], int(hidden), self._qmap,
+                                     self._chain, out[a:b]) for a, b in zip(edges[:-1], edges[1:])]
+        for job in jobs:
+            job.result()
         return out
 
     def mlp_gradient(self, w: np.ndarray, hidden: int, test: bool = False) -> tuple[float, np.ndarray]:

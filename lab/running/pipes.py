@@ -22,13 +22,14 @@ _F_SETPIPE_SZ = 1031
 
 def start(module: str, *args: str, env: dict | None = None) -> subprocess.Popen:
     """`python -m module args` with pipes on stdin and stdout (unbuffered), this checkout first on
-    its path and one BLAS thread (unless set): a process that works beside this one. env: variables
+    its path, one BLAS thread and one fitness thread (LAB_THREADS) unless set: a process that works
+    beside this one. env: variables
     to set there, unless they are set here already."""
     root = str(Path(__file__).resolve().parents[2])  # the checkout: lab/running/pipes.py -> ../..
     extra = {k: v for k, v in (env or {}).items() if k not in os.environ}
     env = dict(os.environ, **extra,
                PYTHONPATH=os.pathsep.join([root] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "LAB_THREADS"):
         env.setdefault(var, "1")
     return subprocess.Popen([sys.executable, "-m", module, *args], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                             bufsize=0, env=env)
