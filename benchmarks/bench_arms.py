@@ -13,6 +13,12 @@ TRAC-IK, 99.2 % success on the UR5 at 0.37 ms per solve (full 6-D pose, Beeson a
     .venv/bin/python benchmarks/bench_arms.py                          # the 8 real arms (about 40 min)
     .venv/bin/python benchmarks/bench_arms.py --robots ur5,planar --write-pretrained
     .venv/bin/python benchmarks/bench_arms.py --from-pretrained        # measure the shipped controllers
+    .venv/bin/python benchmarks/bench_arms.py --timing 1500            # seconds a default budget takes here
+
+--timing N runs N generations of each arm's defaults with the fitness on one thread and on
+LAB_THREADS (default: the cores, at most 4), interleaved, and prints seconds per generation and the
+whole default budget extrapolated (run it on a quiet machine: that is the figure the 5-minute
+bound is about).
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -42,6 +49,34 @@ def measure(name: str, controller, dls_goals: int) -> tuple:
             arms.dls_from_rest(arm, goals[:dls_goals]))
 
 
+def timing(names: list[str], generations: int, seed: int) -> None:
+    from lab.problem.fitness import THREADS_VAR, default_threads
+
+    many = default_threads()
+    print(f"load average {os.getloadavg()[0]:.2f}; {generations} generations per arm, fitness on 1 and {many} threads")
+    print("| arm | default budget | s/generation, 1 thread | s/generation, %d threads | budget, 1 thread | budget, %d threads |"
+          % (many, many))
+    print("|---|---|---|---|---|---|")
+    saved = os.environ.get(THREADS_VAR)
+    try:
+        for name in names:
+            budget = lab.TrainConfig.preset(robot=name).generations
+            per = {}
+            for threads in (1, many, 1, many):  # interleaved: a busy moment hits both
+                os.environ[THREADS_VAR] = str(threads)
+                t = time.perf_counter()
+                lab.evolve(name, generations=generations, seed=seed)
+                per.setdefault(threads, []).append((time.perf_counter() - t) / generations)
+            one, par = min(per[1]), min(per[many])
+            print(f"| {name} | {budget:,} | {1e3 * one:.2f} ms | {1e3 * par:.2f} ms | {budget * one:.0f} s | "
+                  f"{budget * par:.0f} s |", flush=True)
+    finally:
+        if saved is None:
+            os.environ.pop(THREADS_VAR, None)
+        else:
+            os.environ[THREADS_VAR] = saved
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robots", default=",".join(REAL), help=f"comma-separated (default: {','.join(REAL)})")
@@ -55,7 +90,12 @@ def main() -> None:
     ap.add_argument("--before", action="store_true",
                     help="train with the settings every arm had before the real-arm defaults (BEFORE) and print "
                          "the held-out median error only")
+    ap.add_argument("--timing", type=int, metavar="N", default=0,
+                    help="time N generations of each arm's defaults on 1 and on LAB_THREADS threads; no training")
     args = ap.parse_args()
+    if args.timing:
+        timing(args.robots.split(","), args.timing, args.seed)
+        return
     if args.before:
         for name in args.robots.split(","):
             run = lab.evolve(name, seed=args.seed, **BEFORE)
