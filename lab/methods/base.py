@@ -57,13 +57,73 @@ class Options:
         return {f.name: (f.default, type(f.default), f.metadata.get("help", "")) for f in dataclasses.fields(cls)}
 
 
+@dataclass(frozen=True, eq=False)
+class Population:
+    """The candidates one generation evaluated (Backend.candidates()).
+
+    mse: (n,) each candidate's training MSE (+inf for NaN/inf output), as StepResult.fitness;
+    controllers: the n candidates as controllers, or None where they were left out (the recording
+        and the pipe carry them only at a bounded rate, lab.running.runner.POPULATION_PERIOD);
+    species: (n,) each candidate's species id, or None for a method without species;
+    points: (n, 3) each candidate's end-effector point at the recording's display goal
+        (lab.recording.population.display_goal), filled in by the runner, or None.
+    """
+
+    generation: int
+    mse: np.ndarray
+    controllers: tuple | None = None
+    species: np.ndarray | None = None
+    points: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.mse)
+
+    def joints(self, goals: np.ndarray) -> np.ndarray:
+        """(n, len(goals), nq): every candidate's joint values for goals (len(goals), len(task_axes))."""
+        if self.controllers is None:
+            raise ValueError("this population was sent without its controllers")
+        return population_joints(self.controllers, goals)
+
+    def reach(self, arm, goals: np.ndarray) -> np.ndarray:
+        """(n, len(goals), 3): every candidate's end-effector point for each goal."""
+        q = self.joints(goals)
+        return arm.fk(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:2], 3)
+
+    def without_controllers(self) -> "Population":
+        return dataclasses.replace(self, controllers=None)
+
+
+def population_joints(controllers, goals: np.ndarray) -> np.ndarray:
+    """(n, g, nq) joint values of n controllers on goals (g, task dims): one compiled call when
+    they are all MLPs of one shape or all graphs of one encoding, one call each otherwise."""
+    from lab.problem import kernels
+    from lab.problem.controllers import GraphController, MLPController, compile_programs, run_programs
+
+    goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
+    first = controllers[0]
+    enc = first.encoding
+    same = all(c.encoding is enc for c in controllers)  # one pickle keeps them one object
+    if same and all(isinstance(c, MLPController) and c.hidden == first.hidden for c in controllers):
+        XT = np.ascontiguousarray(enc.inputs(goals).T)
+        W = np.stack([c.weights for c in controllers])
+        A = np.empty((enc.n_outputs, len(controllers) * len(goals)))
+        kernels.mlp_outputs(XT, W, first.hidden, A)
+        a = A.reshape(enc.n_outputs, len(controllers), len(goals)).transpose(1, 2, 0)
+    elif same and all(isinstance(c, GraphController) for c in controllers):
+        a = run_programs(compile_programs(controllers), enc.inputs(goals))
+    else:
+        return np.stack([c(goals) for c in controllers])
+    return enc.joints(a.reshape(-1, enc.n_outputs)).reshape(len(controllers), len(goals), -1)
+
+
 @dataclass(frozen=True)
 class StepResult:
     """What one generation (one step) produced.
 
     fitness: (population,) training MSE of every controller evaluated (+inf for NaN/inf output)
     extras:  the method's own scalars to log (CMA-ES: sigma, restarts; NEAT: species, nodes, ...),
-             named in its Method.search_series
+             named in its Method.search_series; values that are not numbers (NEAT's species
+             sizes, a {species id: size} mapping) are for its Method.live_plots only
     evaluations: controller evaluations this step counts (None: one per fitness value)
     """
 
@@ -95,9 +155,34 @@ class Backend(ABC):
         if self.problem.resampling:
             self.problem.draw_goals(self.generation)
         result = self._step()
+        self._fitness = result.fitness
         self.generation += 1
         self.evaluations += len(result.fitness) if result.evaluations is None else int(result.evaluations)
         return result
+
+    def candidates(self) -> Population | None:
+        """The candidates of the last step, with their controllers (None before the first step).
+
+        This default knows only the best controller so far: a population of one (a method that
+        keeps one network, or a plug-in that says no more). Population methods override
+        `_candidates()`; building controllers happens here only, when asked (a bounded rate), never
+        in step(); nothing here draws random numbers, so asking never changes a run."""
+        fitness = getattr(self, "_fitness", None)
+        if fitness is None:
+            return None
+        found = self._candidates()
+        if found is None:
+            if self.best is None:
+                return None
+            return Population(self.generation - 1, np.array([self.best_mse]), (self.best,))
+        controllers, species = found
+        return Population(self.generation - 1, np.asarray(fitness, float), tuple(controllers),
+                          None if species is None else np.asarray(species, np.int64))
+
+    def _candidates(self) -> tuple[list, list | None] | None:
+        """(controllers of the last step's candidates, in the order of its fitness; their species
+        ids or None), or None when this backend does not keep them (see candidates())."""
+        return None
 
     @classmethod
     def settings(cls, problem: Problem, config: TrainConfig) -> dict:
