@@ -29,6 +29,8 @@ import robots
 from robots.ik import dls_ik, refine
 
 from app.ikworker import IK_WORKER
+from app.live import candidate_colors
+from app.startup import made_for
 from app.scene import ArmView, frame_workspace, to_world
 from app.viser_private import set_pose
 
@@ -38,6 +40,8 @@ REFINED = (255, 170, 60)  # the network's answer refined
 REFINE_STEPS = 3
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 REDRAW_PERIOD = 0.2  # s: redraws caused by training (and table updates) at most 5 times a second
+POPULATION_PERIOD = 0.2  # s: a tab's population cloud is redrawn at most 5 times a second
+PARTNER = (160, 90, 220)  # a race's second run: its arm at the same marker
 SAME_POSE = 1e-4  # rad (or length): a redraw moves an arm only when a joint changes more than this
 
 
@@ -64,6 +68,9 @@ class GoalView:
         self.label = scene.add_label(f"{base}/label", "", position=position, anchor="bottom-left")
         self.ghost = ArmView(scene, arm, f"{base}/ik", opacity=0.3, tint=GHOST) if index == 0 else None
         self.refined = ArmView(scene, arm, f"{base}/refined", opacity=0.45, tint=REFINED) if index == 0 else None
+        self.cloud = self.faint = None  # the population: end-effector points, faint arms
+        self.partner_view = None  # a race partner's arm (goal 1 only), made when a race starts
+        self.partner_error = np.nan
         self.error, self.net_s = np.nan, np.nan
         self.ik = None
         self.seeded = None  # (error, steps, seconds) of the network's answer refined
@@ -94,6 +101,8 @@ class GoalView:
         if self.tab.closed or all(m is not self.marker for m in self.tab.markers()):
             return
         self.update(self.tab.controller())
+        if self.partner_view is not None:
+            self.update_partner(self.tab.partner_controller())
         self.tab.client.flush()
         self.tab.latency.append((self.tab.client.client_id, t0, time.perf_counter()))
         if self.ghost is not None:
@@ -121,6 +130,41 @@ class GoalView:
             if text != self.label.text:
                 self.label.text = text
 
+    def update_partner(self, controller) -> None:
+        """The race partner's arm at partner(goal) (hidden without a partner)."""
+        view = self.partner_view
+        if controller is None:
+            view.visible = False
+            self.partner_error = np.nan
+            return
+        q = controller(self.goal[None])[0]
+        self.partner_error = float(np.linalg.norm(self.tab.arm.reach(q) - self.goal))
+        with self.tab.client.atomic():
+            view.set_q(q)
+            if not view.visible:
+                view.visible = True
+
+    def draw_population(self, reach: np.ndarray | None, q: np.ndarray | None, colors, faint: bool) -> None:
+        """The population's end-effector points (n, 3) at this goal, and with `faint` each candidate's
+        arm as a faint polyline (q: (n, nq)); reach None hides them."""
+        scene, size, base = self.tab.client.scene, self.tab.ws["size"], f"/tab/goal{self.index}"
+        if reach is None:
+            for h in (self.cloud, self.faint):
+                if h is not None:
+                    h.visible = False
+            return
+        self.cloud = scene.add_point_cloud(f"{base}/population", reach.astype(np.float32), colors,
+                                           point_size=0.015 * size, point_shape="circle", precision="float32")
+        if faint:
+            chain = self.tab.arm.joint_positions(q)  # (n, nq + 2, 3)
+            segments = np.stack([chain[:, :-1], chain[:, 1:]], axis=2).reshape(-1, 2, 3)
+            light = (0.45 * np.asarray(colors, float) + 0.55 * 255).astype(np.uint8)
+            seg_colors = np.repeat(light, chain.shape[1] - 1, axis=0)[:, None, :].repeat(2, axis=1)
+            self.faint = scene.add_line_segments(f"{base}/population_arms", segments.astype(np.float32), seg_colors,
+                                                 thickness=0.003 * size)
+        elif self.faint is not None:
+            self.faint.visible = False
+
     def set_ik(self, result, seeded=None) -> None:
         """The DLS answer (robots.ik.IKResult), and the refined network answer (RefineResult or None)."""
         self.ik = result
@@ -135,9 +179,12 @@ class GoalView:
             self.refined.visible = seeded is not None
 
     def remove(self) -> None:
-        for view in (self.arm_view, self.ghost, self.refined):
+        for view in (self.arm_view, self.ghost, self.refined, self.partner_view):
             if view is not None:
                 view.remove()
+        for h in (self.cloud, self.faint):
+            if h is not None:
+                h.remove()
         self.marker.remove()
         self.label.remove()
 
@@ -161,18 +208,84 @@ class TabSession:
             self.show_ik = gui.add_checkbox("IK ghosts (refined network, DLS)", True,
                                             hint="orange: the network's answer + at most 3 Gauss-Newton steps; "
                                                  "blue: damped least squares from the rest pose")
+            self.show_population = gui.add_checkbox(
+                "Population", True, hint="every candidate of the current generation at its reach for each goal")
+            self.faint_arms = gui.add_checkbox("Population as faint arms", False)
+            self.by_species = gui.add_checkbox("Colour by species", False,
+                                               hint="for a method with species (NEAT); else by training MSE")
             self.table = gui.add_markdown("")
+        for toggle in (self.show_population, self.faint_arms, self.by_species):
+            toggle.on_update(lambda e: self._population_changed())
         self.add_button.on_click(lambda e: self.add_goal())
         self.remove_button.on_click(lambda e: self.remove_goal())
         self.show_ik.on_update(lambda e: self._toggle_ik())
         self.version = -1
         self.table_dirty = False
-        self.last_ik = self.last_draw = 0.0
+        self.last_ik = self.last_draw = self.last_population = 0.0
+        self.population_drawn = None  # (population version, goals, toggles) last drawn
+        self.partner_version = None
         self.build()
 
     def controller(self):
         shown = self.state.shown
         return shown.controller if shown.arm is self.arm else None
+
+    def partner_controller(self):
+        partner = self.state.partner
+        if partner is None or partner.runner.config.robot != self.arm.name or self.state.replaying:
+            return None
+        return partner.controller
+
+    def _population_changed(self) -> None:
+        self.population_drawn = None
+        self.last_population = 0.0
+
+    def refresh_population(self, now: float) -> None:
+        """Redraw the population clouds (at most every POPULATION_PERIOD) when the population, a goal
+        or a toggle changed; the race partner's arm when its controller changed."""
+        state = self.state
+        partner = state.partner
+        with self.lock:
+            if self.closed or not self.goals:
+                return
+            g0 = self.goals[0]
+            if partner is not None and partner.version != self.partner_version:
+                if g0.partner_view is None:
+                    g0.partner_view = ArmView(self.client.scene, self.arm, "/tab/goal0/partner", opacity=0.6, tint=PARTNER)
+                self.partner_version = partner.version
+                g0.update_partner(self.partner_controller())
+                self.table_dirty = True
+            elif partner is None and g0.partner_view is not None and g0.partner_view.visible:
+                g0.update_partner(None)
+                self.partner_version = None
+            if now - self.last_population < POPULATION_PERIOD:
+                return
+            track = state.track
+            population = track.population if track is not None and not state.replaying else state.replayed_population
+            goals = np.stack([g.goal for g in self.goals])
+            key = (id(population), goals.tobytes(), self.show_population.value, self.faint_arms.value,
+                   self.by_species.value)
+            if key == self.population_drawn:
+                return
+            self.population_drawn, self.last_population = key, now
+            self._draw_population(population, goals)
+
+    def _draw_population(self, population, goals: np.ndarray) -> None:
+        if population is None or not self.show_population.value or population.controllers is None \
+                or not made_for(population.controllers[0], self.arm):
+            recorded = population is not None and population.controllers is None and population.points is not None
+            for g in self.goals:
+                g.draw_population(None, None, None, False)
+            if recorded and self.show_population.value:  # a replayed recording: its cloud at the display goal
+                self.goals[0].draw_population(population.points, None, candidate_colors(population, self.by_species.value),
+                                              False)
+            return
+        q = population.joints(goals)  # (n, goals, nq)
+        reach = self.arm.fk(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:2], 3)
+        colors = candidate_colors(population, self.by_species.value)
+        with self.client.atomic():
+            for k, g in enumerate(self.goals):
+                g.draw_population(reach[:, k], q[:, k], colors, self.faint_arms.value)
 
     def markers(self):
         return [g.marker for g in self.goals]
@@ -256,8 +369,11 @@ class TabSession:
 
     def refresh(self) -> None:
         """Redraw every goal with the shown controller when it changed (at most every
-        REDRAW_PERIOD while training; at once for another arm); the table when stale."""
+        REDRAW_PERIOD while training; at once for another arm); the table when stale; the
+        population and a race partner's arm (refresh_population)."""
         shown, now = self.state.shown, time.monotonic()
+        if shown.arm is self.arm:
+            self.refresh_population(now)
         if now - self.last_draw < REDRAW_PERIOD and shown.arm is self.arm:
             return
         if shown.version == self.version:
@@ -289,6 +405,9 @@ class TabSession:
             ik = fmt_len(arm, g.ik.error) if first and g.ik is not None else ""
             seeded = fmt_len(arm, g.seeded[0]) if first and g.seeded is not None else ""
             rows.append(f"| {g.index + 1} | {fmt_len(arm, g.error)} | {seeded} | {ik} |")
+        if g0_partner := (self.goals[0] if self.goals and self.goals[0].partner_view is not None
+                          and self.goals[0].partner_view.visible else None):
+            rows.append(f"| 1, race partner (purple) | {fmt_len(arm, g0_partner.partner_error)} | | |")
         g0 = self.goals[0] if self.goals else None
         lines = [f"Controller: {shown.source}", "", *rows]
         if g0 is not None and g0.ik is not None and show and np.isfinite(g0.net_s):

@@ -20,6 +20,9 @@ import lab
 import robots
 from lab import methods
 
+from app.live import decimate, lead_line, line_data, population_legend, stacked_svg
+from app.state import SPEEDS, run_label
+
 PLOT_POINTS = 400  # the convergence plot is decimated to this many generations
 SHARED = ("population", "generations", "hidden", "seed")  # the TrainConfig fields shown
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
@@ -50,24 +53,34 @@ class TrainingPanel:
         self.options: dict = {}  # option name -> its field, for the selected method
         self._options_lock = threading.RLock()  # callbacks of several tabs may rebuild them at once
         self._build_options(d)
-        actions = {"Start": self.start, "Pause": self.pause, "Resume": self.resume, "Stop": self.stop,
-                   "Reset": self.reset}
-        icons = {"Start": viser.Icon.PLAYER_PLAY, "Pause": viser.Icon.PLAYER_PAUSE, "Resume": viser.Icon.PLAYER_PLAY,
-                 "Stop": viser.Icon.PLAYER_STOP, "Reset": viser.Icon.REFRESH}
+        self.race = RaceFields(gui, self)
+        actions = {"Start": self.start, "Pause": self.pause, "Step": self.step, "Resume": self.resume,
+                   "Stop": self.stop, "Reset": self.reset}
+        icons = {"Start": viser.Icon.PLAYER_PLAY, "Pause": viser.Icon.PLAYER_PAUSE, "Step": viser.Icon.PLAYER_TRACK_NEXT,
+                 "Resume": viser.Icon.PLAYER_PLAY, "Stop": viser.Icon.PLAYER_STOP, "Reset": viser.Icon.REFRESH}
+        hints = {"Step": "while paused: exactly one more generation"}
         self.buttons = {}
         for name, action in actions.items():
-            button = self.buttons[name] = gui.add_button(name, icon=icons[name])
+            button = self.buttons[name] = gui.add_button(name, icon=icons[name], hint=hints.get(name))
             button.on_click(lambda event, action=action: action(event.client))
+        self.speed = gui.add_dropdown("Speed", tuple(SPEEDS), initial_value="unlimited",
+                                      hint="at most this many generations a second, so that a class can follow")
+        self.speed.on_update(lambda event: self._simple(lambda: self.state.set_speed(SPEEDS[self.speed.value]),
+                                                        event.client))
         self.progress_bar = gui.add_progress_bar(0.0, animated=False)
-        self.plot = gui.add_uplot(
-            data=EMPTY_PLOT,
-            series=(viser.uplot.Series(label="generation"),
-                    viser.uplot.Series(label="best MSE", stroke="#d62728", width=2),
-                    viser.uplot.Series(label="median MSE", stroke="#1f77b4", width=1)),
-            scales={"x": viser.uplot.Scale(time=False), "y": viser.uplot.Scale(distr=3, log=10)},
-            title="Convergence (training MSE, log scale)", aspect=1.5)
+        self.curves_folder = gui.add_folder("Convergence")
+        self._racing = None
+        self._build_curves(racing=False)
         self.status = gui.add_markdown("Idle.")
         self.message = gui.add_markdown("")
+        self.population_folder = gui.add_folder("Population")
+        with self.population_folder:
+            self.legend = gui.add_html(population_legend(None, False, _fmt))
+            self.statistics = gui.add_markdown("")
+        self.live_folder = gui.add_folder("Live plots")
+        self.live: list = []  # (kind, track getter, plot, handle) of the live plots shown
+        self._live_for = None
+        self._build_live()
         self._valid = {id(h): h.value for h in self._fields()}
         self._reverting = False
         for h in (self.robot, self.method, self.population, self.generations, self.hidden, self.seed):
@@ -185,7 +198,12 @@ class TrainingPanel:
                 if msg:
                     self.refuse(client, msg)
                     return msg
-            msg = self.state.start(config)
+            try:
+                partner = self.race.config(config)
+            except (ValueError, TypeError) as e:
+                msg = f"refused: race partner: {e}"
+            else:
+                msg = self.state.start(config, partner)
         if msg:
             self.refuse(client, msg)
         else:
@@ -203,6 +221,9 @@ class TrainingPanel:
     def pause(self, client=None):
         return self._simple(self.state.pause, client)
 
+    def step(self, client=None):
+        return self._simple(self.state.step, client)
+
     def resume(self, client=None):
         return self._simple(self.state.resume, client)
 
@@ -216,19 +237,158 @@ class TrainingPanel:
         self.refresh(force=True)
 
     # ------------------------------------------------------------------ progress
+    def _build_curves(self, racing: bool) -> None:
+        """The convergence plot: best and median MSE, and the race partner's beside them."""
+        if racing == self._racing:
+            return
+        if self._racing is not None:
+            self.plot.remove()
+        self._racing = racing
+        series = [viser.uplot.Series(label="generation"),
+                  viser.uplot.Series(label="best MSE", stroke="#d62728", width=2),
+                  viser.uplot.Series(label="median MSE", stroke="#1f77b4", width=1)]
+        if racing:
+            series += [viser.uplot.Series(label="best MSE, partner", stroke="#9467bd", width=2),
+                       viser.uplot.Series(label="median MSE, partner", stroke="#17becf", width=1, dash=[4, 4])]
+        with self.curves_folder:
+            self.plot = self.gui.add_uplot(
+                data=EMPTY_PLOT + ((np.full(2, np.nan),) * 2 if racing else ()), series=tuple(series),
+                scales={"x": viser.uplot.Scale(time=False), "y": viser.uplot.Scale(distr=3, log=10)},
+                title="Convergence (training MSE, log scale)", aspect=1.5)
+
+    def _lanes(self) -> list:
+        """(label, track) of the run and its race partner (the selected method's plots when idle)."""
+        st = self.state
+        lanes = []
+        if st.track is not None and st.runner is not None:
+            lanes.append((run_label(st.runner.config), st.track))
+        if st.partner is not None:
+            lanes.append((st.partner.label + " (partner)", st.partner.track))
+        return lanes
+
+    def _build_live(self) -> None:
+        """One plot per LivePlot of each run's method, each with its 'what you see' text (folded away
+        with its folder)."""
+        lanes = self._lanes()
+        key = tuple((label, id(track)) for label, track in lanes) or self.method.value
+        if key == self._live_for:
+            return
+        self._live_for = key
+        for _kind, _get, _plot, handle in self.live:
+            handle.remove()
+        self.live = []
+        plotted = lanes or [(self.method.value, None)]
+        with self.live_folder:
+            for label, track in plotted:
+                method = track.method if track is not None else methods.get(self._method_name())
+                for plot in method.live_plots:
+                    title = f"{plot.title} ({label})" if lanes else plot.title
+                    folder = self.gui.add_folder(title)
+                    with folder:
+                        if plot.kind == "stacked":
+                            shown = self.gui.add_html(stacked_svg([], plot.title))
+                        else:
+                            shown = self.gui.add_uplot(
+                                data=EMPTY_PLOT[:2], title=plot.title, aspect=2.0,
+                                series=(viser.uplot.Series(label="generation"),
+                                        viser.uplot.Series(label=plot.key, stroke=method.hex, width=2)),
+                                scales={"x": viser.uplot.Scale(time=False),
+                                        "y": viser.uplot.Scale(distr=3, log=10) if plot.log else viser.uplot.Scale()})
+                        with self.gui.add_folder("What you see", expand_by_default=True):
+                            self.gui.add_markdown(plot.about)
+                    self.live.append((plot, track, shown, folder))
+
     def refresh(self, force: bool = False) -> None:
         """Show the run's progress (called by the render loop, a few times a second)."""
         p = self.state.progress()
         n = p["generation"]
-        if n == self._shown_gen and not force and p["state"] not in ("running",):
+        partner = self.state.partner
+        going = p["state"] == "running" or (partner is not None and partner.runner.state == "running")
+        if n == self._shown_gen and not force and not going:
             return
         self._shown_gen = n
         self.progress_bar.value = 100.0 * n / p["total"] if p["total"] else 0.0
-        idx = np.unique(np.linspace(0, n - 1, min(n, PLOT_POINTS)).astype(int)) if n else np.zeros(0, int)
-        best = np.maximum(p["best"][idx], 1e-12)
-        median = np.maximum(np.nan_to_num(p["median"][idx], posinf=1e12), 1e-12)
-        self.plot.data = (idx + 1.0, best, median) if n else EMPTY_PLOT
+        self._build_curves(racing=partner is not None)
+        self._build_live()
+        curves = [(p["best"], p["median"])] + ([partner.track.curves()] if partner is not None else [])
+        m = max(len(b) for b, _ in curves)
+        idx = decimate(m)
+        columns = [idx + 1.0]
+        for best, median in curves:
+            for values in (best, median):
+                padded = np.full(m, np.nan)
+                padded[:len(values)] = values
+                columns.append(np.maximum(np.nan_to_num(padded[idx], posinf=1e12, nan=np.nan), 1e-12))
+        self.plot.data = tuple(columns) if m else EMPTY_PLOT + ((np.full(2, np.nan),) * 2 if partner else ())
         best_s = f"{p['best'][-1]:.4g}" if n else "-"
         rec = f"  \nRecording: `{p['recording']}`" if p["recording"] else ""
-        self.status.content = (f"**{p['state'].capitalize()}**: generation {n} / {p['total']}, "
-                               f"best MSE {best_s}, {p['evals_per_s']:,.0f} evaluations/s{rec}")
+        status = (f"**{p['state'].capitalize()}**: generation {n} / {p['total']}, "
+                  f"best MSE {best_s}, {p['evals_per_s']:,.0f} evaluations/s{rec}")
+        if partner is not None:
+            status += (f"  \nPartner ({partner.label}): **{partner.runner.state}**, generation {len(partner.track)}"
+                       + (f", recording `{partner.recording}`" if partner.recording else ""))
+            status += "  \n" + lead_line(self.state.track, partner.track, run_label(self.state.runner.config),
+                                          partner.label)
+        self.status.content = status
+        self._refresh_population()
+        self._refresh_live()
+
+    def _refresh_population(self) -> None:
+        lanes = self._lanes()
+        legends = [population_legend(t.population, t.population is not None and t.population.species is not None,
+                                     _fmt, f"{label}: " if len(lanes) > 1 else "") for label, t in lanes]
+        self.legend.content = "<br>".join(legends) if legends else population_legend(None, False, _fmt)
+        stats = [f"{label}: {t.statistics()}" if len(lanes) > 1 else t.statistics() for label, t in lanes]
+        self.statistics.content = "  \n".join(s for s in stats if s)
+
+    def _refresh_live(self) -> None:
+        for plot, track, shown, _folder in self.live:
+            if track is None:
+                continue
+            values = track.series_of(plot.key)
+            if plot.kind == "stacked":
+                shown.content = stacked_svg(values, plot.title)
+            elif values:
+                x, y = line_data(values)
+                shown.data = (x, np.maximum(y, 1e-300) if plot.log else y)
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.4g}"
+
+
+class RaceFields:
+    """The race partner's settings: a second run on the same arm and goals, of another method, other
+    settings or another seed."""
+
+    def __init__(self, gui, panel: TrainingPanel):
+        self.panel = panel
+        with gui.add_folder("Race", expand_by_default=False):
+            self.enabled = gui.add_checkbox("Race a second run", False,
+                                            hint="two runs at once on the same arm and goals, each in its own process")
+            self.method = gui.add_dropdown("Partner method", tuple(m.label for m in methods.all_methods()),
+                                           initial_value=panel.method.value)
+            self.population = gui.add_number("Partner population", float(panel.population.value), step=1)
+            self.hidden = gui.add_number("Partner hidden units", float(panel.hidden.value), step=1)
+            self.seed = gui.add_number("Partner seed", float(panel.seed.value) + 1, step=1)
+        self.method.on_update(lambda _e: self._fill_defaults())
+
+    def _method_name(self) -> str:
+        return next(m.name for m in methods.all_methods() if m.label == self.method.value)
+
+    def _fill_defaults(self) -> None:
+        d = lab.TrainConfig.preset(robot=self.panel.robot.value, method=self._method_name())
+        self.population.value, self.hidden.value = float(d.population), float(d.hidden)
+
+    def config(self, main: lab.TrainConfig) -> lab.TrainConfig | None:
+        """The partner's TrainConfig (None without a race): main's arm, goals and generations."""
+        if not self.enabled.value:
+            return None
+        values = {}
+        for name in ("population", "hidden", "seed"):
+            v = getattr(self, name).value
+            if not isinstance(v, (int, float)) or not float(v).is_integer():
+                raise ValueError(f"{name} must be a whole number, got {v!r}")
+            values[name] = int(v)
+        return lab.TrainConfig.preset(robot=main.robot, method=self._method_name(), generations=main.generations,
+                                      targets=main.targets, goal_seed=main.goal_seed, **values)
