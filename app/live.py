@@ -6,9 +6,9 @@ events' extras, as the method declares them in the registry), and the latest pop
 with its controllers. The drawing helpers here turn them into colours, legends and SVG; nothing
 here knows viser.
 
-Colours: a candidate's training MSE on one log scale per generation, from its best (dark purple)
-to its worst (yellow), the error map's ramp (app.scene.colormap); species: one colour per species
-id from a fixed palette (SPECIES).
+Colours (lab.recording.population, the recordings' too): a candidate's training MSE on one log
+scale per generation, from its best (dark purple) to its worst (yellow), the error map's ramp;
+species: one colour per species id from a fixed palette.
 """
 
 from __future__ import annotations
@@ -19,33 +19,9 @@ import threading
 import numpy as np
 
 from app.scene import colormap
+from lab.recording.population import SPECIES, mse_colors, mse_scale, species_colors  # noqa: F401 (one scale)
 
-SPECIES = np.array([[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189],
-                    [140, 86, 75], [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207]], np.uint8)
 PLOT_POINTS = 400  # live plots are decimated to this many generations
-
-
-def species_colors(species: np.ndarray) -> np.ndarray:
-    return SPECIES[np.asarray(species, np.int64) % len(SPECIES)]
-
-
-def mse_scale(mse: np.ndarray) -> tuple[float, float]:
-    """(lowest, highest) finite MSE of a population (the ends of its colour scale)."""
-    finite = np.asarray(mse, float)[np.isfinite(mse)]
-    if not len(finite):
-        return (np.nan, np.nan)
-    return float(finite.min()), float(finite.max())
-
-
-def mse_colors(mse: np.ndarray) -> np.ndarray:
-    """(n, 3) uint8: log MSE from the population's best (0) to its worst (1); +inf as the worst."""
-    lo, hi = mse_scale(mse)
-    mse = np.asarray(mse, float)
-    if not np.isfinite(lo):
-        return colormap(np.ones(len(mse)))
-    ll, lh = np.log10(max(lo, 1e-300)), np.log10(max(hi, 1e-300))
-    t = (np.log10(np.maximum(np.nan_to_num(mse, posinf=hi), 1e-300)) - ll) / (lh - ll) if lh > ll else np.zeros(len(mse))
-    return colormap(t)
 
 
 def candidate_colors(population, by_species: bool) -> np.ndarray:

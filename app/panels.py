@@ -304,6 +304,7 @@ class TrainingPanel:
         n = p["generation"]
         partner = self.state.partner
         going = p["state"] == "running" or (partner is not None and partner.runner.state == "running")
+        self._refresh_population()
         if n == self._shown_gen and not force and not going:
             return
         self._shown_gen = n
@@ -330,16 +331,24 @@ class TrainingPanel:
             status += "  \n" + lead_line(self.state.track, partner.track, run_label(self.state.runner.config),
                                           partner.label)
         self.status.content = status
-        self._refresh_population()
         self._refresh_live()
 
     def _refresh_population(self) -> None:
+        """The population legend and the method's statistics (set only when they change)."""
         lanes = self._lanes()
-        legends = [population_legend(t.population, t.population is not None and t.population.species is not None,
-                                     _fmt, f"{label}: " if len(lanes) > 1 else "") for label, t in lanes]
-        self.legend.content = "<br>".join(legends) if legends else population_legend(None, False, _fmt)
-        stats = [f"{label}: {t.statistics()}" if len(lanes) > 1 else t.statistics() for label, t in lanes]
-        self.statistics.content = "  \n".join(s for s in stats if s)
+        replayed = self.state.replayed_population if self.state.replaying else None
+        if replayed is not None:
+            legend = population_legend(replayed, False, _fmt, "Replay, recorded cloud at goal 1's starting place: ")
+        else:
+            legends = [population_legend(t.population, False, _fmt, f"{label}: " if len(lanes) > 1 else "")
+                       + (population_legend(t.population, True, _fmt, "") if t.population is not None
+                          and t.population.species is not None else "") for label, t in lanes]
+            legend = "<br>".join(legends) if legends else population_legend(None, False, _fmt)
+        stats = "  \n".join(s for s in (f"{label}: {t.statistics()}" if len(lanes) > 1 else t.statistics()
+                                        for label, t in lanes) if s)
+        if (legend, stats) != getattr(self, "_population_shown", None):
+            self._population_shown = (legend, stats)
+            self.legend.content, self.statistics.content = legend, stats
 
     def _refresh_live(self) -> None:
         for plot, track, shown, _folder in self.live:

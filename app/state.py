@@ -155,6 +155,7 @@ class LabState:
         """Back to the run's best controller (or the startup controller when there is no run)."""
         with self._lock:
             self.replaying = False
+            self.replayed_population = None
             snap = self.runner.snapshot() if self.runner is not None else None
             if snap is not None and snap.controller is not None and self.runner.config.robot == self.arm.name:
                 self.show(snap.controller, f"run {self.runner.run_id[:6]}, generation {snap.generation}")

@@ -144,3 +144,25 @@ def test_populations_go_through_the_pipe_at_a_bounded_rate():
     with_controllers = sum(p is not None and p.controllers is not None for p in pops)
     assert 1 <= with_controllers <= seconds / POPULATION_PERIOD + 3
     assert pops[-1].controllers is not None
+
+
+def test_a_recording_keeps_the_populations_of_the_logging_rule(tmp_path):
+    """Every generation up to 100, then every 10th: each candidate's MSE, species and point at the
+    display goal, read back as the run sent them."""
+    from lab.recording.logger import RerunLogger
+    from lab.recording.replay import read_recording
+
+    r = lab.Runner(config("neat", generations=160))
+    events = []
+    logger = RerunLogger(r, path=tmp_path / "run.rrd")
+    r.subscribe(logger)
+    r.subscribe(events.append)
+    r.run()
+    logger.wait()
+    rec = read_recording(tmp_path / "run.rrd")
+    assert [g for g, _ in rec.populations] == [g for g in range(160) if population_logged(g)]
+    for g in (0, 57, 99, 100, 150):
+        sent, read = events[g].population, rec.population_at(g + 5 if g >= 100 else g)
+        assert read.generation == g
+        assert np.array_equal(read.mse, sent.mse) and np.array_equal(read.species, sent.species)
+        assert np.array_equal(read.points, sent.points)
