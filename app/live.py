@@ -36,16 +36,17 @@ def swatch(rgb, text: str) -> str:
             f'margin:0 3px 0 8px"></span>{html.escape(text)}')
 
 
-def population_legend(population, by_species: bool, fmt, label: str = "") -> str:
-    """HTML: what the cloud's colours mean for this population (fmt: an MSE as text)."""
+def population_legend(population, by_species: bool, fmt, label: str = "", head: bool = True) -> str:
+    """HTML: what the cloud's colours mean for this population (fmt: an MSE as text); head=False
+    leaves out the line's "Generation g: n candidates" opening."""
     if population is None:
         return "<small>No population yet: start a run (each candidate of a generation is drawn at its reach).</small>"
     head = f"<b>{html.escape(label)}Generation {population.generation + 1}</b>: {len(population)} candidate" \
-           f"{'s' if len(population) != 1 else ''}. "
+           f"{'s' if len(population) != 1 else ''}. " if head else ""
     if by_species and population.species is not None:
         ids, counts = np.unique(population.species, return_counts=True)
         items = "".join(swatch(species_colors([i])[0], f"{i} ({c})") for i, c in zip(ids, counts))
-        return f"<small>{head}Colour: species (id and size):{items}</small>"
+        return f"<small>{head}{'Colour' if head else 'Or, on the tab toggle, colour'}: species (id and size):{items}</small>"
     lo, hi = mse_scale(population.mse)
     ramp = "".join(swatch(c, "") for c in colormap(np.linspace(0, 1, 5)))
     return (f"<small>{head}Colour: training MSE on a log scale, {ramp} from {fmt(lo)} (best of the generation) "

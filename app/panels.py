@@ -341,7 +341,7 @@ class TrainingPanel:
             legend = population_legend(replayed, False, _fmt, "Replay, recorded cloud at goal 1's starting place: ")
         else:
             legends = [population_legend(t.population, False, _fmt, f"{label}: " if len(lanes) > 1 else "")
-                       + (population_legend(t.population, True, _fmt, "") if t.population is not None
+                       + ("<br>" + population_legend(t.population, True, _fmt, "", head=False) if t.population is not None
                           and t.population.species is not None else "") for label, t in lanes]
             legend = "<br>".join(legends) if legends else population_legend(None, False, _fmt)
         stats = "  \n".join(s for s in (f"{label}: {t.statistics()}" if len(lanes) > 1 else t.statistics()
