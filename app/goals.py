@@ -214,6 +214,9 @@ class TabSession:
             self.by_species = gui.add_checkbox("Colour by species", False,
                                                hint="for a method with species (NEAT); else by training MSE")
             self.table = gui.add_markdown("")
+        with gui.add_folder("Share this lesson", order=1, expand_by_default=False):
+            self.lesson = gui.add_markdown("")
+        self.page_url = ""
         for toggle in (self.show_population, self.faint_arms, self.by_species):
             toggle.on_update(lambda e: self._population_changed())
         self.add_button.on_click(lambda e: self.add_goal())
@@ -418,6 +421,15 @@ class TabSession:
                      f"{'' if g0.ik.converged else ' (not converged)'}")
             lines += ["", line]
         self.table.content = "\n".join(lines)
+
+    def show_lesson(self, link: str, params: dict) -> None:
+        """The lesson link of the panel's settings (written only when it changes)."""
+        if getattr(self, "_lesson_link", None) == link or self.closed:
+            return
+        self._lesson_link = link
+        what = ", ".join(f"{k} {v}" for k, v in params.items() if k != "lesson")
+        self.lesson.content = (f"[Open this lesson]({link}) in another browser: a tab with these settings "
+                               f"({what}).\n\n```\n{link}\n```")
 
     def close(self) -> None:
         with self.lock:

@@ -117,3 +117,14 @@ def check(handle) -> list[str]:
         if getattr(getattr(impl, "api", None), "_queue_scene_message", None) is None:
             missing.append("SceneApi._queue_scene_message")
     return missing
+
+
+def client_host(client) -> str | None:
+    """The Host header a tab (viser.ClientHandle) connected with: the address its browser reached this
+    server at (None when the tab has gone). Same reach as client_query (ViserChanged when it is gone)."""
+    missing = query_api_missing(getattr(client, "_viser_server", None))
+    if missing:
+        raise ViserChanged(f"viser changed: {', '.join(missing)} missing; a tab's address cannot be read")
+    connection = client._viser_server._websock_server._live_connections.get(client.client_id)
+    headers = getattr(getattr(connection, "request", None), "headers", None)
+    return headers.get("Host") if headers is not None else None

@@ -164,3 +164,40 @@ def test_a_race_runs_two_processes_on_the_same_goals_and_both_enter_the_notebook
     assert wait_until(lambda: main.state == partner.state == "stopped")
     assert wait_until(lambda: len(state.notebook.entries()) == entries + 2)
     assert {e["method"] for e in state.notebook.entries()[-2:]} == {"cmaes", "neat"}
+
+
+def test_a_lesson_link_opens_a_tab_with_its_settings(app, tab):
+    from app.lesson import lesson_params
+
+    panel = app.panel
+    session = session_of(app, tab)
+    panel.method.value = "NEAT"
+    panel.seed.value = 4
+    panel.race.enabled.value = True
+    panel.race.method.value = "CMA-ES"
+    panel.race.seed.value = 9
+    params = lesson_params(panel)
+    assert wait_until(lambda: "Open this lesson" in session.lesson.content and "seed 4" in session.lesson.content, 5)
+    link = session.lesson.content.split("](", 1)[1].split(")", 1)[0]
+    # back to other settings, then another browser opens the link
+    panel.race.enabled.value = False
+    panel.robot.value = "scara"
+    panel.method.value = "CMA-ES"
+    assert app.state.arm.name == "scara"
+    from urllib.parse import unquote
+
+    ws = unquote(link.split("?websocket=", 1)[1])
+    other = Probe(ws.replace("ws://", "http://")).start()
+    try:
+        other.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+        assert wait_until(lambda: lesson_params(panel) == params, 10), (lesson_params(panel), params)
+        assert app.state.arm.name == "planar" and panel.race.enabled.value and panel.race.seed.value == 9
+        # a lesson that makes no run is refused by name and changes nothing
+        bad = Probe(ws.replace("ws://", "http://").replace("method=neat", "method=nope")).start()
+        bad.wait_for(lambda m: m["type"] == "NotificationShowMessage" and "nope" in str(m))
+        bad.close()
+        assert lesson_params(panel) == params
+    finally:
+        other.close()
+        panel.race.enabled.value = False
+        panel.method.value = "CMA-ES"
