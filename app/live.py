@@ -21,7 +21,7 @@ import numpy as np
 from app.scene import colormap
 from lab.recording.population import SPECIES, mse_colors, mse_scale, species_colors  # noqa: F401 (one scale)
 
-PLOT_POINTS = 400  # live plots are decimated to this many generations
+PLOT_POINTS = 400  # the convergence and live plots are decimated to this many generations
 
 
 def candidate_colors(population, by_species: bool) -> np.ndarray:

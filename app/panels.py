@@ -20,10 +20,10 @@ import lab
 import robots
 from lab import methods
 
-from app.live import decimate, lead_line, line_data, population_legend, stacked_svg
+from app.live import decimate, lead_line
 from app.state import SPEEDS, run_label
+from app.teaching import RaceFields, Watching
 
-PLOT_POINTS = 400  # the convergence plot is decimated to this many generations
 SHARED = ("population", "generations", "hidden", "seed")  # the TrainConfig fields shown
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
 EMPTY_PLOT = (np.array([0.0, 1.0]), np.full(2, np.nan), np.full(2, np.nan))
@@ -73,14 +73,8 @@ class TrainingPanel:
         self._build_curves(racing=False)
         self.status = gui.add_markdown("Idle.")
         self.message = gui.add_markdown("")
-        self.population_folder = gui.add_folder("Population")
-        with self.population_folder:
-            self.legend = gui.add_html(population_legend(None, False, _fmt))
-            self.statistics = gui.add_markdown("")
-        self.live_folder = gui.add_folder("Live plots")
-        self.live: list = []  # (kind, track getter, plot, handle) of the live plots shown
-        self._live_for = None
-        self._build_live()
+        self.watching = Watching(gui, self)  # the population's legend and the live plots
+        self.legend, self.statistics = self.watching.legend, self.watching.statistics
         self._valid = {id(h): h.value for h in self._fields()}
         self._reverting = False
         for h in (self.robot, self.method, self.population, self.generations, self.hidden, self.seed):
@@ -256,61 +250,19 @@ class TrainingPanel:
                 scales={"x": viser.uplot.Scale(time=False), "y": viser.uplot.Scale(distr=3, log=10)},
                 title="Convergence (training MSE, log scale)", aspect=1.5)
 
-    def _lanes(self) -> list:
-        """(label, track) of the run and its race partner (the selected method's plots when idle)."""
-        st = self.state
-        lanes = []
-        if st.track is not None and st.runner is not None:
-            lanes.append((run_label(st.runner.config), st.track))
-        if st.partner is not None:
-            lanes.append((st.partner.label + " (partner)", st.partner.track))
-        return lanes
-
-    def _build_live(self) -> None:
-        """One plot per LivePlot of each run's method, each with its 'what you see' text (folded away
-        with its folder)."""
-        lanes = self._lanes()
-        key = tuple((label, id(track)) for label, track in lanes) or self.method.value
-        if key == self._live_for:
-            return
-        self._live_for = key
-        for _kind, _get, _plot, handle in self.live:
-            handle.remove()
-        self.live = []
-        plotted = lanes or [(self.method.value, None)]
-        with self.live_folder:
-            for label, track in plotted:
-                method = track.method if track is not None else methods.get(self._method_name())
-                for plot in method.live_plots:
-                    title = f"{plot.title} ({label})" if lanes else plot.title
-                    folder = self.gui.add_folder(title)
-                    with folder:
-                        if plot.kind == "stacked":
-                            shown = self.gui.add_html(stacked_svg([], plot.title))
-                        else:
-                            shown = self.gui.add_uplot(
-                                data=EMPTY_PLOT[:2], title=plot.title, aspect=2.0,
-                                series=(viser.uplot.Series(label="generation"),
-                                        viser.uplot.Series(label=plot.key, stroke=method.hex, width=2)),
-                                scales={"x": viser.uplot.Scale(time=False),
-                                        "y": viser.uplot.Scale(distr=3, log=10) if plot.log else viser.uplot.Scale()})
-                        with self.gui.add_folder("What you see", expand_by_default=True):
-                            self.gui.add_markdown(plot.about)
-                    self.live.append((plot, track, shown, folder))
-
     def refresh(self, force: bool = False) -> None:
         """Show the run's progress (called by the render loop, a few times a second)."""
         p = self.state.progress()
         n = p["generation"]
         partner = self.state.partner
         going = p["state"] == "running" or (partner is not None and partner.runner.state == "running")
-        self._refresh_population()
+        self.watching.refresh_population()
         if n == self._shown_gen and not force and not going:
             return
         self._shown_gen = n
         self.progress_bar.value = 100.0 * n / p["total"] if p["total"] else 0.0
         self._build_curves(racing=partner is not None)
-        self._build_live()
+        self.watching.build_live()
         curves = [(p["best"], p["median"])] + ([partner.track.curves()] if partner is not None else [])
         m = max(len(b) for b, _ in curves)
         idx = decimate(m)
@@ -331,73 +283,4 @@ class TrainingPanel:
             status += "  \n" + lead_line(self.state.track, partner.track, run_label(self.state.runner.config),
                                           partner.label)
         self.status.content = status
-        self._refresh_live()
-
-    def _refresh_population(self) -> None:
-        """The population legend and the method's statistics (set only when they change)."""
-        lanes = self._lanes()
-        replayed = self.state.replayed_population if self.state.replaying else None
-        if replayed is not None:
-            legend = population_legend(replayed, False, _fmt, "Replay, recorded cloud at goal 1's starting place: ")
-        else:
-            legends = [population_legend(t.population, False, _fmt, f"{label}: " if len(lanes) > 1 else "")
-                       + ("<br>" + population_legend(t.population, True, _fmt, "", head=False) if t.population is not None
-                          and t.population.species is not None else "") for label, t in lanes]
-            legend = "<br>".join(legends) if legends else population_legend(None, False, _fmt)
-        stats = "  \n".join(s for s in (f"{label}: {t.statistics()}" if len(lanes) > 1 else t.statistics()
-                                        for label, t in lanes) if s)
-        if (legend, stats) != getattr(self, "_population_shown", None):
-            self._population_shown = (legend, stats)
-            self.legend.content, self.statistics.content = legend, stats
-
-    def _refresh_live(self) -> None:
-        for plot, track, shown, _folder in self.live:
-            if track is None:
-                continue
-            values = track.series_of(plot.key)
-            if plot.kind == "stacked":
-                shown.content = stacked_svg(values, plot.title)
-            elif values:
-                x, y = line_data(values)
-                shown.data = (x, np.maximum(y, 1e-300) if plot.log else y)
-
-
-def _fmt(v: float) -> str:
-    return f"{v:.4g}"
-
-
-class RaceFields:
-    """The race partner's settings: a second run on the same arm and goals, of another method, other
-    settings or another seed."""
-
-    def __init__(self, gui, panel: TrainingPanel):
-        self.panel = panel
-        with gui.add_folder("Race", expand_by_default=False):
-            self.enabled = gui.add_checkbox("Race a second run", False,
-                                            hint="two runs at once on the same arm and goals, each in its own process")
-            self.method = gui.add_dropdown("Partner method", tuple(m.label for m in methods.all_methods()),
-                                           initial_value=panel.method.value)
-            self.population = gui.add_number("Partner population", float(panel.population.value), step=1)
-            self.hidden = gui.add_number("Partner hidden units", float(panel.hidden.value), step=1)
-            self.seed = gui.add_number("Partner seed", float(panel.seed.value) + 1, step=1)
-        self.method.on_update(lambda _e: self._fill_defaults())
-
-    def _method_name(self) -> str:
-        return next(m.name for m in methods.all_methods() if m.label == self.method.value)
-
-    def _fill_defaults(self) -> None:
-        d = lab.TrainConfig.preset(robot=self.panel.robot.value, method=self._method_name())
-        self.population.value, self.hidden.value = float(d.population), float(d.hidden)
-
-    def config(self, main: lab.TrainConfig) -> lab.TrainConfig | None:
-        """The partner's TrainConfig (None without a race): main's arm, goals and generations."""
-        if not self.enabled.value:
-            return None
-        values = {}
-        for name in ("population", "hidden", "seed"):
-            v = getattr(self, name).value
-            if not isinstance(v, (int, float)) or not float(v).is_integer():
-                raise ValueError(f"{name} must be a whole number, got {v!r}")
-            values[name] = int(v)
-        return lab.TrainConfig.preset(robot=main.robot, method=self._method_name(), generations=main.generations,
-                                      targets=main.targets, goal_seed=main.goal_seed, **values)
+        self.watching.refresh_live()

@@ -92,10 +92,15 @@ def test_browser_steps_one_generation_sets_the_speed_and_races_two_runs(tmp_path
             assert wait_until(lambda: generations() >= 10), "no generation after Start"
             button("Pause").click()
             assert wait_until(lambda: app.state.runner.state == "paused")
-            held = settled(generations)
+            runner = app.state.runner
+            assert wait_until(lambda: runner.holding is not None)  # the worker holds; every event is in
+            held = runner.holding
+            assert generations() == held
             button("Step").click()
+            assert wait_until(lambda: runner.holding == held + 1)
             assert settled(generations) == held + 1, "one click on Step is one generation"
             button("Step").click()
+            assert wait_until(lambda: runner.holding == held + 2)
             assert settled(generations) == held + 2
             page.screenshot(path=os.path.join(shots, "step.png"))
             # the speed menu: 5 generations a second

@@ -95,8 +95,10 @@ def test_replay_shows_the_recorded_population_of_that_generation(app):
         app.runs.slider.value = 25
         shown = app.state.replayed_population
         assert shown.generation == 24 and np.array_equal(shown.points, rec.population_at(24).points)
-        session = app.sessions[owner]
         deadline = time.monotonic() + 10
+        while owner not in app.sessions and time.monotonic() < deadline:
+            time.sleep(0.05)
+        session = app.sessions[owner]
         while time.monotonic() < deadline:
             cloud = session.goals[0].cloud
             if cloud is not None and np.allclose(np.asarray(cloud.points), shown.points):

@@ -76,12 +76,15 @@ def test_one_step_click_is_one_more_generation_on_the_server(app, tab):
     tab.click("Step")  # refused while running, said in the panel
     assert wait_until(lambda: "Step works while the run is paused" in app.panel.message.content, 5)
     tab.click("Pause")
-    assert wait_until(lambda: app.state.runner.state == "paused")
-    held = settled(lambda: generations(app))
+    runner = app.state.runner
+    assert wait_until(lambda: runner.holding is not None)  # the worker holds, every event before it in
+    held = runner.holding
+    assert generations(app) == held
     for k in range(1, 4):
         tab.click("Step")
-        assert settled(lambda: generations(app)) == held + k
-    assert app.state.runner.state == "paused"
+        assert wait_until(lambda: runner.holding == held + k)
+        assert generations(app) == held + k
+    assert settled(lambda: generations(app)) == held + 3 and runner.state == "paused"
     # the population shown is the stepped generation's own
     track = app.state.track
     assert wait_until(lambda: track.population is not None and track.population.generation == held + 2)
@@ -156,10 +159,11 @@ def test_a_race_runs_two_processes_on_the_same_goals_and_both_enter_the_notebook
     assert wait_until(lambda: session.goals[0].partner_view is not None and session.goals[0].partner_view.visible)
     # pause, step and stop apply to both
     tab.click("Pause")
-    assert wait_until(lambda: main.state == partner.state == "paused")
-    a, b = settled(lambda: generations(app)), settled(lambda: len(state.partner.track))
+    assert wait_until(lambda: main.holding is not None and partner.holding is not None)
+    a, b = main.holding, partner.holding
     tab.click("Step")
-    assert settled(lambda: (generations(app), len(state.partner.track))) == (a + 1, b + 1)
+    assert wait_until(lambda: (main.holding, partner.holding) == (a + 1, b + 1))
+    assert (generations(app), len(state.partner.track)) == (a + 1, b + 1)
     tab.click("Stop")
     assert wait_until(lambda: main.state == partner.state == "stopped")
     assert wait_until(lambda: len(state.notebook.entries()) == entries + 2)

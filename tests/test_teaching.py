@@ -53,12 +53,16 @@ def test_each_step_is_exactly_one_more_generation(where):
         assert wait_for(lambda: len(seen) >= 3, 30)
         assert not r.step(), "Step is for a paused run"
         r.pause()
-        g0 = settled(lambda: len(seen))
+        assert wait_for(lambda: r.holding is not None)  # said once every generation before it is out
+        g0 = r.holding
+        assert len(seen) == g0
         for k in range(1, 4):
             assert r.step()
-            assert settled(lambda: len(seen)) == g0 + k
+            assert wait_for(lambda: r.holding == g0 + k)
+            assert len(seen) == g0 + k
         for _ in range(5):  # clicks in a burst: as many generations, no more
             r.step()
+        assert wait_for(lambda: r.holding == g0 + 8)
         assert settled(lambda: len(seen)) == g0 + 8
         assert seen == list(range(g0 + 8)) and r.state == "paused"
         r.resume()

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 import robots
-from lab.methods.base import Backend, Options, StepResult, option
+from lab.methods.base import Backend, Options, StepResult, mlp_joints, option
 from lab.methods.registry import LivePlot, Method, SpeedReference, register
 from lab.problem.checks import flag, real, whole
 from lab.problem.controllers import MLPController, mlp_size
@@ -111,9 +111,14 @@ class CMAESBackend(Backend):
             self._start()
         return StepResult(f, extras)
 
-    def _candidates(self):
+    keeps_candidates = True
+
+    def _candidate_controllers(self):
         enc, hidden = self.problem.encoding, self.config.hidden
-        return [MLPController(enc, hidden, x) for x in self._asked], None
+        return [MLPController(enc, hidden, x) for x in self._asked]
+
+    def _candidate_joints(self, goals):
+        return mlp_joints(self.problem.encoding, self.config.hidden, self._asked, goals)
 
     def _start_is_over(self, gen_best: float) -> bool:
         if gen_best < 0.99 * self._start_best:

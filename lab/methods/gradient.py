@@ -95,9 +95,11 @@ class GradientBackend(Backend):
                           evaluations=1 + self.problem.arm.nq)
 
 
-    def _candidates(self):
+    keeps_candidates = True
+
+    def _candidate_controllers(self):
         """Its single network: the weights this step evaluated."""
-        return [MLPController(self.problem.encoding, self.config.hidden, self._evaluated)], None
+        return [MLPController(self.problem.encoding, self.config.hidden, self._evaluated)]
 
 
 def defaults(arm) -> dict:

@@ -123,6 +123,9 @@ class RunBase:
         self._evaluations = 0
         self._summary: RunSummary | None = None
         self._done = threading.Event()
+        # generations done when the run last began to hold (paused, every one of them published to
+        # the subscribers before this is set); None while it runs or a Step or resume is pending
+        self.holding: int | None = None
 
     # ------------------------------------------------------------------ subscribers
     def subscribe(self, callback):
@@ -256,6 +259,8 @@ class Runner(RunBase):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._population_sent = -float("inf")
+        self._generations_done = 0
+        self.on_hold = None  # callable(generations done), in the run's thread, each time it starts holding
         self._display = display_goal(self.problem.arm)[None]
 
     # ------------------------------------------------------------------ control
@@ -278,6 +283,7 @@ class Runner(RunBase):
 
     def resume(self) -> None:
         if self._set_state("paused", "running"):
+            self.holding = None
             self._notify()
 
     def step(self) -> bool:
@@ -287,6 +293,7 @@ class Runner(RunBase):
             if self._state != "paused":
                 return False
             self._steps += 1
+            self.holding = None
             self._wake.notify_all()
         return True
 
@@ -328,20 +335,39 @@ class Runner(RunBase):
         """Wait until the next generation may start: not paused (or a Step pending), and at least
         the speed cap's period after the last one started (a Step does not wait for it).
         False when the run is to stop."""
-        with self._wake:
-            while True:
+        announce = False
+        while True:
+            if announce:  # outside the lock: the worker's hook writes to a pipe
+                self._held(self._generations_done)
+                announce = False
+            with self._wake:
                 if self._stop.is_set():
                     return False
                 if self._state == "paused":
                     if self._steps > 0:
                         self._steps -= 1
+                        self.holding = None
                         return True
+                    if self.holding is None:  # holding from now: said once
+                        self.holding = self._generations_done
+                        announce = True
+                        continue
                     self._wake.wait()
                     continue
+                self.holding = None
                 left = last_start + self._period - time.perf_counter()
                 if left <= 0:
                     return True
                 self._wake.wait(left)
+
+    def _held(self, generations: int) -> None:
+        """The run holds (paused) after `generations` generations, every one of them published."""
+        hook = self.on_hold
+        if hook is not None:
+            try:
+                hook(generations)
+            except Exception:
+                log.exception("on_hold hook failed")
 
     def _loop(self) -> None:
         backend = self.backend
@@ -353,6 +379,7 @@ class Runner(RunBase):
             before = backend.best_mse
             result = backend.step()
             t_run += time.perf_counter() - t0
+            self._generations_done = index + 1
             f = result.fitness
             population = self._population(index) if self._subscribers else None
             self._publish(GenerationEvent(
@@ -370,15 +397,13 @@ class Runner(RunBase):
                 or self._stop.is_set() or index == self.config.generations - 1)
         if not (live or population_logged(index)):
             return None
-        population = self.backend.candidates()
+        population = self.backend.candidates(controllers=live)
         if population is None:
             return None
-        points = population.reach(self.problem.arm, self._display)[:, 0].astype(np.float32)
-        population = dataclasses.replace(population, points=points)
+        points = self.backend.candidate_reach(self._display)[:, 0].astype(np.float32)
         if live:
             self._population_sent = now
-            return population
-        return population.without_controllers()
+        return dataclasses.replace(population, points=points)
 
     def _finish(self, state: str, error: str | None) -> None:
         self._conclude(self._summarize(state, self.backend.best, error))

@@ -82,6 +82,7 @@ class ProcessRunner(RunBase):
 
     def resume(self) -> None:
         if self._set_state("paused", "running"):
+            self.holding = None
             self._command("resume")
 
     def step(self) -> bool:
@@ -91,6 +92,7 @@ class ProcessRunner(RunBase):
         with self._lock:
             if self._state != "paused":
                 return False
+            self.holding = None
         self._command("step")
         return True
 
@@ -124,6 +126,9 @@ class ProcessRunner(RunBase):
             for kind, body in batch:
                 if kind == "event":
                     self._publish(decode(body))
+                elif kind == "held":  # after every event it had sent: the count is final until a step
+                    with self._lock:
+                        self.holding = body if self._state == "paused" else None
                 elif kind == "end":
                     summary = body
                 elif kind == "failed":
@@ -201,7 +206,14 @@ def main(argv: list[str]) -> int:
                 actions[message[0]](*message[1:])
         runner.stop(wait=False)  # end of input: the parent is gone
 
+    def held(generations: int) -> None:
+        try:
+            pipes.send(out, ("held", generations))
+        except OSError:
+            runner.stop(wait=False)
+
     runner.subscribe(forward)
+    runner.on_hold = held
     threading.Thread(target=commands, name="lab-worker-commands", daemon=True).start()
     summary = runner.run()
     try:
