@@ -29,6 +29,7 @@ import robots
 from robots.ik import dls_ik, refine
 
 from app.ikworker import IK_WORKER
+from app.tab_extras import GoalExtras, TabExtras
 from app.scene import ArmView, frame_workspace, to_world
 from app.viser_private import set_pose
 
@@ -51,7 +52,7 @@ def fmt_len(arm: robots.Arm, d: float) -> str:
     return f"{1000 * d:.1f} mm" if d >= 1e-3 else f"{1e6 * d:.0f} µm"
 
 
-class GoalView:
+class GoalView(GoalExtras):
     def __init__(self, tab: "TabSession", index: int, position: np.ndarray):
         self.tab, self.index = tab, index
         arm, scene, ws = tab.arm, tab.client.scene, tab.ws
@@ -64,6 +65,9 @@ class GoalView:
         self.label = scene.add_label(f"{base}/label", "", position=position, anchor="bottom-left")
         self.ghost = ArmView(scene, arm, f"{base}/ik", opacity=0.3, tint=GHOST) if index == 0 else None
         self.refined = ArmView(scene, arm, f"{base}/refined", opacity=0.45, tint=REFINED) if index == 0 else None
+        self.cloud = self.faint = None  # the population: end-effector points, faint arms
+        self.partner_view = None  # a race partner's arm (goal 1 only), made when a race starts
+        self.partner_error = np.nan
         self.error, self.net_s = np.nan, np.nan
         self.ik = None
         self.seeded = None  # (error, steps, seconds) of the network's answer refined
@@ -94,6 +98,8 @@ class GoalView:
         if self.tab.closed or all(m is not self.marker for m in self.tab.markers()):
             return
         self.update(self.tab.controller())
+        if self.partner_view is not None:
+            self.update_partner(self.tab.partner_controller())
         self.tab.client.flush()
         self.tab.latency.append((self.tab.client.client_id, t0, time.perf_counter()))
         if self.ghost is not None:
@@ -135,14 +141,17 @@ class GoalView:
             self.refined.visible = seeded is not None
 
     def remove(self) -> None:
-        for view in (self.arm_view, self.ghost, self.refined):
+        for view in (self.arm_view, self.ghost, self.refined, self.partner_view):
             if view is not None:
                 view.remove()
+        for h in (self.cloud, self.faint):
+            if h is not None:
+                h.remove()
         self.marker.remove()
         self.label.remove()
 
 
-class TabSession:
+class TabSession(TabExtras):
     """Goals and arms of one client (tab); `app` gives the shared state and the shown controller."""
 
     def __init__(self, client, state, latency: deque | None = None):
@@ -161,13 +170,25 @@ class TabSession:
             self.show_ik = gui.add_checkbox("IK ghosts (refined network, DLS)", True,
                                             hint="orange: the network's answer + at most 3 Gauss-Newton steps; "
                                                  "blue: damped least squares from the rest pose")
+            self.show_population = gui.add_checkbox(
+                "Population", True, hint="every candidate of the current generation at its reach for each goal")
+            self.faint_arms = gui.add_checkbox("Population as faint arms", False)
+            self.by_species = gui.add_checkbox("Colour by species", False,
+                                               hint="for a method with species (NEAT); else by training MSE")
             self.table = gui.add_markdown("")
+        with gui.add_folder("Share this lesson", order=1, expand_by_default=False):
+            self.lesson = gui.add_markdown("")
+        self.page_url = ""
+        for toggle in (self.show_population, self.faint_arms, self.by_species):
+            toggle.on_update(lambda e: self._population_changed())
         self.add_button.on_click(lambda e: self.add_goal())
         self.remove_button.on_click(lambda e: self.remove_goal())
         self.show_ik.on_update(lambda e: self._toggle_ik())
         self.version = -1
         self.table_dirty = False
-        self.last_ik = self.last_draw = 0.0
+        self.last_ik = self.last_draw = self.last_population = 0.0
+        self.population_drawn = None  # (population version, goals, toggles) last drawn
+        self.partner_version = None
         self.build()
 
     def controller(self):
@@ -256,8 +277,11 @@ class TabSession:
 
     def refresh(self) -> None:
         """Redraw every goal with the shown controller when it changed (at most every
-        REDRAW_PERIOD while training; at once for another arm); the table when stale."""
+        REDRAW_PERIOD while training; at once for another arm); the table when stale; the
+        population and a race partner's arm (refresh_population)."""
         shown, now = self.state.shown, time.monotonic()
+        if shown.arm is self.arm:
+            self.refresh_population(now)
         if now - self.last_draw < REDRAW_PERIOD and shown.arm is self.arm:
             return
         if shown.version == self.version:
@@ -289,6 +313,9 @@ class TabSession:
             ik = fmt_len(arm, g.ik.error) if first and g.ik is not None else ""
             seeded = fmt_len(arm, g.seeded[0]) if first and g.seeded is not None else ""
             rows.append(f"| {g.index + 1} | {fmt_len(arm, g.error)} | {seeded} | {ik} |")
+        if g0_partner := (self.goals[0] if self.goals and self.goals[0].partner_view is not None
+                          and self.goals[0].partner_view.visible else None):
+            rows.append(f"| 1, race partner (purple) | {fmt_len(arm, g0_partner.partner_error)} | | |")
         g0 = self.goals[0] if self.goals else None
         lines = [f"Controller: {shown.source}", "", *rows]
         if g0 is not None and g0.ik is not None and show and np.isfinite(g0.net_s):

@@ -20,7 +20,10 @@ import lab
 import robots
 from lab import methods
 
-PLOT_POINTS = 400  # the convergence plot is decimated to this many generations
+from app.live import decimate, lead_line
+from app.state import SPEEDS, run_label
+from app.teaching import RaceFields, Watching
+
 SHARED = ("population", "generations", "hidden", "seed")  # the TrainConfig fields shown
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
 EMPTY_PLOT = (np.array([0.0, 1.0]), np.full(2, np.nan), np.full(2, np.nan))
@@ -50,24 +53,28 @@ class TrainingPanel:
         self.options: dict = {}  # option name -> its field, for the selected method
         self._options_lock = threading.RLock()  # callbacks of several tabs may rebuild them at once
         self._build_options(d)
-        actions = {"Start": self.start, "Pause": self.pause, "Resume": self.resume, "Stop": self.stop,
-                   "Reset": self.reset}
-        icons = {"Start": viser.Icon.PLAYER_PLAY, "Pause": viser.Icon.PLAYER_PAUSE, "Resume": viser.Icon.PLAYER_PLAY,
-                 "Stop": viser.Icon.PLAYER_STOP, "Reset": viser.Icon.REFRESH}
+        self.race = RaceFields(gui, self)
+        actions = {"Start": self.start, "Pause": self.pause, "Step": self.step, "Resume": self.resume,
+                   "Stop": self.stop, "Reset": self.reset}
+        icons = {"Start": viser.Icon.PLAYER_PLAY, "Pause": viser.Icon.PLAYER_PAUSE, "Step": viser.Icon.PLAYER_TRACK_NEXT,
+                 "Resume": viser.Icon.PLAYER_PLAY, "Stop": viser.Icon.PLAYER_STOP, "Reset": viser.Icon.REFRESH}
+        hints = {"Step": "while paused: exactly one more generation"}
         self.buttons = {}
         for name, action in actions.items():
-            button = self.buttons[name] = gui.add_button(name, icon=icons[name])
+            button = self.buttons[name] = gui.add_button(name, icon=icons[name], hint=hints.get(name))
             button.on_click(lambda event, action=action: action(event.client))
+        self.speed = gui.add_dropdown("Speed", tuple(SPEEDS), initial_value="unlimited",
+                                      hint="at most this many generations a second, so that a class can follow")
+        self.speed.on_update(lambda event: self._simple(lambda: self.state.set_speed(SPEEDS[self.speed.value]),
+                                                        event.client))
         self.progress_bar = gui.add_progress_bar(0.0, animated=False)
-        self.plot = gui.add_uplot(
-            data=EMPTY_PLOT,
-            series=(viser.uplot.Series(label="generation"),
-                    viser.uplot.Series(label="best MSE", stroke="#d62728", width=2),
-                    viser.uplot.Series(label="median MSE", stroke="#1f77b4", width=1)),
-            scales={"x": viser.uplot.Scale(time=False), "y": viser.uplot.Scale(distr=3, log=10)},
-            title="Convergence (training MSE, log scale)", aspect=1.5)
+        self.curves_folder = gui.add_folder("Convergence")
+        self._racing = None
+        self._build_curves(racing=False)
         self.status = gui.add_markdown("Idle.")
         self.message = gui.add_markdown("")
+        self.watching = Watching(gui, self)  # the population's legend and the live plots
+        self.legend, self.statistics = self.watching.legend, self.watching.statistics
         self._valid = {id(h): h.value for h in self._fields()}
         self._reverting = False
         for h in (self.robot, self.method, self.population, self.generations, self.hidden, self.seed):
@@ -185,7 +192,12 @@ class TrainingPanel:
                 if msg:
                     self.refuse(client, msg)
                     return msg
-            msg = self.state.start(config)
+            try:
+                partner = self.race.config(config)
+            except (ValueError, TypeError) as e:
+                msg = f"refused: race partner: {e}"
+            else:
+                msg = self.state.start(config, partner)
         if msg:
             self.refuse(client, msg)
         else:
@@ -203,6 +215,9 @@ class TrainingPanel:
     def pause(self, client=None):
         return self._simple(self.state.pause, client)
 
+    def step(self, client=None):
+        return self._simple(self.state.step, client)
+
     def resume(self, client=None):
         return self._simple(self.state.resume, client)
 
@@ -216,19 +231,56 @@ class TrainingPanel:
         self.refresh(force=True)
 
     # ------------------------------------------------------------------ progress
+    def _build_curves(self, racing: bool) -> None:
+        """The convergence plot: best and median MSE, and the race partner's beside them."""
+        if racing == self._racing:
+            return
+        if self._racing is not None:
+            self.plot.remove()
+        self._racing = racing
+        series = [viser.uplot.Series(label="generation"),
+                  viser.uplot.Series(label="best MSE", stroke="#d62728", width=2),
+                  viser.uplot.Series(label="median MSE", stroke="#1f77b4", width=1)]
+        if racing:
+            series += [viser.uplot.Series(label="best MSE, partner", stroke="#9467bd", width=2),
+                       viser.uplot.Series(label="median MSE, partner", stroke="#17becf", width=1, dash=[4, 4])]
+        with self.curves_folder:
+            self.plot = self.gui.add_uplot(
+                data=EMPTY_PLOT + ((np.full(2, np.nan),) * 2 if racing else ()), series=tuple(series),
+                scales={"x": viser.uplot.Scale(time=False), "y": viser.uplot.Scale(distr=3, log=10)},
+                title="Convergence (training MSE, log scale)", aspect=1.5)
+
     def refresh(self, force: bool = False) -> None:
         """Show the run's progress (called by the render loop, a few times a second)."""
         p = self.state.progress()
         n = p["generation"]
-        if n == self._shown_gen and not force and p["state"] not in ("running",):
+        partner = self.state.partner
+        going = p["state"] == "running" or (partner is not None and partner.runner.state == "running")
+        self.watching.refresh_population()
+        if n == self._shown_gen and not force and not going:
             return
         self._shown_gen = n
         self.progress_bar.value = 100.0 * n / p["total"] if p["total"] else 0.0
-        idx = np.unique(np.linspace(0, n - 1, min(n, PLOT_POINTS)).astype(int)) if n else np.zeros(0, int)
-        best = np.maximum(p["best"][idx], 1e-12)
-        median = np.maximum(np.nan_to_num(p["median"][idx], posinf=1e12), 1e-12)
-        self.plot.data = (idx + 1.0, best, median) if n else EMPTY_PLOT
+        self._build_curves(racing=partner is not None)
+        self.watching.build_live()
+        curves = [(p["best"], p["median"])] + ([partner.track.curves()] if partner is not None else [])
+        m = max(len(b) for b, _ in curves)
+        idx = decimate(m)
+        columns = [idx + 1.0]
+        for best, median in curves:
+            for values in (best, median):
+                padded = np.full(m, np.nan)
+                padded[:len(values)] = values
+                columns.append(np.maximum(np.nan_to_num(padded[idx], posinf=1e12, nan=np.nan), 1e-12))
+        self.plot.data = tuple(columns) if m else EMPTY_PLOT + ((np.full(2, np.nan),) * 2 if partner else ())
         best_s = f"{p['best'][-1]:.4g}" if n else "-"
         rec = f"  \nRecording: `{p['recording']}`" if p["recording"] else ""
-        self.status.content = (f"**{p['state'].capitalize()}**: generation {n} / {p['total']}, "
-                               f"best MSE {best_s}, {p['evals_per_s']:,.0f} evaluations/s{rec}")
+        status = (f"**{p['state'].capitalize()}**: generation {n} / {p['total']}, "
+                  f"best MSE {best_s}, {p['evals_per_s']:,.0f} evaluations/s{rec}")
+        if partner is not None:
+            status += (f"  \nPartner ({partner.label}): **{partner.runner.state}**, generation {len(partner.track)}"
+                       + (f", recording `{partner.recording}`" if partner.recording else ""))
+            status += "  \n" + lead_line(self.state.track, partner.track, run_label(self.state.runner.config),
+                                          partner.label)
+        self.status.content = status
+        self.watching.refresh_live()

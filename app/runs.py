@@ -116,6 +116,7 @@ class RunsPanel:
         if msg is not None:
             return msg
         self.recording = rec
+        self.state.replayed_population = rec.population_at(gen)
         first, last = rec.controllers[0][0], max(gen, rec.controllers[-1][0])
         self.slider.min, self.slider.max = first + 1, max(last + 1, first + 2)
         self.slider.disabled = False
@@ -171,6 +172,8 @@ class RunsPanel:
             return self.refuse(client, f"refused: {e}")
         msg = self.state.show_replay(controller, f"replay {rec.path.name}, generation {generation} "
                                                  f"(logged at {int(doc['generation']) + 1}, best MSE {doc['best_mse']:.4g})")
+        if msg is None:  # the recorded cloud of that generation (or the last logged before it)
+            self.state.replayed_population = rec.population_at(generation - 1)
         return self.refuse(client, msg) if msg else None
 
     def live(self) -> None:

@@ -28,12 +28,14 @@ import viser
 import lab.running.worker as lab_worker
 
 from app.goals import TabSession, fmt_len
+from app.lesson import apply_lesson, lesson_link, lesson_params
 from app.notebook import DEFAULT_PATH, Notebook
 from app.panels import TrainingPanel
 from app.runs import RunsPanel
 from app.scene import frame_workspace
 from app.state import LabState
 from app.views import error_map, map_grid, network_svg
+from app.viser_private import client_host, client_query
 
 log = logging.getLogger(__name__)
 
@@ -128,13 +130,28 @@ class LabApp:
 
     # ------------------------------------------------------------------ tabs
     def _connect(self, client: viser.ClientHandle) -> None:
+        try:  # a lesson link's settings (app/lesson.py), and the address the tab reached us at
+            query, host = client_query(client), client_host(client)
+        except Exception:  # noqa: BLE001 - a tab without them is an ordinary tab
+            log.exception("cannot read the query of tab %s", client.client_id)
+            query, host = {}, None
         session = TabSession(client, self.state, self.latency)
+        session.page_url = f"http://{host}" if host else self.url
         with self._sessions_lock:
             gone = client.client_id in self._gone  # the tab closed while its scene was being built
             if not gone:
                 self.sessions[client.client_id] = session
         if gone:
             session.close()
+            return
+        apply_lesson(self, query, client)
+        self._write_lesson_links([session])
+
+    def _write_lesson_links(self, sessions) -> None:
+        """Each tab's lesson link for the panel's current settings (at the address that tab used)."""
+        params = lesson_params(self.panel)
+        for s in sessions:
+            s.show_lesson(lesson_link(s.page_url, params), params)
 
     def _disconnect(self, client: viser.ClientHandle) -> None:
         with self._sessions_lock:
@@ -227,6 +244,7 @@ class LabApp:
                     last_views = t0
                     self._draw_views()
                     self.runs.refresh()
+                    self._write_lesson_links(sessions)
             except Exception:  # the loop must survive anything one frame does
                 log.exception("render loop")
             self._stop.wait(max(0.0, period - (time.perf_counter() - t0)))

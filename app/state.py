@@ -20,10 +20,14 @@ import numpy as np
 
 import lab
 import robots
+from lab.running.runner import speed_period
 from lab.running.worker import ProcessRunner
 
+from app.live import RunTrack
 from app.notebook import Notebook, entry_from_summary
 from app.startup import made_for
+
+SPEEDS = {"1 generation/s": 1.0, "5 generations/s": 5.0, "20 generations/s": 20.0, "unlimited": None}
 
 log = logging.getLogger(__name__)
 
@@ -38,15 +42,38 @@ class Shown:
     version: int
 
 
+@dataclass
+class Partner:
+    """The second run of a race: its runner, recording, live numbers and the controller its arm shows."""
+
+    runner: ProcessRunner
+    recording: str | None
+    track: RunTrack
+    controller: object | None = None
+    version: int = 0
+
+    @property
+    def label(self) -> str:
+        return run_label(self.runner.config)
+
+
+def run_label(config) -> str:
+    """A run in a few words: its method's label and seed ("CMA-ES, seed 0")."""
+    return f"{lab.methods.get(config.method).label}, seed {config.seed}"
+
+
 class _Tap:
     """Runner subscriber: records each generation; on_end writes the notebook entry."""
 
-    def __init__(self, state: "LabState", runner: ProcessRunner, recording: str | None):
-        self.state, self.runner, self.recording = state, runner, recording
+    def __init__(self, state: "LabState", runner: ProcessRunner, recording: str | None, partner: bool = False):
+        self.state, self.runner, self.recording, self.partner = state, runner, recording, partner
         self.started = time.time()
 
     def __call__(self, event: lab.GenerationEvent) -> None:
-        self.state._on_generation(self.runner, event)
+        if self.partner:
+            self.state._on_partner_generation(self.runner, event)
+        else:
+            self.state._on_generation(self.runner, event)
 
     def on_end(self, summary: lab.RunSummary) -> None:
         self.state._on_end(self.runner, summary, self.started, self.recording)
@@ -64,7 +91,11 @@ class LabState:
         self.recorder = recorder
         self.runner: ProcessRunner | None = None
         self.recording: str | None = None
+        self.track: RunTrack | None = None  # the run's live numbers and population (app/live.py)
+        self.partner: Partner | None = None  # a race's second run
+        self.speed: float | None = None  # generations per second (None: no cap), for every run
         self.replaying = False  # the arms show a replayed controller, not the run's best
+        self.replayed_population = None  # the population a replayed recording logged at its generation
         self._startup = startup
         self._startups, self._opened = startups, {}  # robot name -> (controller, note) it opened with
         self._version = 0
@@ -83,8 +114,12 @@ class LabState:
 
     @property
     def running(self) -> bool:
-        r = self.runner
-        return r is not None and r.state in ("running", "paused")
+        return any(r.state in ("running", "paused") for r in self.runners())
+
+    def runners(self) -> list:
+        """The current run and, in a race, its partner."""
+        with self._lock:
+            return [r for r in (self.runner, self.partner.runner if self.partner else None) if r is not None]
 
     def progress(self) -> dict:
         """Plot data and counters of the current run (copies, any thread)."""
@@ -120,6 +155,7 @@ class LabState:
         """Back to the run's best controller (or the startup controller when there is no run)."""
         with self._lock:
             self.replaying = False
+            self.replayed_population = None
             snap = self.runner.snapshot() if self.runner is not None else None
             if snap is not None and snap.controller is not None and self.runner.config.robot == self.arm.name:
                 self.show(snap.controller, f"run {self.runner.run_id[:6]}, generation {snap.generation}")
@@ -157,52 +193,99 @@ class LabState:
         return None
 
     # ------------------------------------------------------------------ training
-    def start(self, config: lab.TrainConfig) -> str | None:
+    def start(self, config: lab.TrainConfig, partner: lab.TrainConfig | None = None) -> str | None:
+        """Start a run; with `partner`, a race: a second run on the same arm and the same training
+        goals (its robot, targets and goal seed are config's), each in its own worker process."""
         with self._lock:
             if self.running:
                 return f"refused: a run is going (generation {len(self._best)}); stop it first"
+            if partner is not None and (partner.robot, partner.targets, partner.goal_seed, partner.resample) != \
+                    (config.robot, config.targets, config.goal_seed, config.resample):
+                return "refused: a race runs on the same arm and the same goals (robot, targets, goal seed)"
             if config.robot != self.arm.name:
                 msg = self.set_robot(config.robot)
                 if msg:
                     return msg
             try:
-                runner = ProcessRunner(config)
+                runners = [ProcessRunner(c) for c in (config, partner) if c is not None]
             except Exception as e:
                 return f"refused: cannot build this run: {e}"
-            recording = None
-            if self.recorder is not None:
-                try:
-                    path = getattr(self.recorder(runner), "path", None)
-                    recording = str(path) if path else None
-                except Exception as e:  # a run without a recording is still a run
-                    log.warning("no recording for this run: %s", e)
+            recordings = [self._record(r) for r in runners]
             self._clear_history()
-            self.runner, self.recording, self.replaying = runner, recording, False
-            runner.subscribe(_Tap(self, runner, recording))
-            runner.start()
+            self.runner, self.recording, self.replaying = runners[0], recordings[0], False
+            self.track = RunTrack(lab.methods.get(config.method))
+            self.partner = None
+            if partner is not None:
+                self.partner = Partner(runners[1], recordings[1], RunTrack(lab.methods.get(partner.method)))
+            for r, rec, is_partner in zip(runners, recordings, (False, True)):
+                r.subscribe(_Tap(self, r, rec, partner=is_partner))
+                r.set_speed(self.speed)
+            for r in runners:
+                r.start()
             return None
 
+    def _record(self, runner) -> str | None:
+        if self.recorder is None:
+            return None
+        try:
+            path = getattr(self.recorder(runner), "path", None)
+            return str(path) if path else None
+        except Exception as e:  # a run without a recording is still a run
+            log.warning("no recording for this run: %s", e)
+            return None
+
+    def _going(self) -> list:
+        return [r for r in self.runners() if r.state in ("running", "paused")]
+
     def pause(self) -> str | None:
-        if not self.running or self.runner.state != "running":
+        going = [r for r in self._going() if r.state == "running"]
+        if not going:
             return "refused: no run is going"
-        self.runner.pause()
+        for r in going:
+            r.pause()
 
     def resume(self) -> str | None:
-        if not self.running or self.runner.state != "paused":
+        paused = [r for r in self._going() if r.state == "paused"]
+        if not paused:
             return "refused: no run is paused"
-        self.runner.resume()
+        for r in paused:
+            r.resume()
+
+    def step(self) -> str | None:
+        """Exactly one more generation of each paused run (refused unless every run going is paused)."""
+        going = self._going()
+        if not going:
+            return "refused: no run is going (Step advances a paused run by one generation)"
+        if any(r.state != "paused" for r in going):
+            return "refused: Step works while the run is paused (press Pause first)"
+        for r in going:
+            r.step()
+
+    def set_speed(self, generations_per_second: float | None) -> str | None:
+        """Cap every run at this many generations a second (None: no cap), now and for later runs."""
+        try:
+            speed_period(generations_per_second)
+        except ValueError as e:
+            return f"refused: {e}"
+        self.speed = generations_per_second
+        for r in self.runners():
+            r.set_speed(generations_per_second)
 
     def stop(self) -> str | None:
-        if not self.running:
+        going = self._going()
+        if not going:
             return "refused: no run is going"
-        self.runner.stop(wait=True, timeout=10)
+        for r in going:
+            r.stop(wait=False)
+        for r in going:
+            r.stop(wait=True, timeout=10)
 
     def reset(self) -> None:
         """Stop any run, clear the progress and show the startup controller again."""
         if self.running:
-            self.runner.stop(wait=True, timeout=10)
+            self.stop()
         with self._lock:
-            self.runner, self.recording = None, None
+            self.runner, self.recording, self.partner, self.track = None, None, None, None
             self._clear_history()
             self.replaying = False
             self._show_startup()
@@ -218,10 +301,21 @@ class LabState:
             self._best.append(event.best)
             self._median.append(event.median)
             self._evals, self._seconds = event.evaluations, event.seconds
+            if self.track is not None:
+                self.track.add(event)
             if (event.improved or event.index == 0) and not self.replaying:
                 self._version += 1
                 self._shown = Shown(self._shown.arm, event.controller,
                                     f"run {runner.run_id[:6]}, generation {event.index + 1}", self._version)
+
+    def _on_partner_generation(self, runner: ProcessRunner, event: lab.GenerationEvent) -> None:
+        with self._lock:
+            partner = self.partner
+            if partner is None or runner is not partner.runner:
+                return
+            partner.track.add(event)
+            if event.improved or event.index == 0:
+                partner.controller, partner.version = event.controller, partner.version + 1
 
     def _on_end(self, runner, summary, started, recording) -> None:
         try:

@@ -2,6 +2,7 @@
 
     python benchmarks/bench_app.py                  # 10 tabs, one dragging; 4 rounds of 6 s each
     python benchmarks/bench_app.py --clients 10 --dragging 10 --hz 10   # every tab drags
+    python benchmarks/bench_app.py --no-population  # the tabs' population view off (it is on by default)
 
 Two numbers, measured side by side in rounds (headless then app, app then headless, ...):
 
@@ -17,6 +18,11 @@ Two numbers, measured side by side in rounds (headless then app, app then headle
    train` runs, nothing else running). The app trains in its worker process
    (lab.running.worker.ProcessRunner), started from the panel's code path (app.state.start).
    Target: >= 80 %.
+
+Every tab shows the population view (issue 16: each candidate's end-effector point at its goal,
+redrawn at most 5 times a second per tab as the run sends populations, at most 10 a second) unless
+--no-population; the headless run computes the same populations (lab.Runner sends them to its
+subscribers) so both sides pay for them.
 
 The clients share the machine's cores with the server (a classroom's browsers would not), so
 both numbers are pessimistic. No Rerun recording in either case, unless --record: then both
@@ -117,7 +123,7 @@ def record_arrivals(app) -> None:
     app.server._websock_server._incoming_handlers.setdefault(TransformControlsUpdateMessage, []).insert(0, arrived)
 
 
-def with_app(app, clients: int, dragging: int, seconds: float, hz: float) -> dict:
+def with_app(app, clients: int, dragging: int, seconds: float, hz: float, population: bool = True) -> dict:
     from app.server import SWITCH_INTERVAL
 
     sys.setswitchinterval(SWITCH_INTERVAL)
@@ -128,6 +134,8 @@ def with_app(app, clients: int, dragging: int, seconds: float, hz: float) -> dic
     deadline = time.monotonic() + 30
     while len(app.sessions) < clients and time.monotonic() < deadline:
         time.sleep(0.05)
+    for session in list(app.sessions.values()):
+        session.show_population.value = population
     assert app.state.start(lab.TrainConfig.preset(**CONFIG)) is None
     meter = Meter(app.state.runner.pid)
     app.state.runner.subscribe(meter)
@@ -205,6 +213,8 @@ def main() -> None:
     ap.add_argument("--dragging", type=int, default=1, help="how many of the tabs drag their marker")
     ap.add_argument("--record", action="store_true", help="both sides write a Rerun recording")
     ap.add_argument("--hz", type=float, default=30.0, help="marker updates per second per dragging tab")
+    ap.add_argument("--no-population", dest="population", action="store_false",
+                    help="the tabs' population view off (on by default)")
     args = ap.parse_args()
     from app.server import LabApp
 
@@ -217,9 +227,9 @@ def main() -> None:
         for r in range(args.rounds):
             if r % 2 == 0:  # alternate which goes first, so a trend in the machine's load cancels out
                 heads.append(headless(args.seconds, folder if args.record else None))
-                apps.append(with_app(app, args.clients, args.dragging, args.seconds, args.hz))
+                apps.append(with_app(app, args.clients, args.dragging, args.seconds, args.hz, args.population))
             else:
-                apps.append(with_app(app, args.clients, args.dragging, args.seconds, args.hz))
+                apps.append(with_app(app, args.clients, args.dragging, args.seconds, args.hz, args.population))
                 heads.append(headless(args.seconds, folder if args.record else None))
             a, h = apps[-1], heads[-1]
             print(f"round {r + 1}: headless {h['rate']:,.0f} eval/s (optimizer {h['runner_cpu']:.2f} cores), "
@@ -234,7 +244,8 @@ def main() -> None:
     pairs = [a["rate"] / h["rate"] for a, h in zip(apps, heads)]
     per_cpu_h = np.mean([h["rate"] / h["runner_cpu"] for h in heads])
     per_cpu_a = np.mean([a["rate"] / a["runner_cpu"] for a in apps])
-    print(f"\n{args.clients} tabs connected, {args.dragging} dragging at {args.hz:g} Hz, while planar CMA-ES "
+    print(f"\n{args.clients} tabs connected (population view {'on' if args.population else 'off'}), "
+          f"{args.dragging} dragging at {args.hz:g} Hz, while planar CMA-ES "
           f"(population 50) trains{', both recording' if args.record else ''}, "
           f"{args.rounds} x {args.seconds:g} s, {os.cpu_count()} cores, load average before {load[0]:.1f}, "
           f"after {os.getloadavg()[0]:.1f}")

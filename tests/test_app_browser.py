@@ -59,3 +59,82 @@ def test_browser_finds_the_training_panel_and_starts_a_run(tmp_path):
             browser.close()
     finally:
         app.stop()
+
+
+def settled(count, quiet=0.6, timeout=15.0) -> int:
+    """count() once it has not changed for `quiet` seconds."""
+    last, since, t0 = count(), time.monotonic(), time.monotonic()
+    while time.monotonic() - since < quiet and time.monotonic() - t0 < timeout:
+        time.sleep(0.02)
+        if count() != last:
+            last, since = count(), time.monotonic()
+    return last
+
+
+def test_browser_steps_one_generation_sets_the_speed_and_races_two_runs(tmp_path):
+    """Issue 16 in a real browser: one click on Step = one generation more on the server; the Speed
+    menu caps the rate; a race draws two curves (APP_SCREENSHOT_DIR keeps the screenshots)."""
+    from app.server import LabApp
+
+    shots = os.environ.get("APP_SCREENSHOT_DIR") or str(tmp_path)
+    app = LabApp(port=0, notebook=str(tmp_path / "notebook.db"), recordings=str(tmp_path / "rec"), record=False)
+    app.panel.generations.value = 100_000
+    generations = lambda: app.state.progress()["generation"]  # noqa: E731
+    try:
+        with sync_api.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, headless=True)
+            page = browser.new_page(viewport={"width": 1400, "height": 1400})
+            page.goto(app.url)
+            button = lambda name: page.get_by_role("button", name=name, exact=True)  # noqa: E731
+            sync_api.expect(button("Start")).to_be_visible(timeout=30_000)
+            assert wait_until(lambda: len(app.sessions) == 1)
+            button("Start").click()
+            assert wait_until(lambda: generations() >= 10), "no generation after Start"
+            button("Pause").click()
+            assert wait_until(lambda: app.state.runner.state == "paused")
+            runner = app.state.runner
+            assert wait_until(lambda: runner.holding is not None)  # the worker holds; every event is in
+            held = runner.holding
+            assert generations() == held
+            button("Step").click()
+            assert wait_until(lambda: runner.holding == held + 1)
+            assert settled(generations) == held + 1, "one click on Step is one generation"
+            button("Step").click()
+            assert wait_until(lambda: runner.holding == held + 2)
+            assert settled(generations) == held + 2
+            page.screenshot(path=os.path.join(shots, "step.png"))
+            # the speed menu: 5 generations a second
+            page.get_by_label("Speed").click()
+            page.get_by_role("option", name="5 generations/s").click()
+            assert wait_until(lambda: app.state.speed == 5.0, 10)
+            button("Resume").click()
+            assert wait_until(lambda: generations() >= held + 4)
+            g0, t0 = generations(), time.monotonic()
+            time.sleep(2.0)
+            rate = (generations() - g0) / (time.monotonic() - t0)
+            assert 3.0 <= rate <= 5.6, rate
+            button("Stop").click()
+            assert wait_until(lambda: app.state.runner.state == "stopped")
+            # a race: CMA-ES against NEAT, two curves on one plot
+            page.get_by_label("Speed").click()
+            page.get_by_role("option", name="unlimited").click()
+            page.get_by_text("Race", exact=True).click()
+            page.get_by_label("Race a second run").check()
+            page.get_by_label("Partner method").click()
+            page.get_by_role("option", name="NEAT").click()
+            assert wait_until(lambda: app.panel.race.enabled.value and app.panel.race.method.value == "NEAT", 10)
+            button("Start").click()
+            assert wait_until(lambda: app.state.partner is not None and len(app.state.partner.track) >= 20
+                              and generations() >= 20, 60)
+            sync_api.expect(page.get_by_text("best MSE, partner").first).to_be_visible(timeout=10_000)
+            sync_api.expect(page.get_by_text("leads", exact=False).first).to_be_visible(timeout=10_000)
+            page.wait_for_timeout(1500)
+            page.screenshot(path=os.path.join(shots, "race.png"))
+            page.get_by_text("Convergence (training MSE, log scale)").scroll_into_view_if_needed()
+            page.wait_for_timeout(500)
+            page.screenshot(path=os.path.join(shots, "race-curves.png"))
+            button("Stop").click()
+            assert wait_until(lambda: app.state.partner.runner.state == "stopped")
+            browser.close()
+    finally:
+        app.stop()

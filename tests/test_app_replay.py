@@ -4,6 +4,7 @@ recording, scrubbed generation by generation; bad uploads are refused and change
 from __future__ import annotations
 
 import os
+import time
 
 import numpy as np
 import pytest
@@ -77,3 +78,37 @@ def test_an_entry_without_its_recording_replays_its_final_controller(app, tmp_pa
     assert app.runs.open(label(entry)) is None
     assert app.runs.slider.disabled and "final controller" in app.state.shown.source
     app.runs.live()
+
+
+def test_replay_shows_the_recorded_population_of_that_generation(app):
+    from lab.recording.replay import read_recording
+
+    from app.probe import Probe
+
+    entry = next(e for e in app.state.notebook.entries() if e["recording"] and os.path.exists(e["recording"]))
+    rec = read_recording(entry["recording"])
+    probe = Probe(app.url).start()
+    try:
+        owner = int(probe.owner("/tab/goal0/marker"))
+        app.runs.refresh(force=True)
+        assert app.runs.open(label(entry)) is None
+        app.runs.slider.value = 25
+        shown = app.state.replayed_population
+        assert shown.generation == 24 and np.array_equal(shown.points, rec.population_at(24).points)
+        deadline = time.monotonic() + 10
+        while owner not in app.sessions and time.monotonic() < deadline:
+            time.sleep(0.05)
+        session = app.sessions[owner]
+        while time.monotonic() < deadline:
+            cloud = session.goals[0].cloud
+            if cloud is not None and np.allclose(np.asarray(cloud.points), shown.points):
+                break
+            time.sleep(0.05)
+        assert cloud is not None and np.allclose(np.asarray(cloud.points), shown.points)
+        deadline = time.monotonic() + 5
+        while "Replay" not in app.panel.legend.content and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert "Replay" in app.panel.legend.content  # the render loop's next panel refresh
+    finally:
+        app.runs.live()
+        probe.close()

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import os
 
-from lab.methods.base import Backend, Options, StepResult, option
-from lab.methods.registry import DEFAULT_METHOD, Method, all_methods, get, load_plugins, names, register, unregister
+from lab.methods.base import Backend, Options, Population, StepResult, option
+from lab.methods.registry import DEFAULT_METHOD, LivePlot, Method, all_methods, get, load_plugins, names, register, unregister
 
 
 def make_backend(problem, config) -> Backend:
@@ -30,5 +30,5 @@ from lab.methods import cmaes, gradient, neat  # noqa: E402,F401  (each register
 
 load_plugins(os.environ.get("LAB_METHODS"))
 
-__all__ = ["Backend", "DEFAULT_METHOD", "Method", "Options", "StepResult", "all_methods", "get", "load_plugins",
+__all__ = ["Backend", "DEFAULT_METHOD", "LivePlot", "Method", "Population", "Options", "StepResult", "all_methods", "get", "load_plugins",
            "make_backend", "names", "option", "register", "unregister"]

@@ -57,13 +57,77 @@ class Options:
         return {f.name: (f.default, type(f.default), f.metadata.get("help", "")) for f in dataclasses.fields(cls)}
 
 
+@dataclass(frozen=True, eq=False)
+class Population:
+    """The candidates one generation evaluated (Backend.candidates()).
+
+    mse: (n,) each candidate's training MSE (+inf for NaN/inf output), as StepResult.fitness;
+    controllers: the n candidates as controllers, or None where they were left out (the recording
+        and the pipe carry them only at a bounded rate, lab.running.runner.POPULATION_PERIOD);
+    species: (n,) each candidate's species id, or None for a method without species;
+    points: (n, 3) each candidate's end-effector point at the recording's display goal
+        (lab.recording.population.display_goal), filled in by the runner, or None.
+    """
+
+    generation: int
+    mse: np.ndarray
+    controllers: tuple | None = None
+    species: np.ndarray | None = None
+    points: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.mse)
+
+    def joints(self, goals: np.ndarray) -> np.ndarray:
+        """(n, len(goals), nq): every candidate's joint values for goals (len(goals), len(task_axes))."""
+        if self.controllers is None:
+            raise ValueError("this population was sent without its controllers")
+        return population_joints(self.controllers, goals)
+
+    def reach(self, arm, goals: np.ndarray) -> np.ndarray:
+        """(n, len(goals), 3): every candidate's end-effector point for each goal."""
+        q = self.joints(goals)
+        return arm.fk(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:2], 3)
+
+
+def population_joints(controllers, goals: np.ndarray) -> np.ndarray:
+    """(n, g, nq) joint values of n controllers on goals (g, task dims): one compiled call when
+    they are all MLPs of one shape or all graphs of one encoding, one call each otherwise."""
+    from lab.problem.controllers import GraphController, MLPController, compile_programs, run_programs
+
+    goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
+    first = controllers[0]
+    enc = first.encoding
+    same = all(c.encoding is enc for c in controllers)  # one pickle keeps them one object
+    if same and all(isinstance(c, MLPController) and c.hidden == first.hidden for c in controllers):
+        return mlp_joints(enc, first.hidden, np.stack([c.weights for c in controllers]), goals)
+    elif same and all(isinstance(c, GraphController) for c in controllers):
+        a = run_programs(compile_programs(controllers), enc.inputs(goals))
+    else:
+        return np.stack([c(goals) for c in controllers])
+    return enc.joints(a.reshape(-1, enc.n_outputs)).reshape(len(controllers), len(goals), -1)
+
+
+def mlp_joints(encoding, hidden: int, W: np.ndarray, goals: np.ndarray) -> np.ndarray:
+    """(P, g, nq) joint values of the paper's MLPs of weight rows W (P, N) on goals (g, task dims)."""
+    from lab.problem import kernels
+
+    goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
+    XT = np.ascontiguousarray(encoding.inputs(goals).T)
+    A = np.empty((encoding.n_outputs, len(W) * len(goals)))
+    kernels.mlp_outputs(XT, np.ascontiguousarray(W, dtype=np.float64), hidden, A)
+    a = A.reshape(encoding.n_outputs, len(W), len(goals)).transpose(1, 2, 0)
+    return encoding.joints(a.reshape(-1, encoding.n_outputs)).reshape(len(W), len(goals), -1)
+
+
 @dataclass(frozen=True)
 class StepResult:
     """What one generation (one step) produced.
 
     fitness: (population,) training MSE of every controller evaluated (+inf for NaN/inf output)
     extras:  the method's own scalars to log (CMA-ES: sigma, restarts; NEAT: species, nodes, ...),
-             named in its Method.search_series
+             named in its Method.search_series; values that are not numbers (NEAT's species
+             sizes, a {species id: size} mapping) are for its Method.live_plots only
     evaluations: controller evaluations this step counts (None: one per fitness value)
     """
 
@@ -95,9 +159,53 @@ class Backend(ABC):
         if self.problem.resampling:
             self.problem.draw_goals(self.generation)
         result = self._step()
+        self._fitness = result.fitness
         self.generation += 1
         self.evaluations += len(result.fitness) if result.evaluations is None else int(result.evaluations)
         return result
+
+    keeps_candidates = False  # True: the backend implements _candidate_controllers() (a population method)
+
+    def candidates(self, controllers: bool = True) -> Population | None:
+        """The candidates of the last step (None before the first step): their training MSE and
+        species, and with `controllers` each one's controller.
+
+        A backend that does not keep its candidates (keeps_candidates False: a method with one
+        network, or a plug-in that says no more) shows its best controller so far: a population of
+        one. Controllers are built here only, when asked (at a bounded rate), never in step();
+        nothing here draws random numbers, so asking never changes a run."""
+        fitness = getattr(self, "_fitness", None)
+        if fitness is None:
+            return None
+        if not self.keeps_candidates:
+            if self.best is None:
+                return None
+            return Population(self.generation - 1, np.array([self.best_mse]), (self.best,) if controllers else None)
+        species = self._candidate_species()
+        return Population(self.generation - 1, np.asarray(fitness, float),
+                          tuple(self._candidate_controllers()) if controllers else None,
+                          None if species is None else np.asarray(species, np.int64))
+
+    def candidate_reach(self, goals: np.ndarray) -> np.ndarray:
+        """(n, len(goals), 3): each candidate's end-effector point for each goal, in the order of
+        candidates() (through _candidate_joints where the backend has a faster way than its controllers)."""
+        goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
+        q = self._candidate_joints(goals) if self.keeps_candidates else None
+        if q is None:
+            return self.candidates().reach(self.problem.arm, goals)
+        return self.problem.arm.fk(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:2], 3)
+
+    def _candidate_controllers(self) -> list:
+        """The last step's candidates as controllers, in the order of its fitness (keeps_candidates)."""
+        raise NotImplementedError
+
+    def _candidate_species(self) -> list | None:
+        """Each candidate's species id, or None for a method without species."""
+        return None
+
+    def _candidate_joints(self, goals: np.ndarray) -> np.ndarray | None:
+        """(n, len(goals), nq) joint values of the candidates, or None: from their controllers."""
+        return None
 
     @classmethod
     def settings(cls, problem: Problem, config: TrainConfig) -> dict:

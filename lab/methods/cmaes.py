@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 import robots
-from lab.methods.base import Backend, Options, StepResult, option
-from lab.methods.registry import Method, SpeedReference, register
+from lab.methods.base import Backend, Options, StepResult, mlp_joints, option
+from lab.methods.registry import LivePlot, Method, SpeedReference, register
 from lab.problem.checks import flag, real, whole
 from lab.problem.controllers import MLPController, mlp_size
 
@@ -101,11 +101,24 @@ class CMAESBackend(Backend):
             self.es.sm.randn = self.es.opts["randn"]
         i = int(np.argmin(f))
         self._offer(f[i], lambda: MLPController(self.problem.encoding, self.config.hidden, X[i].copy()))
-        extras = {"sigma": float(self.es.sigma), "restarts": self.restarts}
+        self._asked = X
+        # the spread of the sampled weights: their standard deviation across the population, the
+        # mean over the weights (sigma times the mean scale of C's axes, as sampled)
+        extras = {"sigma": float(self.es.sigma), "restarts": self.restarts,
+                  "weight_spread": float(np.mean(np.std(X, axis=0)))}
         if self.options.restarts and self._start_is_over(float(f[i])):
             self.restarts += 1
             self._start()
         return StepResult(f, extras)
+
+    keeps_candidates = True
+
+    def _candidate_controllers(self):
+        enc, hidden = self.problem.encoding, self.config.hidden
+        return [MLPController(enc, hidden, x) for x in self._asked]
+
+    def _candidate_joints(self, goals):
+        return mlp_joints(self.problem.encoding, self.config.hidden, self._asked, goals)
 
     def _start_is_over(self, gen_best: float) -> bool:
         if gen_best < 0.99 * self._start_best:
@@ -165,4 +178,14 @@ METHOD = register(Method(
     search_title="CMA-ES step size and restarts", search_series="CMA-ES step size sigma and the number of restarts",
     cost=1.0, ablations=("features=polar", "features=cartesian", "margin=0.5", "hidden=8", "sigma0=0.4", "diagonal=0"),
     reference=SpeedReference("pycma ask/tell, sphere", 1.25, reference_loop),
+    live_plots=(
+        LivePlot("sigma", "CMA-ES step size σ", log=True, about=(
+            "σ is how far CMA-ES samples new weight vectors around its mean: large at first to explore, it "
+            "shrinks as the population closes in on good weights. A σ that stops shrinking while the error "
+            "stays high means the search is stuck or the step size keeps growing to escape a plateau.")),
+        LivePlot("weight_spread", "Spread of the sampled weights", log=True, about=(
+            "The standard deviation of each weight across this generation's samples, averaged over the "
+            "weights: σ times the shape CMA-ES has learnt. It follows σ, and falls faster along directions "
+            "where the error is steep.")),
+    ),
 ))

@@ -27,7 +27,7 @@ import numpy as np
 
 import robots
 from lab.methods.base import Backend, Options, StepResult, option
-from lab.methods.registry import Method, register
+from lab.methods.registry import LivePlot, Method, register
 from lab.problem.checks import real
 from lab.problem.controllers import MLPController, mlp_size
 
@@ -79,6 +79,7 @@ class GradientBackend(Backend):
         hidden = self.config.hidden
         w = self.w
         f = float(self.problem.mlp_mse(w[None], hidden)[0])  # the fitness, as every method's
+        self._evaluated = w
         self._offer(f, lambda: MLPController(self.problem.encoding, hidden, w.copy()))
         _, g = self.problem.mlp_gradient(w, hidden)
         norm = float(np.linalg.norm(g))
@@ -92,6 +93,13 @@ class GradientBackend(Backend):
             self.w = w - lr * m_hat / (np.sqrt(v_hat) + o.adam_epsilon)
         return StepResult(np.array([f]), {"gradient_norm": norm, "learning_rate": lr},
                           evaluations=1 + self.problem.arm.nq)
+
+
+    keeps_candidates = True
+
+    def _candidate_controllers(self):
+        """Its single network: the weights this step evaluated."""
+        return [MLPController(self.problem.encoding, self.config.hidden, self._evaluated)]
 
 
 def defaults(arm) -> dict:
@@ -120,4 +128,10 @@ METHOD = register(Method(
     search_series="the norm of the loss gradient and the learning rate per step",
     cost=1.0, step_evaluations=lambda arm, config: 1 + arm.nq,
     ablations=("margin=0.0", "margin=0.5", "hidden=16", "learning_rate=0.01", "final_rate=1.0"),
+    live_plots=(
+        LivePlot("gradient_norm", "Gradient norm", log=True, about=(
+            "The length of the loss gradient the single network follows: the steepness of the error "
+            "surface where its weights are. It falls as the network settles into a minimum; spikes are "
+            "steep walls, where Adam's step-size normalisation keeps the step bounded.")),
+    ),
 ))

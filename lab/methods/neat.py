@@ -44,9 +44,9 @@ import neat
 import numpy as np
 
 from lab.methods.base import Backend, Options, StepResult, option
-from lab.methods.registry import Method, SpeedReference, register
+from lab.methods.registry import LivePlot, Method, SpeedReference, register
 from lab.problem.checks import real
-from lab.problem.controllers import GraphController, join_programs, lay_out
+from lab.problem.controllers import GraphController, join_programs, lay_out, run_programs
 from lab.methods.neat_genome import FastGenome, FastReproduction
 from lab.methods.neat_species import FastSpeciesSet
 
@@ -341,12 +341,14 @@ class NEATBackend(Backend):
         cache = {g.key: self._compiled.get(g.key) or genome_program(g, self.neat_config) for g in genomes}
         self._compiled = cache
         programs = [cache[g.key] for g in genomes]
-        mse = self.problem.program_mse(compile_genomes(programs))
+        compiled = compile_genomes(programs)
+        mse = self.problem.program_mse(compiled)
         for g, m in zip(genomes, mse.tolist()):
             g.fitness = -m if math.isfinite(m) else BAD_FITNESS
         i = int(np.argmin(mse))
         self._offer(mse[i], lambda: genome_to_controller(genomes[i], self.neat_config, enc))
         best = genomes[i]
+        self._evaluated = (genomes, dict(pop.species.genome_to_species), compiled)
         pop.reporters.post_evaluate(pop.config, pop.population, pop.species, best)
         if pop.best_genome is None or best.fitness > pop.best_genome.fitness:
             pop.best_genome = best
@@ -354,6 +356,8 @@ class NEATBackend(Backend):
             "species": len(pop.species.species),
             "nodes": len(best.nodes), "connections": sum(c.enabled for c in best.connections.values()),
             "hidden": program_hidden(programs[i]),
+            # for the live plot of species sizes (not a number: left out of the /search series)
+            "species_sizes": {int(k): len(s.members) for k, s in pop.species.species.items()},
         }
         pop.population = self._reproduce()
         if not pop.species.species:  # complete extinction: start afresh (reset_on_extinction)
@@ -363,6 +367,22 @@ class NEATBackend(Backend):
         self._fit_species()
         pop.generation += 1
         return StepResult(mse, extras)
+
+    keeps_candidates = True
+
+    def _candidate_controllers(self):
+        genomes, _species, _compiled = self._evaluated
+        return [genome_to_controller(g, self.neat_config, self.problem.encoding, record=False) for g in genomes]
+
+    def _candidate_species(self):
+        genomes, species_of, _compiled = self._evaluated
+        return [species_of.get(g.key, -1) for g in genomes]
+
+    def _candidate_joints(self, goals):
+        """From the arrays the generation was evaluated with (no controller built)."""
+        enc = self.problem.encoding
+        a = run_programs(self._evaluated[2], enc.inputs(goals))  # (n, goals, nq)
+        return enc.joints(a.reshape(-1, enc.n_outputs)).reshape(a.shape)
 
     def _reproduce(self) -> dict:
         """neat-python's reproduce; it can fail to fit spawn counts to a small population
@@ -435,4 +455,10 @@ METHOD = register(Method(
     search_series="number of species, nodes and enabled connections of the best genome",
     cost=6.0, ablations=("mutation_power=1.0", "margin=0.0", "features=reach"),
     reference=SpeedReference("neat-python Population.run, random fitness", 1.5, reference_loop),
+    live_plots=(
+        LivePlot("species_sizes", "NEAT species sizes", kind="stacked", about=(
+            "Each band is one species, its height the number of genomes in it, stacked to the population "
+            "size (neat-python's plot_species, drawn live). Bands appear when a new structure is "
+            "different enough to found a species, and end when a species stagnates and is removed.")),
+    ),
 ))

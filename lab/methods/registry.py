@@ -35,6 +35,28 @@ class SpeedReference:
 
 
 @dataclass(frozen=True)
+class LivePlot:
+    """A plot of one of a method's StepResult extras per generation, drawn live in the app beside
+    the convergence curve.
+
+    key: the extras entry; title: the plot's title; about: two sentences on what a class sees;
+    kind: "line" (a number per generation) or "stacked" (a {name: size} mapping per generation,
+        drawn as stacked bands, as neat-python's plot_species draws species sizes);
+    log: a log y axis (lines).
+    """
+
+    key: str
+    title: str
+    about: str
+    kind: str = "line"
+    log: bool = False
+
+    def __post_init__(self):
+        if self.kind not in ("line", "stacked"):
+            raise ValueError(f"live plot {self.key!r}: kind must be 'line' or 'stacked', got {self.kind!r}")
+
+
+@dataclass(frozen=True)
 class Method:
     """What the lab needs to know of a method, declared once in the method's module.
 
@@ -57,6 +79,8 @@ class Method:
         budget (lab/experiments/claims.py) derive generations from it.
     reference: the bare library's loop that benchmarks/bench_speed.py times this method's backend
         against (None: nothing to compare with).
+    live_plots: its LivePlots (the app draws them beside the convergence curve, and shows their
+        latest values beside the population view).
     """
 
     name: str
@@ -76,6 +100,7 @@ class Method:
     step_evaluations: Callable | None = field(default=None, compare=False)
     ablations: tuple[str, ...] = ()
     reference: SpeedReference | None = field(default=None, compare=False)
+    live_plots: tuple[LivePlot, ...] = ()
 
     def __post_init__(self):
         if not (isinstance(self.name, str) and self.name.isidentifier() and self.name.islower()):

@@ -52,6 +52,14 @@ class Recording:
     controllers: list = field(repr=False)
     summary: dict | None = None
     salvaged: bool = False
+    populations: list = field(default_factory=list, repr=False)  # (generation, Population), sorted
+
+    def population_at(self, generation: int):
+        """The population logged at or before `generation` (lab.methods.Population, without its
+        controllers: each candidate's MSE, species and point at the display goal), or None."""
+        generation = _generation(generation)
+        found = [p for g, p in self.populations if g <= generation]
+        return found[-1] if found else None
 
     @property
     def last_generation(self) -> int | None:
@@ -140,12 +148,16 @@ def _read(path: Path, name: Path, salvaged: bool) -> Recording:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "RRD file has no footer": expected after a crash
         chunks = list(RrdReader(path).stream())
-    protocol, summary, rows, docs = None, None, [], []
+    protocol, summary, rows, docs, pops = None, None, [], [], {}
     for ch in chunks:
         entity = ch.entity_path
-        if entity not in ("/protocol", "/summary", "/mse", "/controller"):
+        if entity not in ("/protocol", "/summary", "/mse", "/controller", "/population", "/world/population"):
             continue
         rb = ch.to_record_batch()
+        if entity in ("/population", "/world/population"):
+            if "generation" in rb.schema.names:
+                _population_rows(rb, entity, pops)
+            continue
         if entity in ("/protocol", "/summary"):
             text = rb.column("TextDocument:text").to_pylist()[-1][0]
             protocol, summary = (json.loads(text), summary) if entity == "/protocol" else (protocol, json.loads(text))
@@ -162,7 +174,37 @@ def _read(path: Path, name: Path, salvaged: bool) -> Recording:
     gens = np.array([g for g, _ in rows], dtype=np.int64)
     best = np.array([v[0] for _, v in rows], dtype=np.float64)
     median = np.array([v[1] for _, v in rows], dtype=np.float64)
-    return Recording(name, protocol, gens, best, median, docs, summary, salvaged)
+    return Recording(name, protocol, gens, best, median, docs, summary, salvaged, _populations(pops))
+
+
+def _population_rows(rb, entity: str, pops: dict) -> None:
+    """Collect /population's numbers and /world/population's points by generation."""
+    gens = rb.column("generation").to_pylist()
+    if entity == "/population":
+        columns = {k: rb.column(k).to_pylist() for k in ("mse", "species") if k in rb.schema.names}
+        for i, g in enumerate(gens):
+            row = pops.setdefault(int(g), {})
+            for k, values in columns.items():
+                if values[i] is not None:
+                    row[k] = values[i]
+    elif "Points3D:positions" in rb.schema.names:
+        for g, cell in zip(gens, rb.column("Points3D:positions").to_pylist()):
+            if cell is not None:
+                pops.setdefault(int(g), {})["points"] = cell
+
+
+def _populations(pops: dict) -> list:
+    from lab.methods import Population
+
+    out = []
+    for g in sorted(pops):
+        row = pops[g]
+        if "mse" not in row or "points" not in row:
+            continue
+        species = np.asarray(row["species"], np.int64) if row.get("species") is not None else None
+        out.append((g, Population(g, np.asarray(row["mse"], float), None, species,
+                                  np.asarray(row["points"], np.float32).reshape(-1, 3))))
+    return out
 
 
 # ---------------------------------------------------------------------- the viewer

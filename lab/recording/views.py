@@ -169,7 +169,11 @@ Evolution of a neural inverse-kinematics controller ({config["generations"]} gen
 - **3D view**: the arm's meshes at the best controller's joint values for the first training goal,
   the arm as lines for every training goal (grey), the goals (green), the points reached (blue)
   and the errors goal -> reached (red).
-  Updated on improvement, at most every few generations.
+  Updated on improvement, at most every few generations. **Population**: every candidate of the
+  generation at its reach for the display goal (white), coloured by its training MSE on a log scale
+  from the generation's best (dark purple) to its worst (yellow) (`world/population`; by species in
+  `world/population_species` for a method with species); every generation up to 100, then every
+  10th (the one at or before the time cursor is shown).
 - **Training error**: best so far, median and worst (when finite) of each generation, as log10(MSE)
   (Rerun 0.41 has no log axis) and in a second tab on a linear scale.
 - **Search**: {method.search_series}.

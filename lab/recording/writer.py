@@ -32,6 +32,7 @@ import rerun as rr
 import robots
 
 from lab.recording import views
+from lab.recording.population import display_goal, mse_colors, population_logged, species_colors
 from lab.running.pipes import EventDecoder, claim_stdout, messages
 from lab.recording.logger import APPLICATION_ID, FORMAT_VERSION, compact
 
@@ -80,6 +81,28 @@ class Writer:
             self._write_display()
         self._last_event = events[-1]
         self._write_pose(events[-1])
+        self._write_populations(events)
+
+    def _write_populations(self, events: list) -> None:
+        """/world/population: each candidate's end-effector point at the display goal, coloured by its
+        training MSE (species ids as class ids); /population: the numbers (mse, species)."""
+        for e in events:
+            p = e.population
+            if p is None or p.points is None or not population_logged(e.index):  # not the live views' extras
+                continue
+            self._set_time(e)
+            colors = mse_colors(p.mse)
+            species = {} if p.species is None else {"class_ids": np.asarray(p.species, np.uint16)}
+            self._rec.log("world/population", rr.Points3D(np.asarray(p.points, np.float32), colors=colors,
+                                                          radii=3 * self._geometry.radius, **species))
+            values = {"mse": np.asarray(p.mse, np.float64)}
+            if p.species is not None:
+                values["species"] = np.asarray(p.species, np.int64)
+                # the species' own colours, for the viewer (class ids get colours of its own otherwise)
+                self._rec.log("world/population_species", rr.Points3D(np.asarray(p.points, np.float32),
+                                                                      colors=species_colors(p.species),
+                                                                      radii=3 * self._geometry.radius))
+            self._rec.log("population", rr.AnyValues(**values))
 
     def end(self, summary: dict | None) -> None:
         """What is still pending (display series, the last pose), and the summary of a clean close."""
@@ -163,6 +186,9 @@ class Writer:
         rec.log("about", rr.TextDocument(views.about(c, self.method), media_type=rr.MediaType.MARKDOWN), static=True)
         for entity, archetype in views.static_scene(self._geometry) + views.robot_meshes(arm):
             rec.log(entity, archetype, static=True)
+        goal = arm.to_3d(display_goal(arm)[None])[0]
+        rec.log("world/display_goal", rr.Points3D([goal], colors=[[255, 255, 255]], radii=5 * self._geometry.radius,
+                                                  labels=["population shown for this goal"]), static=True)
 
 
 def main() -> int:

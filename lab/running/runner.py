@@ -3,6 +3,8 @@
     runner = Runner(TrainConfig(robot="planar", method="cmaes"))
     runner.subscribe(callback)       # callback(event: GenerationEvent), once per generation
     runner.start()                   # returns at once; runner.pause() / resume() / stop()
+    runner.step()                    # while paused: exactly one more generation, then paused again
+    runner.set_speed(5)              # at most 5 generations a second (None: as fast as it goes)
     runner.snapshot()                # a consistent view of the current best, from any thread
     summary = runner.join()          # blocks until the run ends
 
@@ -16,6 +18,7 @@ stop() returns within one generation. NumPy's BLAS is limited to one thread whil
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -27,7 +30,8 @@ from threadpoolctl import threadpool_limits
 
 import robots
 
-from lab.methods import Backend, make_backend
+from lab.methods import Backend, Population, make_backend
+from lab.recording.population import display_goal, population_logged
 from lab.running.config import TrainConfig
 from lab.problem.controllers import Controller
 from lab.problem.encoding import Encoding
@@ -35,12 +39,18 @@ from lab.problem import Problem
 
 log = logging.getLogger(__name__)
 
+POPULATION_PERIOD = 0.1  # s: at most this often a population goes out with its controllers (live views)
+
 
 @dataclass(frozen=True)
 class GenerationEvent:
     """One generation: index from 0; best = best training MSE so far (of `controller`);
     gen_best/median/worst over this generation's population; evaluations so far; seconds of
-    run time so far (pauses excluded); wall_time: when the generation ended (Unix time)."""
+    run time so far (pauses excluded); wall_time: when the generation ended (Unix time);
+    population: the generation's candidates (lab.methods.Population) on the generations
+    lab.recording.population.population_logged names (their MSE, species and points at the display
+    goal), with their controllers at most every POPULATION_PERIOD and whenever the run holds
+    (paused, a Step, the last generation); None otherwise."""
 
     run_id: str
     index: int
@@ -54,6 +64,7 @@ class GenerationEvent:
     improved: bool
     extras: dict = field(default_factory=dict)
     wall_time: float = field(default_factory=time.time)
+    population: Population | None = None  # this generation's candidates, when sent (see Runner)
 
 
 @dataclass(frozen=True)
@@ -112,6 +123,9 @@ class RunBase:
         self._evaluations = 0
         self._summary: RunSummary | None = None
         self._done = threading.Event()
+        # generations done when the run last began to hold (paused, every one of them published to
+        # the subscribers before this is set); None while it runs or a Step or resume is pending
+        self.holding: int | None = None
 
     # ------------------------------------------------------------------ subscribers
     def subscribe(self, callback):
@@ -219,15 +233,35 @@ class TimeLimit:
             self.runner.stop(wait=False)
 
 
+def speed_period(generations_per_second: float | None) -> float:
+    """Seconds between generation starts for a speed cap (None or inf: no cap, 0.0); ValueError
+    naming the value when it is not a positive number."""
+    if generations_per_second is None:
+        return 0.0
+    try:
+        gps = float(generations_per_second)
+    except (TypeError, ValueError):
+        raise ValueError(f"a speed must be generations per second (a positive number) or None, "
+                         f"got {generations_per_second!r}") from None
+    if not gps > 0:  # also NaN
+        raise ValueError(f"a speed must be a positive number of generations per second, got {generations_per_second!r}")
+    return 0.0 if gps == float("inf") else 1.0 / gps
+
+
 class Runner(RunBase):
     def __init__(self, config: TrainConfig, problem: Problem | None = None, blas_threads: int | None = 1):
         super().__init__(config, problem)
         self.backend: Backend = make_backend(self.problem, config)
         self.blas_threads = blas_threads
-        self._resume = threading.Event()
-        self._resume.set()
+        self._wake = threading.Condition(self._lock)  # pause, resume, step, stop and speed changes
+        self._steps = 0  # generations Step has asked for while paused, not yet run
+        self._period = 0.0  # s between generation starts (set_speed); 0: no cap
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._population_sent = -float("inf")
+        self._generations_done = 0
+        self.on_hold = None  # callable(generations done), in the run's thread, each time it starts holding
+        self._display = display_goal(self.problem.arm)[None]
 
     # ------------------------------------------------------------------ control
     def start(self) -> "Runner":
@@ -244,17 +278,36 @@ class Runner(RunBase):
         return self._summary
 
     def pause(self) -> None:
-        if self._set_state("running", "paused"):
-            self._resume.clear()
+        """Hold the run after the generation in flight."""
+        self._set_state("running", "paused")
 
     def resume(self) -> None:
         if self._set_state("paused", "running"):
-            self._resume.set()
+            self.holding = None
+            self._notify()
+
+    def step(self) -> bool:
+        """While paused: run exactly one more generation, then hold again (each call one more).
+        False (nothing done) when the run is not paused."""
+        with self._wake:
+            if self._state != "paused":
+                return False
+            self._steps += 1
+            self.holding = None
+            self._wake.notify_all()
+        return True
+
+    def set_speed(self, generations_per_second: float | None) -> None:
+        """Cap the run at this many generations a second (None: no cap); takes effect at once."""
+        period = speed_period(generations_per_second)
+        with self._wake:
+            self._period = period
+            self._wake.notify_all()
 
     def stop(self, wait: bool = True, timeout: float | None = None) -> None:
         """Ask the run to end after the generation in flight; with wait, block until it has."""
         self._stop.set()
-        self._resume.set()
+        self._notify()
         if wait and self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout)
 
@@ -274,24 +327,83 @@ class Runner(RunBase):
         final = "failed" if error else ("stopped" if self._stop.is_set() else "finished")
         self._finish(final, error)
 
+    def _notify(self) -> None:
+        with self._wake:
+            self._wake.notify_all()
+
+    def _go(self, last_start: float) -> bool:
+        """Wait until the next generation may start: not paused (or a Step pending), and at least
+        the speed cap's period after the last one started (a Step does not wait for it).
+        False when the run is to stop."""
+        announce = False
+        while True:
+            if announce:  # outside the lock: the worker's hook writes to a pipe
+                self._held(self._generations_done)
+                announce = False
+            with self._wake:
+                if self._stop.is_set():
+                    return False
+                if self._state == "paused":
+                    if self._steps > 0:
+                        self._steps -= 1
+                        self.holding = None
+                        return True
+                    if self.holding is None:  # holding from now: said once
+                        self.holding = self._generations_done
+                        announce = True
+                        continue
+                    self._wake.wait()
+                    continue
+                self.holding = None
+                left = last_start + self._period - time.perf_counter()
+                if left <= 0:
+                    return True
+                self._wake.wait(left)
+
+    def _held(self, generations: int) -> None:
+        """The run holds (paused) after `generations` generations, every one of them published."""
+        hook = self.on_hold
+        if hook is not None:
+            try:
+                hook(generations)
+            except Exception:
+                log.exception("on_hold hook failed")
+
     def _loop(self) -> None:
         backend = self.backend
-        t_run = 0.0
+        t_run, last_start = 0.0, -float("inf")
         for index in range(self.config.generations):
-            if not self._resume.is_set():
-                self._resume.wait()
-            if self._stop.is_set():
+            if not self._go(last_start):
                 return
-            t0 = time.perf_counter()
+            t0 = last_start = time.perf_counter()
             before = backend.best_mse
             result = backend.step()
             t_run += time.perf_counter() - t0
+            self._generations_done = index + 1
             f = result.fitness
+            population = self._population(index) if self._subscribers else None
             self._publish(GenerationEvent(
                 run_id=self.run_id, index=index, best=backend.best_mse, gen_best=float(np.min(f)),
                 median=float(np.median(f)), worst=float(np.max(f)), evaluations=backend.evaluations,
                 seconds=t_run, controller=backend.best, improved=backend.best_mse < before, extras=result.extras,
+                population=population,
             ))
+
+    def _population(self, index: int) -> Population | None:
+        """The population to send with this generation's event (see GenerationEvent.population):
+        its controllers when the last went out POPULATION_PERIOD ago or the run holds after it."""
+        now = time.perf_counter()
+        live = (now - self._population_sent >= POPULATION_PERIOD or self._state == "paused"
+                or self._stop.is_set() or index == self.config.generations - 1)
+        if not (live or population_logged(index)):
+            return None
+        population = self.backend.candidates(controllers=live)
+        if population is None:
+            return None
+        points = self.backend.candidate_reach(self._display)[:, 0].astype(np.float32)
+        if live:
+            self._population_sent = now
+        return dataclasses.replace(population, points=points)
 
     def _finish(self, state: str, error: str | None) -> None:
         self._conclude(self._summarize(state, self.backend.best, error))

@@ -2,14 +2,17 @@
 
     runner = ProcessRunner(TrainConfig(robot="planar", method="cmaes"))
     runner.subscribe(callback)       # called here, in a reader thread, once per generation
-    runner.start(); runner.pause(); runner.resume(); runner.stop(); summary = runner.join()
+    runner.start(); runner.pause(); runner.step(); runner.resume(); runner.stop(); summary = runner.join()
+    runner.set_speed(5)              # at most 5 generations a second (None: no cap)
 
 The same interface and events as lab.running.runner.Runner (both are RunBase), so subscribers (the
 Rerun logger, the app) cannot tell them apart. What differs is where the optimizer runs: in
 `python -m lab.running.worker`, with an interpreter and a GIL of its own, so a busy process beside it
 (the app's server, its tabs, its redraws) no longer slows it down, and it cannot slow them.
 The worker sends each generation through a pipe (lab/pipes.py: its numbers, and the best
-controller when it changed); pause, resume and stop go the other way. A worker whose parent
+controller when it changed); pause, step, speed, resume and stop go the other way. A Step
+is exact: the parent counts it as asked only while it knows the run paused, and the worker's
+Runner runs one generation per Step it receives while paused. A worker whose parent
 goes away stops its run and exits.
 
 prestart() keeps one worker started and warmed up (modules imported, numba kernels loaded)
@@ -28,7 +31,7 @@ from itertools import chain
 
 from lab.running import pipes
 from lab.running.config import TrainConfig
-from lab.running.runner import RunBase, RunSummary
+from lab.running.runner import RunBase, RunSummary, speed_period
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +52,7 @@ class ProcessRunner(RunBase):
         self._proc: subprocess.Popen | None = None
         self._send_lock = threading.Lock()
         self._stop_asked = False
+        self._speed: float | None = None
 
     @property
     def pid(self) -> int | None:
@@ -61,6 +65,8 @@ class ProcessRunner(RunBase):
         self._claim()
         self._proc = _take_worker()
         self._command("run", self.config, self.run_id, self.blas_threads)
+        if self._speed is not None:
+            self._command("speed", self._speed)
         if self._stop_asked:
             self._command("stop")
         threading.Thread(target=self._read, name=f"lab-worker-{self.run_id}", daemon=True).start()
@@ -76,7 +82,26 @@ class ProcessRunner(RunBase):
 
     def resume(self) -> None:
         if self._set_state("paused", "running"):
+            self.holding = None
             self._command("resume")
+
+    def step(self) -> bool:
+        """While paused: exactly one more generation in the worker, then paused again. False when
+        the run is not paused. (The worker's Runner is paused too: pause goes before any step
+        through the same ordered pipe.)"""
+        with self._lock:
+            if self._state != "paused":
+                return False
+            self.holding = None
+        self._command("step")
+        return True
+
+    def set_speed(self, generations_per_second: float | None) -> None:
+        """Cap the run at this many generations a second (None: no cap); ValueError for a bad value."""
+        speed_period(generations_per_second)  # checked here, where the caller sees the error
+        self._speed = generations_per_second
+        if self._proc is not None:
+            self._command("speed", generations_per_second)
 
     def stop(self, wait: bool = True, timeout: float | None = None) -> None:
         """Ask the run to end after the generation in flight; with wait, block until it has."""
@@ -101,6 +126,9 @@ class ProcessRunner(RunBase):
             for kind, body in batch:
                 if kind == "event":
                     self._publish(decode(body))
+                elif kind == "held":  # after every event it had sent: the count is final until a step
+                    with self._lock:
+                        self.holding = body if self._state == "paused" else None
                 elif kind == "end":
                     summary = body
                 elif kind == "failed":
@@ -171,13 +199,21 @@ def main(argv: list[str]) -> int:
             runner.stop(wait=False)
 
     def commands() -> None:
-        actions = {"pause": runner.pause, "resume": runner.resume, "stop": lambda: runner.stop(wait=False)}
+        actions = {"pause": runner.pause, "resume": runner.resume, "step": runner.step,
+                   "speed": runner.set_speed, "stop": lambda: runner.stop(wait=False)}
         for batch in chain([pending], stream):
             for message in batch:
-                actions[message[0]]()
+                actions[message[0]](*message[1:])
         runner.stop(wait=False)  # end of input: the parent is gone
 
+    def held(generations: int) -> None:
+        try:
+            pipes.send(out, ("held", generations))
+        except OSError:
+            runner.stop(wait=False)
+
     runner.subscribe(forward)
+    runner.on_hold = held
     threading.Thread(target=commands, name="lab-worker-commands", daemon=True).start()
     summary = runner.run()
     try:

@@ -1,0 +1,129 @@
+"""What a tab shows for a class (issue 16), beside its goals (app/goals.py): the population cloud
+at each goal marker, a race partner's arm at goal 1, and the lesson link.
+
+GoalExtras and TabExtras are mixed into GoalView and TabSession: they use their arm, scene, lock
+and goals. The render loop calls TabSession.refresh, which calls refresh_population: the cloud
+is redrawn at most every POPULATION_PERIOD, when the run sent a new population, a marker moved or
+a toggle changed; the partner's arm when its controller changed (and in the marker callback, as
+the run's own arm).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.live import candidate_colors
+from app.scene import ArmView
+from app.startup import made_for
+
+POPULATION_PERIOD = 0.2  # s: a tab's population cloud is redrawn at most 5 times a second
+PARTNER = (160, 90, 220)  # a race's second run: its arm at the same marker
+
+
+class GoalExtras:
+    """A goal's population cloud and race partner's arm (self: a GoalView)."""
+
+    def update_partner(self, controller) -> None:
+        """The race partner's arm at partner(goal) (hidden without a partner)."""
+        view = self.partner_view
+        if controller is None:
+            view.visible = False
+            self.partner_error = np.nan
+            return
+        q = controller(self.goal[None])[0]
+        self.partner_error = float(np.linalg.norm(self.tab.arm.reach(q) - self.goal))
+        with self.tab.client.atomic():
+            view.set_q(q)
+            if not view.visible:
+                view.visible = True
+
+    def draw_population(self, reach: np.ndarray | None, q: np.ndarray | None, colors, faint: bool) -> None:
+        """The population's end-effector points (n, 3) at this goal, and with `faint` each candidate's
+        arm as a faint polyline (q: (n, nq)); reach None hides them."""
+        scene, size, base = self.tab.client.scene, self.tab.ws["size"], f"/tab/goal{self.index}"
+        if reach is None:
+            for h in (self.cloud, self.faint):
+                if h is not None:
+                    h.visible = False
+            return
+        self.cloud = scene.add_point_cloud(f"{base}/population", reach.astype(np.float32), colors,
+                                           point_size=0.015 * size, point_shape="circle", precision="float32")
+        if faint:
+            chain = self.tab.arm.joint_positions(q)  # (n, nq + 2, 3)
+            segments = np.stack([chain[:, :-1], chain[:, 1:]], axis=2).reshape(-1, 2, 3)
+            light = (0.45 * np.asarray(colors, float) + 0.55 * 255).astype(np.uint8)
+            seg_colors = np.repeat(light, chain.shape[1] - 1, axis=0)[:, None, :].repeat(2, axis=1)
+            self.faint = scene.add_line_segments(f"{base}/population_arms", segments.astype(np.float32), seg_colors,
+                                                 thickness=0.003 * size)
+        elif self.faint is not None:
+            self.faint.visible = False
+
+
+class TabExtras:
+    """A tab's population toggles' effect, the race partner and the lesson link (self: a TabSession)."""
+
+    def partner_controller(self):
+        partner = self.state.partner
+        if partner is None or partner.runner.config.robot != self.arm.name or self.state.replaying:
+            return None
+        return partner.controller
+
+    def _population_changed(self) -> None:
+        self.population_drawn = None
+        self.last_population = 0.0
+
+    def refresh_population(self, now: float) -> None:
+        """Redraw the population clouds (at most every POPULATION_PERIOD) when the population, a goal
+        or a toggle changed; the race partner's arm when its controller changed."""
+        state = self.state
+        partner = state.partner
+        with self.lock:
+            if self.closed or not self.goals:
+                return
+            g0 = self.goals[0]
+            if partner is not None and partner.version != self.partner_version:
+                if g0.partner_view is None:
+                    g0.partner_view = ArmView(self.client.scene, self.arm, "/tab/goal0/partner", opacity=0.6, tint=PARTNER)
+                self.partner_version = partner.version
+                g0.update_partner(self.partner_controller())
+                self.table_dirty = True
+            elif partner is None and g0.partner_view is not None and g0.partner_view.visible:
+                g0.update_partner(None)
+                self.partner_version = None
+            if now - self.last_population < POPULATION_PERIOD:
+                return
+            track = state.track
+            population = track.population if track is not None and not state.replaying else state.replayed_population
+            goals = np.stack([g.goal for g in self.goals])
+            key = (id(population), goals.tobytes(), self.show_population.value, self.faint_arms.value,
+                   self.by_species.value)
+            if key == self.population_drawn:
+                return
+            self.population_drawn, self.last_population = key, now
+            self._draw_population(population, goals)
+
+    def _draw_population(self, population, goals: np.ndarray) -> None:
+        if population is None or not self.show_population.value or population.controllers is None \
+                or not made_for(population.controllers[0], self.arm):
+            recorded = population is not None and population.controllers is None and population.points is not None
+            for g in self.goals:
+                g.draw_population(None, None, None, False)
+            if recorded and self.show_population.value:  # a replayed recording: its cloud at the display goal
+                self.goals[0].draw_population(population.points, None, candidate_colors(population, self.by_species.value),
+                                              False)
+            return
+        q = population.joints(goals)  # (n, goals, nq)
+        reach = self.arm.fk(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:2], 3)
+        colors = candidate_colors(population, self.by_species.value)
+        with self.client.atomic():
+            for k, g in enumerate(self.goals):
+                g.draw_population(reach[:, k], q[:, k], colors, self.faint_arms.value)
+
+    def show_lesson(self, link: str, params: dict) -> None:
+        """The lesson link of the panel's settings (written only when it changes)."""
+        if getattr(self, "_lesson_link", None) == link or self.closed:
+            return
+        self._lesson_link = link
+        what = ", ".join(f"{k} {v}" for k, v in params.items() if k != "lesson")
+        self.lesson.content = (f"[Open this lesson]({link}) in another browser: a tab with these settings "
+                               f"({what}).\n\n```\n{link}\n```")

@@ -1,0 +1,207 @@
+"""The app for a class (issue 16): Step, the speed control, the population view and a race, driven
+as a browser drives them (app/probe.py sends the GUI's messages) and checked on the server."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from viser import _messages
+
+from app.probe import Probe
+from app.server import LabApp
+
+pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("teaching")
+    lab_app = LabApp(port=0, notebook=str(folder / "notebook.db"), recordings=str(folder / "rec"), record=False)
+    yield lab_app
+    lab_app.stop()
+
+
+@pytest.fixture
+def tab(app):
+    probe = Probe(app.url).start()
+    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+    yield probe
+    probe.close()
+    app.state.reset()
+    app.panel.speed.value = "unlimited"
+    app.panel.race.enabled.value = False
+
+
+def wait_until(predicate, timeout=30.0, step=0.02):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(step)
+    return False
+
+
+def settled(count, quiet=0.5, timeout=15.0) -> int:
+    """count() once it has not changed for `quiet` seconds."""
+    last, since, t0 = count(), time.monotonic(), time.monotonic()
+    while time.monotonic() - since < quiet and time.monotonic() - t0 < timeout:
+        time.sleep(0.02)
+        if count() != last:
+            last, since = count(), time.monotonic()
+    return last
+
+
+def set_field(probe, kind: str, label: str, value) -> None:
+    """Change a GUI field as the browser does (a GuiUpdateMessage for its uuid)."""
+    msg = probe.wait_for(lambda m: m["type"] == kind and m["props"]["label"] == label)
+    probe.send(_messages.GuiUpdateMessage(uuid=msg["uuid"], updates={"value": value}))
+
+
+def session_of(app, probe):
+    owner = int(probe.owner("/tab/goal0/marker"))
+    assert wait_until(lambda: owner in app.sessions)
+    return app.sessions[owner]
+
+
+def generations(app) -> int:
+    return app.state.progress()["generation"]
+
+
+def test_one_step_click_is_one_more_generation_on_the_server(app, tab):
+    app.panel.generations.value = 100_000
+    tab.click("Start")
+    assert wait_until(lambda: generations(app) >= 5)
+    tab.click("Step")  # refused while running, said in the panel
+    assert wait_until(lambda: "Step works while the run is paused" in app.panel.message.content, 5)
+    tab.click("Pause")
+    runner = app.state.runner
+    assert wait_until(lambda: runner.holding is not None)  # the worker holds, every event before it in
+    held = runner.holding
+    assert generations(app) == held
+    for k in range(1, 4):
+        tab.click("Step")
+        assert wait_until(lambda: runner.holding == held + k)
+        assert generations(app) == held + k
+    assert settled(lambda: generations(app)) == held + 3 and runner.state == "paused"
+    # the population shown is the stepped generation's own
+    track = app.state.track
+    assert wait_until(lambda: track.population is not None and track.population.generation == held + 2)
+    tab.click("Resume")
+    assert wait_until(lambda: generations(app) > held + 10)
+
+
+def test_the_speed_control_caps_generations_per_second(app, tab):
+    app.panel.generations.value = 100_000
+    set_field(tab, "GuiDropdownMessage", "Speed", "5 generations/s")
+    assert wait_until(lambda: app.state.speed == 5.0, 5)
+    tab.click("Start")
+    assert wait_until(lambda: generations(app) >= 2)
+    g0, t0 = generations(app), time.monotonic()
+    time.sleep(2.0)
+    rate = (generations(app) - g0) / (time.monotonic() - t0)
+    assert 3.0 <= rate <= 5.6, rate
+    set_field(tab, "GuiDropdownMessage", "Speed", "unlimited")
+    g1 = generations(app)
+    time.sleep(1.0)
+    assert generations(app) - g1 > 30
+
+
+def test_the_population_is_drawn_at_each_tabs_own_goal(app, tab):
+    app.panel.generations.value = 100_000
+    session = session_of(app, tab)
+    tab.click("Start")
+    assert wait_until(lambda: generations(app) >= 20)
+    tab.click("Pause")
+    assert wait_until(lambda: app.state.runner.state == "paused")
+    settled(lambda: generations(app))
+    population = app.state.track.population
+    arm = session.arm
+
+    def drawn_at(goal) -> bool:
+        cloud = session.goals[0].cloud
+        if cloud is None or session.population_drawn is None:
+            return False
+        expected = population.reach(arm, goal[None])[:, 0]
+        return np.allclose(np.asarray(cloud.points), expected, atol=1e-4)
+
+    assert wait_until(lambda: drawn_at(session.goals[0].goal), 5)
+    assert len(population) == app.state.runner.config.population
+    # the marker moves: the cloud follows it (the candidates' reach for the new goal)
+    goal = arm.sample_goals(3, seed=11)[2]
+    tab.drag("/tab/goal0/marker", arm.to_3d(goal))
+    assert wait_until(lambda: np.allclose(session.goals[0].goal, goal) and drawn_at(goal), 5)
+    # faint arms on the toggle: one segment per link per candidate
+    set_field(tab, "GuiCheckboxMessage", "Population as faint arms", True)
+    assert wait_until(lambda: session.goals[0].faint is not None and session.goals[0].faint.visible, 5)
+    assert np.asarray(session.goals[0].faint.points).shape == (len(population) * (arm.nq + 1), 2, 3)
+    assert "log scale" in app.panel.legend.content
+
+
+def test_a_race_runs_two_processes_on_the_same_goals_and_both_enter_the_notebook(app, tab):
+    panel, state = app.panel, app.state
+    panel.generations.value = 100_000
+    set_field(tab, "GuiCheckboxMessage", "Race a second run", True)
+    set_field(tab, "GuiDropdownMessage", "Partner method", "NEAT")
+    assert wait_until(lambda: panel.race.method.value == "NEAT" and panel.race.population.value == 50, 5)
+    entries = len(state.notebook.entries())
+    tab.click("Start")
+    assert wait_until(lambda: state.partner is not None and len(state.partner.track) >= 5 and generations(app) >= 5)
+    main, partner = state.runner, state.partner.runner
+    assert main.pid != partner.pid
+    assert np.array_equal(main.problem.train_goals, partner.problem.train_goals)
+    assert (main.config.method, partner.config.method) == ("cmaes", "neat")
+    panel.refresh(force=True)
+    assert "leads" in panel.status.content
+    assert len(panel.plot.series) == 5  # best and median of each run on one plot
+    session = session_of(app, tab)
+    assert wait_until(lambda: session.goals[0].partner_view is not None and session.goals[0].partner_view.visible)
+    # pause, step and stop apply to both
+    tab.click("Pause")
+    assert wait_until(lambda: main.holding is not None and partner.holding is not None)
+    a, b = main.holding, partner.holding
+    tab.click("Step")
+    assert wait_until(lambda: (main.holding, partner.holding) == (a + 1, b + 1))
+    assert (generations(app), len(state.partner.track)) == (a + 1, b + 1)
+    tab.click("Stop")
+    assert wait_until(lambda: main.state == partner.state == "stopped")
+    assert wait_until(lambda: len(state.notebook.entries()) == entries + 2)
+    assert {e["method"] for e in state.notebook.entries()[-2:]} == {"cmaes", "neat"}
+
+
+def test_a_lesson_link_opens_a_tab_with_its_settings(app, tab):
+    from app.lesson import lesson_params
+
+    panel = app.panel
+    session = session_of(app, tab)
+    panel.method.value = "NEAT"
+    panel.seed.value = 4
+    panel.race.enabled.value = True
+    panel.race.method.value = "CMA-ES"
+    panel.race.seed.value = 9
+    params = lesson_params(panel)
+    assert wait_until(lambda: "Open this lesson" in session.lesson.content and "seed 4" in session.lesson.content, 5)
+    link = session.lesson.content.split("](", 1)[1].split(")", 1)[0]
+    # back to other settings, then another browser opens the link
+    panel.race.enabled.value = False
+    panel.robot.value = "scara"
+    panel.method.value = "CMA-ES"
+    assert app.state.arm.name == "scara"
+    from urllib.parse import unquote
+
+    ws = unquote(link.split("?websocket=", 1)[1])
+    other = Probe(ws.replace("ws://", "http://")).start()
+    try:
+        other.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+        assert wait_until(lambda: lesson_params(panel) == params, 10), (lesson_params(panel), params)
+        assert app.state.arm.name == "planar" and panel.race.enabled.value and panel.race.seed.value == 9
+        # a lesson that makes no run is refused by name and changes nothing
+        bad = Probe(ws.replace("ws://", "http://").replace("method=neat", "method=nope")).start()
+        bad.wait_for(lambda m: m["type"] == "NotificationShowMessage" and "nope" in str(m))
+        bad.close()
+        assert lesson_params(panel) == params
+    finally:
+        other.close()
+        panel.race.enabled.value = False
+        panel.method.value = "CMA-ES"
