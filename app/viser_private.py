@@ -6,6 +6,9 @@ public API where one exists. When viser changes, `check()` names what is gone.
 
 from __future__ import annotations
 
+import re
+import urllib.parse
+
 import numpy as np
 
 try:  # private: the scene's position and orientation messages
@@ -32,6 +35,71 @@ def set_pose(handle, position: np.ndarray, wxyz: np.ndarray) -> None:
     impl.wxyz[:] = wxyz
     queue(SetPositionMessage(impl.name, (float(position[0]), float(position[1]), float(position[2]))))
     queue(SetOrientationMessage(impl.name, (float(wxyz[0]), float(wxyz[1]), float(wxyz[2]), float(wxyz[3]))))
+
+
+# ---------------------------------------------------------------------- a tab's query
+# viser's client drops the page's query string before it opens its websocket, so the server never
+# sees `?token=...` of the page URL. The client's own `?websocket=<ws URL>` parameter makes it
+# connect to that URL instead, query included (viser/client/src/App.tsx: `searchParams.getAll
+# ("websocket")`; WebsocketClientWorker.ts: `new WebSocket(server, [protocol])`), and the server
+# sees it in the handshake's request path. After connecting, the client rewrites the page URL
+# with that parameter unescaped (SearchParamsUtils.ts: syncSearchParamServer), so a reload keeps
+# the query only up to its first '&': parameters are joined with ';' here, and values are kept to
+# URL-safe characters, which survive that rewriting unchanged.
+SAFE_VALUE = re.compile(r"[A-Za-z0-9._~-]*")
+
+
+def websocket_link(page_url: str, **params: str) -> str:
+    """A link to the app at page_url (http://host:port) whose tab connects with `params` in its
+    websocket URL's query, where `client_query` reads them back. Names and values must be URL-safe
+    ([A-Za-z0-9._~-]; ValueError otherwise): viser rewrites the page URL unescaped."""
+    for name, value in params.items():
+        if not name or not SAFE_VALUE.fullmatch(name) or not SAFE_VALUE.fullmatch(str(value)):
+            raise ValueError(f"link parameter {name}={value!r}: only letters, digits and . _ ~ - are kept by viser's client")
+    base = page_url.rstrip("/")
+    ws = ("wss://" + base[len("https://"):]) if base.startswith("https://") else "ws://" + base.split("://", 1)[-1]
+    query = ";".join(f"{k}={v}" for k, v in params.items())
+    return f"{base}/?websocket={urllib.parse.quote(f'{ws}/?{query}', safe='')}"
+
+
+def parse_query(path: str) -> dict[str, str]:
+    """The parameters of a request path's query ('&' or ';' between them; the first of a name wins)."""
+    query = urllib.parse.urlsplit(path).query
+    out: dict[str, str] = {}
+    for part in re.split(r"[&;]", query):
+        if part:
+            name, _, value = part.partition("=")
+            out.setdefault(urllib.parse.unquote_plus(name), urllib.parse.unquote_plus(value))
+    return out
+
+
+class ViserChanged(RuntimeError):
+    """viser no longer has a private attribute this module relies on (the message names it)."""
+
+
+def client_query(client) -> dict[str, str]:
+    """The query of the websocket URL a tab (viser.ClientHandle) connected with, as a dict ({} when the
+    tab has already gone). ViserChanged, naming what is missing, when viser's internals changed.
+
+    Reach: `client._viser_server._websock_server._live_connections[client_id]` is the tab's
+    websockets ServerConnection (set before any connect callback runs), whose public `.request.path`
+    is the handshake's path with its query."""
+    missing = query_api_missing(getattr(client, "_viser_server", None))
+    if missing:
+        raise ViserChanged(f"viser changed: {', '.join(missing)} missing; a tab's query cannot be read")
+    connection = client._viser_server._websock_server._live_connections.get(client.client_id)
+    request = getattr(connection, "request", None)
+    return parse_query(getattr(request, "path", "") or "")
+
+
+def query_api_missing(server) -> list[str]:
+    """What of the private API client_query uses this viser server lacks (empty: all there)."""
+    websock = getattr(server, "_websock_server", None)
+    if websock is None:
+        return ["ViserServer._websock_server"]
+    if not isinstance(getattr(websock, "_live_connections", None), dict):
+        return ["WebsockServer._live_connections"]
+    return []
 
 
 def check(handle) -> list[str]:

@@ -1,0 +1,122 @@
+"""app/viser_private.py: a tab's query through viser's `?websocket=` parameter.
+
+If viser changes what these rely on (its server's private connection table, or its client's
+`?websocket=` parameter), these fail and name it.
+"""
+
+from __future__ import annotations
+
+import shutil
+import threading
+import time
+import urllib.parse
+
+import pytest
+import viser
+
+from app import viser_private
+from app.probe import Probe
+
+pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
+
+
+@pytest.fixture
+def server():
+    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    s.queries = {}
+    s.seen = threading.Event()
+
+    @s.on_client_connect
+    def _(client):
+        s.queries[client.client_id] = viser_private.client_query(client)
+        s.seen.set()
+
+    yield s
+    s.stop()
+
+
+def url_of(server) -> str:
+    return f"http://127.0.0.1:{server.get_port()}"
+
+
+def test_the_private_api_for_queries_is_still_there(server):
+    assert viser_private.query_api_missing(server) == [], f"viser {viser.__version__} changed"
+
+
+def test_a_tab_connecting_with_a_query_is_seen_with_it(server):
+    probe = Probe(url_of(server) + "/?token=abc-1;lesson=x").start()
+    try:
+        assert server.seen.wait(20)
+        assert list(server.queries.values()) == [{"token": "abc-1", "lesson": "x"}]
+    finally:
+        probe.close()
+
+
+def test_a_tab_without_a_query_has_none(server):
+    probe = Probe(url_of(server)).start()
+    try:
+        assert server.seen.wait(20)
+        assert list(server.queries.values()) == [{}]
+    finally:
+        probe.close()
+
+
+def test_a_link_carries_its_parameters_to_the_server(server):
+    link = viser_private.websocket_link(url_of(server), token="T0k_en", lesson="l1")
+    page = urllib.parse.urlsplit(link)
+    assert page.path == "/" and f":{server.get_port()}" in page.netloc
+    ws = urllib.parse.parse_qs(page.query)["websocket"][0]
+    assert ws.startswith("ws://127.0.0.1:")
+    probe = Probe(ws).start()
+    try:
+        assert server.seen.wait(20)
+        assert list(server.queries.values()) == [{"token": "T0k_en", "lesson": "l1"}]
+    finally:
+        probe.close()
+
+
+@pytest.mark.parametrize("bad", ["a&b", "a b", "x;y", "é", "a/b"])
+def test_a_link_refuses_values_that_viser_would_mangle(bad):
+    with pytest.raises(ValueError, match="only letters, digits"):
+        viser_private.websocket_link("http://h:1", token=bad)
+
+
+def test_parse_query_takes_both_separators_and_the_first_of_a_name():
+    assert viser_private.parse_query("/?a=1;b=2&a=3&c") == {"a": "1", "b": "2", "c": ""}
+    assert viser_private.parse_query("/") == {}
+
+
+def test_client_query_names_what_is_missing_when_viser_changes():
+    class Fake:
+        client_id = 0
+        _viser_server = object()
+
+    with pytest.raises(viser_private.ViserChanged, match="_websock_server"):
+        viser_private.client_query(Fake())
+
+
+CHROMIUM = shutil.which("chromium")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (`make browser` installs it)")
+def test_viser_s_own_client_honours_the_websocket_parameter_and_keeps_it_on_reload(server):
+    """viser's built client (not ours) must connect to the `?websocket=` URL, query included;
+    a reload of the rewritten page URL must connect with the same query."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    link = viser_private.websocket_link(url_of(server), token="abc", lesson="two")
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True)
+        try:
+            page = browser.new_page()
+            page.goto(link)
+            assert server.seen.wait(30), "the page never connected"
+            assert list(server.queries.values()) == [{"token": "abc", "lesson": "two"}]
+            server.seen.clear()
+            deadline = time.monotonic() + 10
+            while "websocket=" not in page.url and time.monotonic() < deadline:
+                time.sleep(0.1)
+            page.reload()
+            assert server.seen.wait(30), "the reloaded page never connected"
+            assert list(server.queries.values())[-1] == {"token": "abc", "lesson": "two"}, page.url
+        finally:
+            browser.close()
