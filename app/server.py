@@ -34,6 +34,7 @@ from app.runs import RunsPanel
 from app.scene import frame_workspace
 from app.state import LabState
 from app.views import error_map, map_grid, network_svg
+from app.viser_private import install_loop_safe_wakeups
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +89,9 @@ class LabApp:
                               recorder=rerun_recorder(recordings) if record else None)
         self.startup_note = self.state.shown.source
         self.recordings = recordings
+        # the render loop, the run's reader and viser's thread pool all update handles: each update's
+        # wake-up of viser's sender must reach its event loop safely (see app/viser_private.py)
+        install_loop_safe_wakeups()
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.host = host
         self.sessions: dict[int, TabSession] = {}
