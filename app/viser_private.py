@@ -7,6 +7,7 @@ public API where one exists. When viser changes, `check()` names what is gone.
 from __future__ import annotations
 
 import asyncio
+import inspect
 import re
 import urllib.parse
 
@@ -166,6 +167,97 @@ def _message_buffer_class():
     if missing:
         raise ViserChanged(f"viser changed: AsyncMessageBuffer has no {', '.join(missing)}")
     return AsyncMessageBuffer
+
+
+# ---------------------------------------------------------------------- uploads
+# viser 1.1.1 buffers an upload's parts in memory (GuiApi._current_file_upload_states) as they come
+# and only then hands the whole file to the button's callbacks: a size cap checked there comes after
+# the memory is spent, an unfinished transfer is held until its tab closes, and the last file stays
+# in the button's value. guard_uploads puts our checks in front of viser's own handlers.
+def guard_uploads(server, on_start, on_part) -> None:
+    """In front of viser's upload handlers of `server` (shared GUI): on_start(client_id, transfer_id,
+    filename, size_bytes) and on_part(client_id, transfer_id, nbytes) return True to let viser
+    have the message. A refused start is never seen by viser (its parts are then ignored: viser
+    drops parts of unknown transfers); a refused part drops the transfer and what viser buffered
+    of it. Both run in viser's event loop: keep them short. Idempotent per server."""
+    from viser import _messages
+
+    handlers = _upload_handlers(server)
+    if getattr(server, "_lab_uploads_guarded", False):
+        return
+
+    def guarded(originals, allow):
+        if any(inspect.iscoroutinefunction(cb) for cb in originals):
+            async def handler(client_id, message):
+                if allow(client_id, message):
+                    for cb in originals:
+                        out = cb(client_id, message)
+                        if inspect.isawaitable(out):
+                            await out
+        else:
+            def handler(client_id, message):
+                if allow(client_id, message):
+                    for cb in originals:
+                        cb(client_id, message)
+        return handler
+
+    start_cls, part_cls = _messages.FileTransferStartUpload, _messages.FileTransferPart
+    handlers[start_cls] = [guarded(tuple(handlers[start_cls]), lambda cid, m: on_start(
+        cid, m.transfer_uuid, m.filename, int(m.size_bytes)))]
+
+    def allow_part(cid, m):
+        if on_part(cid, m.transfer_uuid, len(m.content)):
+            return True
+        drop_upload(server, m.transfer_uuid)
+        return False
+
+    handlers[part_cls] = [guarded(tuple(handlers[part_cls]), allow_part)]
+    server._lab_uploads_guarded = True
+
+
+def _upload_handlers(server) -> dict:
+    missing = upload_api_missing(server)
+    if missing:
+        raise ViserChanged(f"viser changed: {', '.join(missing)} missing; uploads cannot be guarded")
+    return server._websock_server._incoming_handlers
+
+
+def upload_api_missing(server) -> list[str]:
+    """What of the private API the upload guard uses this viser server lacks (empty: all there)."""
+    missing = []
+    try:
+        from viser import _messages
+
+        _messages.FileTransferStartUpload, _messages.FileTransferPart  # noqa: B018
+    except (ImportError, AttributeError):
+        return ["viser._messages.FileTransferStartUpload / FileTransferPart"]
+    handlers = getattr(getattr(server, "_websock_server", None), "_incoming_handlers", None)
+    if not isinstance(handlers, dict):
+        missing.append("WebsockServer._incoming_handlers")
+    elif not getattr(server, "_lab_uploads_guarded", False):
+        for cls in (_messages.FileTransferStartUpload, _messages.FileTransferPart):
+            if not handlers.get(cls):
+                missing.append(f"a handler of {cls.__name__}")
+    if not isinstance(getattr(getattr(server, "gui", None), "_current_file_upload_states", None), dict):
+        missing.append("GuiApi._current_file_upload_states")
+    return missing
+
+
+def drop_upload(server, transfer_id: str) -> None:
+    """Forget an unfinished upload and the parts viser has buffered of it (later parts are ignored)."""
+    server.gui._current_file_upload_states.pop(transfer_id, None)
+
+
+def buffered_uploads(server) -> dict[str, int]:
+    """transfer id -> bytes viser holds in memory, of every unfinished upload."""
+    states = dict(server.gui._current_file_upload_states)
+    return {k: sum(len(p) for p in dict(v.get("parts", {})).values()) for k, v in states.items()}
+
+
+def forget_upload_value(handle) -> None:
+    """Let go of the last uploaded file, which viser keeps in the upload button's value."""
+    impl = handle._impl
+    impl.value = type(impl.value)(name="", content=b"")
 
 
 def check(handle) -> list[str]:

@@ -205,3 +205,9 @@ def test_install_makes_every_new_buffer_loop_safe():
         assert isinstance(s._websock_server._broadcast_buffer.message_event, viser_private.LoopSafeEvent)
     finally:
         s.stop()
+
+
+def test_the_private_api_for_guarding_uploads_is_still_there(server):
+    assert viser_private.upload_api_missing(server) == [], f"viser {viser.__version__} changed"
+    viser_private.guard_uploads(server, lambda *a: True, lambda *a: True)
+    assert viser_private.upload_api_missing(server) == [] and viser_private.buffered_uploads(server) == {}
