@@ -27,9 +27,10 @@ import viser
 
 import lab.running.worker as lab_worker
 
+from app.access import Access
 from app.goals import TabSession, fmt_len
 from app.notebook import DEFAULT_PATH, Notebook
-from app.panels import TrainingPanel
+from app.panels import TrainingPanel, notify
 from app.runs import RunsPanel
 from app.scene import frame_workspace
 from app.state import LabState
@@ -73,9 +74,11 @@ def rerun_recorder(folder: str):
 class LabApp:
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, *, robot: str = "planar",
                  notebook: str | Notebook = DEFAULT_PATH, recordings: str = "recordings", startup=True,
-                 record: bool = True):
+                 record: bool = True, presenter_token: str | None = None, open_access: bool = False):
         """notebook: a Notebook or its path (NotebookError, before anything starts, if the path holds
-        something else). startup: True (each arm's shipped controller, else a quickly trained one),
+        something else). presenter_token, open_access: who may change shared state (app/access.py:
+        beyond loopback only tabs opened with `presenter_url`; on loopback every tab unless a token
+        is given; open_access: every tab, on purpose). startup: True (each arm's shipped controller, else a quickly trained one),
         a controller (shown on the arm it was made for), or None. Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
         notebook = notebook if isinstance(notebook, Notebook) else Notebook(notebook)
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
@@ -89,10 +92,13 @@ class LabApp:
                               recorder=rerun_recorder(recordings) if record else None)
         self.startup_note = self.state.shown.source
         self.recordings = recordings
+        self.access = Access(host, presenter_token, open_access)
+        self.upload_refusal = self.access.refusal  # uploads: viewers are refused as a transfer starts
         # the render loop, the run's reader and viser's thread pool all update handles: each update's
         # wake-up of viser's sender must reach its event loop safely (see app/viser_private.py)
         install_loop_safe_wakeups()
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.access.install(self.server, notify=self._tell)  # before any tab can change anything
         self.host = host
         self.sessions: dict[int, TabSession] = {}
         self._sessions_lock = threading.Lock()
@@ -130,8 +136,17 @@ class LabApp:
         host = "127.0.0.1" if self.host in ("0.0.0.0", "") else self.host
         return f"http://{host}:{self.port}"
 
+    @property
+    def presenter_url(self) -> str:
+        """A link whose tab is a presenter (the plain URL when every tab is one)."""
+        return self.access.link(self.url)
+
+    def _tell(self, client_id: int, text: str) -> None:
+        notify(self.server.get_clients().get(client_id), "Refused", text)
+
     # ------------------------------------------------------------------ tabs
     def _connect(self, client: viser.ClientHandle) -> None:
+        self.access.connected(client)  # a viewer: its line, its shared controls shown disabled
         session = TabSession(client, self.state, self.latency)
         with self._sessions_lock:
             gone = client.client_id in self._gone  # the tab closed while its scene was being built
@@ -139,11 +154,13 @@ class LabApp:
                 self.sessions[client.client_id] = session
         if gone:
             session.close()
+            self.access.disconnected(client.client_id)
 
     def _disconnect(self, client: viser.ClientHandle) -> None:
         with self._sessions_lock:
             session = self.sessions.pop(client.client_id, None)
             self._gone.add(client.client_id)
+        self.access.disconnected(client.client_id)
         if session is not None:
             session.close()
 
@@ -227,6 +244,7 @@ class LabApp:
                 if t0 - last_panel > PANEL_PERIOD:
                     last_panel = t0
                     self.panel.refresh()
+                    self.access.sync_viewers()
                 if t0 - last_views > VIEWS_PERIOD or self._drawn[1] is not self.state.arm:
                     last_views = t0
                     self._draw_views()

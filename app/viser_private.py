@@ -86,10 +86,16 @@ def client_query(client) -> dict[str, str]:
     Reach: `client._viser_server._websock_server._live_connections[client_id]` is the tab's
     websockets ServerConnection (set before any connect callback runs), whose public `.request.path`
     is the handshake's path with its query."""
-    missing = query_api_missing(getattr(client, "_viser_server", None))
+    return connection_query(getattr(client, "_viser_server", None), client.client_id)
+
+
+def connection_query(server, client_id: int) -> dict[str, str]:
+    """client_query by the tab's id (its connection is known before viser's connect callbacks run,
+    from the websocket handshake on): {} when there is no such connection."""
+    missing = query_api_missing(server)
     if missing:
         raise ViserChanged(f"viser changed: {', '.join(missing)} missing; a tab's query cannot be read")
-    connection = client._viser_server._websock_server._live_connections.get(client.client_id)
+    connection = server._websock_server._live_connections.get(client_id)
     request = getattr(connection, "request", None)
     return parse_query(getattr(request, "path", "") or "")
 
@@ -169,6 +175,67 @@ def _message_buffer_class():
     return AsyncMessageBuffer
 
 
+# ---------------------------------------------------------------------- shared GUI: who may change it
+# Elements of server.gui are shared by every tab. guard_shared_gui drops a tab's change of one of them
+# (a value typed, a button pressed or held) before viser applies it, unless allow(client_id) says the
+# tab may: viser never sets the value, never calls the callbacks, never echoes it to other tabs.
+def guard_shared_gui(server, allow, refused=None) -> None:
+    """allow(client_id) -> bool; refused(client_id, uuid): called for each dropped change (in
+    viser's event loop). Covers every element of server.gui, present and future. Idempotent."""
+    from viser import _messages
+
+    missing = shared_gui_api_missing(server)
+    if missing:
+        raise ViserChanged(f"viser changed: {', '.join(missing)} missing; shared controls cannot be guarded")
+    if getattr(server, "_lab_gui_guarded", False):
+        return
+    shared = server.gui._gui_input_handle_from_uuid
+
+    def check(client_id, message) -> bool:
+        if message.uuid not in shared or allow(client_id):
+            return True
+        if refused is not None:
+            refused(client_id, message.uuid)
+        return False
+
+    handlers = server._websock_server._incoming_handlers
+    for cls in (_messages.GuiUpdateMessage, _messages.GuiButtonHoldMessage):
+        if handlers.get(cls):
+            _guard(handlers, cls, check)
+    server._lab_gui_guarded = True
+
+
+def shared_gui_api_missing(server) -> list[str]:
+    missing = []
+    try:
+        from viser import _messages
+
+        _messages.GuiUpdateMessage  # noqa: B018
+    except (ImportError, AttributeError):
+        return ["viser._messages.GuiUpdateMessage"]
+    handlers = getattr(getattr(server, "_websock_server", None), "_incoming_handlers", None)
+    if not isinstance(handlers, dict):
+        missing.append("WebsockServer._incoming_handlers")
+    elif not handlers.get(_messages.GuiUpdateMessage):
+        missing.append("a handler of GuiUpdateMessage")
+    if not isinstance(getattr(getattr(server, "gui", None), "_gui_input_handle_from_uuid", None), dict):
+        missing.append("GuiApi._gui_input_handle_from_uuid")
+    return missing
+
+
+def shared_inputs(server) -> dict:
+    """uuid -> handle of every input element (buttons included) of server.gui."""
+    return dict(server.gui._gui_input_handle_from_uuid)
+
+
+def send_gui_props(client, uuid: str, **props) -> None:
+    """Set props (e.g. disabled=True, value=...) of a GUI element in one tab only: the other tabs and
+    the server's own state are untouched (a shared element looks disabled to a viewer)."""
+    from viser import _messages
+
+    client._websock_connection.queue_message(_messages.GuiUpdateMessage(uuid, props))
+
+
 # ---------------------------------------------------------------------- uploads
 # viser 1.1.1 buffers an upload's parts in memory (GuiApi._current_file_upload_states) as they come
 # and only then hands the whole file to the button's callbacks: a size cap checked there comes after
@@ -185,25 +252,8 @@ def guard_uploads(server, on_start, on_part) -> None:
     handlers = _upload_handlers(server)
     if getattr(server, "_lab_uploads_guarded", False):
         return
-
-    def guarded(originals, allow):
-        if any(inspect.iscoroutinefunction(cb) for cb in originals):
-            async def handler(client_id, message):
-                if allow(client_id, message):
-                    for cb in originals:
-                        out = cb(client_id, message)
-                        if inspect.isawaitable(out):
-                            await out
-        else:
-            def handler(client_id, message):
-                if allow(client_id, message):
-                    for cb in originals:
-                        cb(client_id, message)
-        return handler
-
-    start_cls, part_cls = _messages.FileTransferStartUpload, _messages.FileTransferPart
-    handlers[start_cls] = [guarded(tuple(handlers[start_cls]), lambda cid, m: on_start(
-        cid, m.transfer_uuid, m.filename, int(m.size_bytes)))]
+    _guard(handlers, _messages.FileTransferStartUpload,
+           lambda cid, m: on_start(cid, m.transfer_uuid, m.filename, int(m.size_bytes)))
 
     def allow_part(cid, m):
         if on_part(cid, m.transfer_uuid, len(m.content)):
@@ -211,8 +261,27 @@ def guard_uploads(server, on_start, on_part) -> None:
         drop_upload(server, m.transfer_uuid)
         return False
 
-    handlers[part_cls] = [guarded(tuple(handlers[part_cls]), allow_part)]
+    _guard(handlers, _messages.FileTransferPart, allow_part)
     server._lab_uploads_guarded = True
+
+
+def _guard(handlers: dict, message_cls, allow) -> None:
+    """Replace viser's handlers of message_cls with one that calls them only when
+    allow(client_id, message) is true."""
+    originals = tuple(handlers[message_cls])
+    if any(inspect.iscoroutinefunction(cb) for cb in originals):
+        async def handler(client_id, message):
+            if allow(client_id, message):
+                for cb in originals:
+                    out = cb(client_id, message)
+                    if inspect.isawaitable(out):
+                        await out
+    else:
+        def handler(client_id, message):
+            if allow(client_id, message):
+                for cb in originals:
+                    cb(client_id, message)
+    handlers[message_cls] = [handler]
 
 
 def _upload_handlers(server) -> dict:
