@@ -170,3 +170,41 @@ def test_on_loopback_without_a_token_every_tab_is_a_presenter(tmp_path):
             probe.close()
     finally:
         app.stop()
+
+
+def test_python_m_app_beyond_loopback_prints_a_presenter_link_that_makes_a_presenter(tmp_path, capsys):
+    import signal
+    import subprocess
+    import sys
+    import urllib.parse
+
+    from app.__main__ import main
+
+    assert main(["--open", "--presenter-token", "x", "--port", "0"]) == 2
+    assert "contradict" in capsys.readouterr().err
+    assert main(["--presenter-token", "a b", "--port", "0"]) == 2
+    assert "--presenter-token" in capsys.readouterr().err
+    proc = subprocess.Popen([sys.executable, "-m", "app", "--host", "0.0.0.0", "--port", "0", "--no-record",
+                             "--notebook", str(tmp_path / "nb.db")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    try:
+        link = None
+        for line in proc.stdout:
+            if "presenter link on this machine:" in line:
+                link = line.rsplit(" ", 1)[-1].strip()
+                break
+        assert link and "websocket=" in link
+        ws = urllib.parse.unquote(link.split("websocket=")[1])
+        token = ws.split("token=")[1]
+        assert len(token) >= 20
+        for url, role in ((ws, "presenter"), (ws.split("?")[0], "viewer")):
+            probe = tab_of(url)
+            try:
+                time.sleep(1.5)
+                viewer_line = any(m["type"] == "GuiMarkdownMessage" and "Viewer" in str(m) for _t, m in probe.messages)
+                assert viewer_line == (role == "viewer"), role
+            finally:
+                probe.close()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(30)
