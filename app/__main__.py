@@ -37,6 +37,9 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--presenter-token", default=None, metavar="TOKEN",
                    help="the presenter link's token (default: a random one beyond loopback; on loopback, "
                         "giving one makes the other tabs viewers); letters, digits and . _ ~ - only")
+    p.add_argument("--limit", action="append", default=[], metavar="NAME=N",
+                   help="raise (or set) a bound on the settings this server accepts: population, hidden, goals, "
+                        "generations (beyond loopback: 200, 64, 1000, 100000 unless raised); repeatable")
     p.add_argument("--open", action="store_true",
                    help="every tab may change the run and the shared settings, also beyond loopback")
     return p.parse_args(argv)
@@ -85,6 +88,13 @@ def main(argv=None) -> int:
     except ValueError as e:
         print(f"error: --presenter-token: {e}", file=sys.stderr)
         return 2
+    from app.limits import parse_limit
+
+    try:
+        limits = dict(parse_limit(text) for text in args.limit)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
 
     t0 = time.perf_counter()
     try:
@@ -93,7 +103,8 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     app = LabApp(args.host, args.port, robot=args.robot, notebook=notebook, recordings=args.recordings,
-                 record=not args.no_record, presenter_token=args.presenter_token, open_access=args.open)
+                 record=not args.no_record, presenter_token=args.presenter_token, open_access=args.open,
+                 limits=limits)
     print(f"\nNeuro-IK Lab ready in {time.perf_counter() - t0:.1f} s: {app.url}", flush=True)
     # the first Start would otherwise wait for numba to compile the fitness kernels (~30 s, once)
     from lab.running.warmup import compile_kernels
@@ -101,6 +112,9 @@ def main(argv=None) -> int:
     threading.Thread(target=compile_kernels, name="kernel-warmup", daemon=True).start()
     if args.host in ("0.0.0.0", ""):
         print(f"  on this network: http://{socket.gethostname()}:{app.port}", flush=True)
+    if app.state.limits:
+        print("  settings accepted: at most " + ", ".join(f"{k} {v:,}" for k, v in app.state.limits.items())
+              + " (--limit NAME=N raises one)", flush=True)
     if app.access.restricted:
         here = f"http://{socket.gethostname()}:{app.port}" if args.host in ("0.0.0.0", "") else app.url
         print(f"  presenter link (keep it to yourself; other tabs are viewers): {app.access.link(here)}", flush=True)

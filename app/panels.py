@@ -20,6 +20,8 @@ import lab
 import robots
 from lab import methods
 
+from app.limits import refusal as limits_refusal
+
 PLOT_POINTS = 400  # the convergence plot is decimated to this many generations
 SHARED = ("population", "generations", "hidden", "seed")  # the TrainConfig fields shown
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
@@ -135,7 +137,10 @@ class TrainingPanel:
                     raise ValueError(f"{handle.label.lower()} must be a whole number, got {v!r}")
                 v = int(v)
             options[name] = v
-        return lab.TrainConfig.preset(robot=self.robot.value, method=method.name, **values, **options)
+        config = lab.TrainConfig.preset(robot=self.robot.value, method=method.name, **values, **options)
+        if (why := limits_refusal(config, self.state.limits)) is not None:
+            raise ValueError(why)
+        return config
 
     def _on_field(self, event) -> None:
         if self._reverting:  # our own write-back of a refused value

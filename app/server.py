@@ -27,7 +27,8 @@ import viser
 
 import lab.running.worker as lab_worker
 
-from app.access import Access
+from app.access import Access, is_loopback
+from app.limits import limits_for
 from app.goals import TabSession, fmt_len
 from app.notebook import DEFAULT_PATH, Notebook
 from app.panels import TrainingPanel, notify
@@ -74,11 +75,14 @@ def rerun_recorder(folder: str):
 class LabApp:
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, *, robot: str = "planar",
                  notebook: str | Notebook = DEFAULT_PATH, recordings: str = "recordings", startup=True,
-                 record: bool = True, presenter_token: str | None = None, open_access: bool = False):
+                 record: bool = True, presenter_token: str | None = None, open_access: bool = False,
+                 limits: dict[str, int] | None = None):
         """notebook: a Notebook or its path (NotebookError, before anything starts, if the path holds
         something else). presenter_token, open_access: who may change shared state (app/access.py:
         beyond loopback only tabs opened with `presenter_url`; on loopback every tab unless a token
-        is given; open_access: every tab, on purpose). startup: True (each arm's shipped controller, else a quickly trained one),
+        is given; open_access: every tab, on purpose). limits: bounds raised (or set) at start,
+        app/limits.py: beyond loopback the classroom's bounds apply, with these in their place.
+        startup: True (each arm's shipped controller, else a quickly trained one),
         a controller (shown on the arm it was made for), or None. Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
         notebook = notebook if isinstance(notebook, Notebook) else Notebook(notebook)
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
@@ -89,7 +93,8 @@ class LabApp:
             startup, startups = None, startup_controller
         lab_worker.prestart()  # a warmed-up training process, so that Start trains at once
         self.state = LabState(robot, notebook, startup=startup, startups=startups,
-                              recorder=rerun_recorder(recordings) if record else None)
+                              recorder=rerun_recorder(recordings) if record else None,
+                              limits=limits_for(is_loopback(host), limits))
         self.startup_note = self.state.shown.source
         self.recordings = recordings
         self.access = Access(host, presenter_token, open_access)

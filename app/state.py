@@ -22,6 +22,7 @@ import lab
 import robots
 from lab.running.worker import ProcessRunner
 
+from app.limits import refusal as limits_refusal
 from app.notebook import Notebook, entry_from_summary
 from app.startup import made_for
 
@@ -54,11 +55,13 @@ class _Tap:
 
 class LabState:
     def __init__(self, robot: str = "planar", notebook: Notebook | None = None, startup=None,
-                 recorder=None, startups=None):
+                 recorder=None, startups=None, limits: dict | None = None):
         """startup: controller shown first (or None); startups: callable(robot name) -> (controller,
         note), the controller an arm opens with (app.startup.startup_controller), called once per arm;
         recorder: callable(runner) -> object with .path that records the run
-        (lab.recording.RerunLogger), or None for no recordings."""
+        (lab.recording.RerunLogger), or None for no recordings. limits: the bounds this server puts
+        on settings (app/limits.py; None: the lab's own)."""
+        self.limits = limits
         self._lock = threading.RLock()
         self.notebook = notebook or Notebook()
         self.recorder = recorder
@@ -161,6 +164,8 @@ class LabState:
         with self._lock:
             if self.running:
                 return f"refused: a run is going (generation {len(self._best)}); stop it first"
+            if (why := limits_refusal(config, self.limits)) is not None:
+                return f"refused: {why}"
             if config.robot != self.arm.name:
                 msg = self.set_robot(config.robot)
                 if msg:
