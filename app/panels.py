@@ -229,10 +229,11 @@ class TrainingPanel:
             return
         self._shown_gen = n
         self.progress_bar.value = 100.0 * n / p["total"] if p["total"] else 0.0
-        idx = np.unique(np.linspace(0, n - 1, min(n, PLOT_POINTS)).astype(int)) if n else np.zeros(0, int)
+        kept = len(p["best"])  # the points the app keeps (every generation of short runs; app/state.py)
+        idx = np.unique(np.linspace(0, kept - 1, min(kept, PLOT_POINTS)).astype(int)) if n else np.zeros(0, int)
         best = np.maximum(p["best"][idx], 1e-12)
         median = np.maximum(np.nan_to_num(p["median"][idx], posinf=1e12), 1e-12)
-        self.plot.data = (idx + 1.0, best, median) if n else EMPTY_PLOT
+        self.plot.data = (p["generations"][idx].astype(float), best, median) if n else EMPTY_PLOT
         best_s = f"{p['best'][-1]:.4g}" if n else "-"
         rec = f"  \nRecording: `{p['recording']}`" if p["recording"] else ""
         self.status.content = (f"**{p['state'].capitalize()}**: generation {n} / {p['total']}, "

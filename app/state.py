@@ -20,6 +20,7 @@ import numpy as np
 
 import lab
 import robots
+from lab.running.history import History
 from lab.running.worker import ProcessRunner
 
 from app.limits import refusal as limits_refusal
@@ -27,6 +28,9 @@ from app.notebook import Notebook, entry_from_summary
 from app.startup import made_for
 
 log = logging.getLogger(__name__)
+# points of a run's MSE history the app keeps (lab.running.history.History): every generation up to
+# this many, then fewer and fewer, so a run of 10^9 generations takes as little memory as one of 5,000
+HISTORY_POINTS = 4096
 
 
 @dataclass(frozen=True)
@@ -93,9 +97,10 @@ class LabState:
         """Plot data and counters of the current run (copies, any thread)."""
         with self._lock:
             r = self.runner
+            gens, best, median = self._history.arrays()
             return dict(
-                generation=len(self._best), total=r.config.generations if r else 0,
-                state=r.state if r else "idle", best=np.array(self._best), median=np.array(self._median),
+                generation=len(self._history), total=r.config.generations if r else 0,
+                state=r.state if r else "idle", best=best, median=median, generations=gens + 1,
                 evals_per_s=self._evals / self._seconds if self._seconds > 0 else 0.0,
                 recording=self.recording, run_id=r.run_id if r else None,
             )
@@ -163,7 +168,7 @@ class LabState:
     def start(self, config: lab.TrainConfig) -> str | None:
         with self._lock:
             if self.running:
-                return f"refused: a run is going (generation {len(self._best)}); stop it first"
+                return f"refused: a run is going (generation {len(self._history)}); stop it first"
             if (why := limits_refusal(config, self.limits)) is not None:
                 return f"refused: {why}"
             if config.robot != self.arm.name:
@@ -171,7 +176,7 @@ class LabState:
                 if msg:
                     return msg
             try:
-                runner = ProcessRunner(config)
+                runner = ProcessRunner(config, history_limit=HISTORY_POINTS)
             except Exception as e:
                 return f"refused: cannot build this run: {e}"
             recording = None
@@ -213,15 +218,14 @@ class LabState:
             self._show_startup()
 
     def _clear_history(self) -> None:
-        self._best, self._median = [], []
+        self._history = History(HISTORY_POINTS)
         self._evals, self._seconds = 0, 0.0
 
     def _on_generation(self, runner: ProcessRunner, event: lab.GenerationEvent) -> None:
         with self._lock:
             if runner is not self.runner:  # a run that was reset away
                 return
-            self._best.append(event.best)
-            self._median.append(event.median)
+            self._history.append(event.best, event.median)
             self._evals, self._seconds = event.evaluations, event.seconds
             if (event.improved or event.index == 0) and not self.replaying:
                 self._version += 1

@@ -43,8 +43,8 @@ class ProcessRunner(RunBase):
 
     backend = None
 
-    def __init__(self, config: TrainConfig, blas_threads: int | None = 1):
-        super().__init__(config)
+    def __init__(self, config: TrainConfig, blas_threads: int | None = 1, history_limit: int | None = None):
+        super().__init__(config, history_limit=history_limit)
         self.blas_threads = blas_threads
         self._proc: subprocess.Popen | None = None
         self._send_lock = threading.Lock()
