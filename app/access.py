@@ -75,12 +75,13 @@ class Access:
             role = self._roles.get(client_id)
         if role is None:
             try:
-                given = viser_private.connection_query(self.server, client_id).get("token", "")
+                query = viser_private.connection_query(self.server, client_id)
             except viser_private.ViserChanged:  # fail closed: a viewer
-                given = ""
-            role = hmac.compare_digest(given.encode(), self.token.encode())
-            with self._lock:
-                self._roles[client_id] = role
+                query = {}
+            role = hmac.compare_digest((query or {}).get("token", "").encode(), self.token.encode())
+            if query is not None:  # a tab that has gone is not remembered
+                with self._lock:
+                    self._roles[client_id] = role
         return role
 
     def refusal(self, client_id: int) -> str | None:

@@ -86,16 +86,18 @@ def client_query(client) -> dict[str, str]:
     Reach: `client._viser_server._websock_server._live_connections[client_id]` is the tab's
     websockets ServerConnection (set before any connect callback runs), whose public `.request.path`
     is the handshake's path with its query."""
-    return connection_query(getattr(client, "_viser_server", None), client.client_id)
+    return connection_query(getattr(client, "_viser_server", None), client.client_id) or {}
 
 
-def connection_query(server, client_id: int) -> dict[str, str]:
+def connection_query(server, client_id: int) -> dict[str, str] | None:
     """client_query by the tab's id (its connection is known before viser's connect callbacks run,
-    from the websocket handshake on): {} when there is no such connection."""
+    from the websocket handshake on): None when there is no such connection (any more)."""
     missing = query_api_missing(server)
     if missing:
         raise ViserChanged(f"viser changed: {', '.join(missing)} missing; a tab's query cannot be read")
     connection = server._websock_server._live_connections.get(client_id)
+    if connection is None:
+        return None
     request = getattr(connection, "request", None)
     return parse_query(getattr(request, "path", "") or "")
 
