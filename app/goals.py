@@ -166,12 +166,22 @@ class TabSession:
         self.remove_button.on_click(lambda e: self.remove_goal())
         self.show_ik.on_update(lambda e: self._toggle_ik())
         self.version = -1
+        self.own = None  # the tab's own replay (app.state.Shown), if any
         self.table_dirty = False
         self.last_ik = self.last_draw = 0.0
         self.build()
 
+    @property
+    def shown(self):
+        """What this tab's arms show: the tab's own replay (app/tabreplay.py) while it has one for the
+        shared arm, else the shared state's."""
+        own = self.own
+        if own is not None and own.arm is self.state.arm:
+            return own
+        return self.state.shown
+
     def controller(self):
-        shown = self.state.shown
+        shown = self.shown
         return shown.controller if shown.arm is self.arm else None
 
     def markers(self):
@@ -257,7 +267,7 @@ class TabSession:
     def refresh(self) -> None:
         """Redraw every goal with the shown controller when it changed (at most every
         REDRAW_PERIOD while training; at once for another arm); the table when stale."""
-        shown, now = self.state.shown, time.monotonic()
+        shown, now = self.shown, time.monotonic()
         if now - self.last_draw < REDRAW_PERIOD and shown.arm is self.arm:
             return
         if shown.version == self.version:
@@ -281,7 +291,7 @@ class TabSession:
         self.last_draw = now
 
     def write_table(self, shown=None) -> None:
-        shown, arm = shown or self.state.shown, self.arm
+        shown, arm = shown or self.shown, self.arm
         rows = ["| goal | network | refined | DLS |", "|---|---|---|---|"]
         show = self.show_ik.value
         for g in self.goals:

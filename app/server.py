@@ -34,6 +34,7 @@ from app.notebook import DEFAULT_PATH, Notebook
 from app.panels import TrainingPanel, notify
 from app.runs import RunsPanel
 from app.scene import frame_workspace
+from app.tabreplay import TabReplay
 from app.state import LabState
 from app.views import error_map, map_grid, network_svg
 from app.viser_private import install_loop_safe_wakeups
@@ -151,8 +152,10 @@ class LabApp:
 
     # ------------------------------------------------------------------ tabs
     def _connect(self, client: viser.ClientHandle) -> None:
-        self.access.connected(client)  # a viewer: its line, its shared controls shown disabled
+        presenter = self.access.connected(client)  # a viewer: its line, its shared controls shown disabled
         session = TabSession(client, self.state, self.latency)
+        # a viewer replays in its own tab (a presenter replays for every tab, in the Runs tab)
+        session.replay = None if presenter else TabReplay(client, session, self.runs)
         with self._sessions_lock:
             gone = client.client_id in self._gone  # the tab closed while its scene was being built
             if not gone:
@@ -254,6 +257,9 @@ class LabApp:
                     last_views = t0
                     self._draw_views()
                     self.runs.refresh()
+                    for s in sessions:
+                        if getattr(s, "replay", None) is not None:
+                            s.replay.sync()
             except Exception:  # the loop must survive anything one frame does
                 log.exception("render loop")
             self._stop.wait(max(0.0, period - (time.perf_counter() - t0)))

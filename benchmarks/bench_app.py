@@ -26,6 +26,7 @@ tracebacks the server printed or logged (target: none).
                                                     # memory (target: within 20 MB), threads, open files
     python benchmarks/bench_app.py --soak 600       # 10 minutes of back-to-back runs with 10 tabs (one
                                                     # dragging): the memory's slope (target: flat)
+    python benchmarks/bench_app.py --soak 300 --run-seconds 300   # one long run: the memory's slope
 
 The clients share the machine's cores with the server (a classroom's browsers would not), so
 both numbers are pessimistic. No Rerun recording in either case, unless --record: then both
@@ -229,9 +230,12 @@ def count_tracebacks() -> Tracebacks:
     return tb
 
 
-def rss_mb() -> float:
-    with open("/proc/self/status") as f:
-        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:")) / 1024
+def rss_mb(pid: int | str = "self") -> float:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:")) / 1024
+    except (OSError, StopIteration):
+        return float("nan")
 
 
 def threads_and_files() -> tuple[int, int]:
@@ -285,9 +289,16 @@ def soak(app, seconds: float, tabs: int = 10, run_seconds: float = 20.0) -> None
         p.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
     stop = threading.Event()
 
+    def trim(probe, keep=lambda m: False) -> None:
+        """The headless tabs live in this process and keep every message they get: let them go, so that
+        the memory measured is the server's."""
+        with probe._cond:
+            probe.messages[:] = [(t, m) for t, m in probe.messages if keep(m)]
+
     def drag() -> None:
         rng = np.random.default_rng(0)
         while not stop.is_set():
+            trim(probes[0], keep=lambda m: m.get("name") == "/tab/goal0/marker")
             try:
                 probes[0].drag("/tab/goal0/marker", (rng.uniform(-5, 20), rng.uniform(-15, 20), 0.0))
             except TimeoutError:
@@ -296,8 +307,8 @@ def soak(app, seconds: float, tabs: int = 10, run_seconds: float = 20.0) -> None
 
     dragger = threading.Thread(target=drag, daemon=True)
     dragger.start()
-    samples, runs, t0 = [], 0, time.perf_counter()
-    next_sample = t0
+    samples, worker, runs, t0 = [], [], 0, time.perf_counter()
+    next_sample, generations = t0, 0
     try:
         while time.perf_counter() - t0 < seconds:
             assert app.state.start(lab.TrainConfig.preset(**CONFIG)) is None
@@ -305,9 +316,14 @@ def soak(app, seconds: float, tabs: int = 10, run_seconds: float = 20.0) -> None
             end = time.perf_counter() + run_seconds
             while time.perf_counter() < end and time.perf_counter() - t0 < seconds:
                 if time.perf_counter() >= next_sample:
+                    for p in probes[1:]:
+                        trim(p)
+                    gc.collect()
                     samples.append((time.perf_counter() - t0, rss_mb()))
+                    worker.append((time.perf_counter() - t0, rss_mb(app.state.runner.pid)))
                     next_sample += 10.0
                 time.sleep(0.2)
+            generations += app.state.progress()["generation"]
             app.state.stop()
             app.state.reset()
     finally:
@@ -320,9 +336,14 @@ def soak(app, seconds: float, tabs: int = 10, run_seconds: float = 20.0) -> None
     half = len(m) // 2
     slope = np.polyfit(t / 60, m, 1)[0] if len(m) > 2 else float("nan")
     slope2 = np.polyfit(t[half:] / 60, m[half:], 1)[0] if len(m) - half > 2 else float("nan")
-    print(f"soak: {runs} back-to-back runs in {seconds:.0f} s with {tabs} tabs (one dragging at 10 Hz), load average "
+    w = np.array([v for _t, v in worker])
+    wt = np.array([t for t, _v in worker])
+    ok = np.isfinite(w)
+    wslope = np.polyfit(wt[ok] / 60, w[ok], 1)[0] if runs == 1 and ok.sum() > 2 else float("nan")
+    print(f"soak: {runs} back-to-back runs ({generations:,} generations) in {seconds:.0f} s with {tabs} tabs (one dragging at 10 Hz), load average "
           f"{os.getloadavg()[0]:.1f}: memory {m[0]:.1f} -> {m[-1]:.1f} MB (max {m.max():.1f}); slope "
-          f"{slope:+.2f} MB/min over the whole soak, {slope2:+.2f} MB/min over its second half")
+          f"{slope:+.2f} MB/min over the whole soak, {slope2:+.2f} MB/min over its second half"
+          + (f"; the run's worker process {w[ok][0]:.1f} -> {w[ok][-1]:.1f} MB, {wslope:+.2f} MB/min" if runs == 1 else ""))
 
 
 def pct(x, q) -> float:
@@ -344,6 +365,8 @@ def main() -> None:
                     help="the server restricted by a presenter token: the tabs are viewers, as students' are")
     ap.add_argument("--cycles", type=int, default=0, help="instead: this many connect/disconnect cycles")
     ap.add_argument("--soak", type=float, default=0.0, help="instead: this many seconds of back-to-back runs")
+    ap.add_argument("--run-seconds", type=float, default=20.0,
+                    help="--soak: each run's length (as long as the soak: one long run)")
     args = ap.parse_args()
     from app.server import LabApp
 
@@ -353,7 +376,7 @@ def main() -> None:
                  presenter_token="bench-presenter" if args.classroom else None)
     if args.cycles or args.soak:
         try:
-            cycles(app, args.cycles) if args.cycles else soak(app, args.soak)
+            cycles(app, args.cycles) if args.cycles else soak(app, args.soak, run_seconds=args.run_seconds)
         finally:
             app.stop()
         print(f"tracebacks printed or logged by the server: {tracebacks.count}")

@@ -144,7 +144,7 @@ def test_a_wrong_or_missing_token_is_a_viewer(app):
 
 def test_the_token_is_never_written_to_the_notebook_or_recordings(app, presenter):
     presenter.click("Start")
-    assert wait_until(lambda: app.state.progress()["generation"] >= 3)
+    assert wait_until(lambda: app.state.running and app.state.progress()["generation"] >= 3)
     recording = app.state.recording
     presenter.click("Stop")
     assert wait_until(lambda: not app.state.running)
@@ -208,3 +208,35 @@ def test_python_m_app_beyond_loopback_prints_a_presenter_link_that_makes_a_prese
     finally:
         proc.send_signal(signal.SIGINT)
         proc.wait(30)
+
+
+def test_a_viewer_replays_a_run_in_its_own_tab_only(app, presenter, viewer):
+    import numpy as np
+
+    from app.notebook import label
+    from lab.recording.replay import load_controller
+
+    if not any(e.get("recording") for e in app.state.notebook.entries()):  # a run with a recording
+        presenter.click("Start")
+        assert wait_until(lambda: app.state.running and app.state.progress()["generation"] >= 3)
+        presenter.click("Stop")
+        assert wait_until(lambda: not app.state.running)
+    viewer.wait_for(lambda m: m["type"] == "GuiFolderMessage" and m["props"]["label"] == "Replay (this tab)")
+    assert not any(m["type"] == "GuiFolderMessage" and m["props"]["label"] == "Replay (this tab)"
+                   for _t, m in presenter.messages)
+    entry = next(e for e in reversed(app.state.notebook.entries()) if e.get("recording"))
+    assert wait_until(lambda: __import__("os").path.exists(entry["recording"]), 30)
+    app.runs.refresh(force=True)
+    vid, pid = int(viewer.owner("/tab/goal0/marker")), int(presenter.owner("/tab/goal0/marker"))
+    assert wait_until(lambda: vid in app.sessions and pid in app.sessions)
+    mine, theirs = app.sessions[vid], app.sessions[pid]
+    shared = app.state.shown.version
+    assert mine.replay.open(label(entry)) is None
+    assert app.state.shown.version == shared and not app.state.replaying  # nobody else's view changed
+    assert "this tab" in mine.shown.source and theirs.shown is app.state.shown
+    goal = mine.goals[0].goal
+    mine.replay.slider.value = 2  # scrub to generation 2 (as the viewer's slider would)
+    expected = load_controller(entry["recording"], 1)
+    assert np.allclose(mine.controller()(goal[None]), expected(goal[None]))
+    mine.replay.live()
+    assert mine.shown is app.state.shown

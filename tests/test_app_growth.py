@@ -50,3 +50,16 @@ def test_the_apps_state_keeps_a_bounded_history_of_a_long_run():
     p = state.progress()
     assert p["generation"] == 50_000 and len(p["best"]) <= HISTORY_POINTS + 1
     assert p["generations"][-1] == 50_000 and p["best"][-1] == pytest.approx(1 / 50_000)
+
+
+def test_a_process_runner_with_a_bounded_history_bounds_its_worker_s_too():
+    from lab.running.worker import ProcessRunner
+
+    config = lab.TrainConfig.preset(robot="planar", generations=600, population=6, targets=10, test_goals=10)
+    runner = ProcessRunner(config, history_limit=64)
+    summary = runner.run()
+    assert summary.state == "finished" and summary.generations == 600
+    assert len(summary.history) <= 65 and len(summary.median_history) == len(summary.history)
+    assert summary.history[-1] == pytest.approx(summary.train_mse, rel=1e-9)
+    snap = runner.snapshot()
+    assert snap.generation == 600 and len(snap.history) <= 65

@@ -222,8 +222,9 @@ class TimeLimit:
 
 
 class Runner(RunBase):
-    def __init__(self, config: TrainConfig, problem: Problem | None = None, blas_threads: int | None = 1):
-        super().__init__(config, problem)
+    def __init__(self, config: TrainConfig, problem: Problem | None = None, blas_threads: int | None = 1,
+                 history_limit: int | None = None):
+        super().__init__(config, problem, history_limit)
         self.backend: Backend = make_backend(self.problem, config)
         self.blas_threads = blas_threads
         self._resume = threading.Event()
