@@ -132,6 +132,7 @@ class LoopSafeEvent(asyncio.Event):
     def __init__(self, loop: asyncio.AbstractEventLoop):
         super().__init__()
         self._owner = loop
+        self._pending = False  # a set() is on its way to the loop
 
     def set(self) -> None:
         try:
@@ -141,10 +142,20 @@ class LoopSafeEvent(asyncio.Event):
         if here is self._owner:
             super().set()
             return
+        # Already set, or a set on its way: nothing more to wake (a sender reads the buffer's message
+        # counter, which push() raised before calling this, after it clears the event). This keeps a
+        # burst of pushes inside atomic() to one wake-up of the loop instead of one per message.
+        if self._value or self._pending:
+            return
+        self._pending = True
         try:
-            self._owner.call_soon_threadsafe(asyncio.Event.set, self)
+            self._owner.call_soon_threadsafe(self._set_here)
         except RuntimeError:  # the loop is closed (the server stopped): nothing to wake
-            pass
+            self._pending = False
+
+    def _set_here(self) -> None:
+        self._pending = False
+        super().set()
 
 
 def install_loop_safe_wakeups() -> None:
