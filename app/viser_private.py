@@ -215,7 +215,18 @@ def guard_shared_gui(server, allow, refused=None) -> None:
     for cls in (_messages.GuiUpdateMessage, _messages.GuiButtonHoldMessage):
         if handlers.get(cls):
             _guard(handlers, cls, check)
+    # Server-wide requests any tab may send: viser's titlebar "share" button opens (and closes) a
+    # public tunnel to the server through share.viser.studio; forms' submit and dirty marks and
+    # command-palette triggers reach every tab. Only tabs allowed to change shared state may.
+    for name in SERVER_WIDE_REQUESTS:
+        cls = getattr(_messages, name, None)
+        if cls is not None and handlers.get(cls):
+            _guard(handlers, cls, lambda client_id, message: allow(client_id))
     server._lab_gui_guarded = True
+
+
+SERVER_WIDE_REQUESTS = ("ShareUrlRequest", "ShareUrlDisconnect", "GuiFormSubmitMessage", "GuiFormDirtyMessage",
+                        "CommandTriggerMessage")
 
 
 def shared_gui_api_missing(server) -> list[str]:

@@ -240,3 +240,17 @@ def test_a_viewer_replays_a_run_in_its_own_tab_only(app, presenter, viewer):
     assert np.allclose(mine.controller()(goal[None]), expected(goal[None]))
     mine.replay.live()
     assert mine.shown is app.state.shown
+
+
+def test_a_viewer_cannot_open_a_public_share_tunnel(app, viewer, presenter, monkeypatch):
+    """viser's titlebar 'share' button asks the server for a public URL (a tunnel through
+    share.viser.studio): from a viewer, the request never reaches viser."""
+    asked = []
+    monkeypatch.setattr(app.server, "request_share_url", lambda *a, **k: asked.append(1))
+    monkeypatch.setattr(app.server, "disconnect_share_url", lambda *a, **k: asked.append(0))
+    viewer.send(_messages.ShareUrlRequest())
+    viewer.send(_messages.ShareUrlDisconnect())
+    time.sleep(1.0)
+    assert asked == []
+    presenter.send(_messages.ShareUrlRequest())  # the presenter may (the lab never asks by itself)
+    assert wait_until(lambda: asked == [1], 10)
