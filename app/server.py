@@ -112,7 +112,8 @@ class LabApp:
         self.latency: deque = deque(maxlen=100_000)  # (tab, callback start, pose flushed) of marker updates
         self._stop = threading.Event()
         gui = self.server.gui
-        gui.configure_theme(control_width="large")
+        # a classroom shows no "share" button (a public tunnel; only a presenter could use it anyway)
+        gui.configure_theme(control_width="large", show_share_button=not self.access.restricted)
         tabs = gui.add_tab_group(order=1)
         with tabs.add_tab("Train", viser.Icon.BRAIN):
             self.panel = TrainingPanel(gui, self.state, on_robot=self.switch_robot)
