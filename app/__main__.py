@@ -3,6 +3,10 @@
     python -m app                         # http://127.0.0.1:8080 (the next free port if taken)
     python -m app --host 0.0.0.0          # a classroom network: every machine that can reach this one
     python -m app --port 9000 --robot ur5
+    python -m app --host 0.0.0.0 --open   # every tab may change the run (on purpose)
+
+Beyond loopback only presenter tabs (opened with the printed presenter link) change the run and the
+shared settings; every other tab is a viewer (app/access.py).
 """
 
 from __future__ import annotations
@@ -30,6 +34,14 @@ def parse(argv=None) -> argparse.Namespace:
                    help="the runs list (SQLite; a notebook.json of earlier versions is imported once), kept across restarts")
     p.add_argument("--recordings", default="recordings", help="folder of the runs' Rerun recordings")
     p.add_argument("--no-record", action="store_true", help="do not write Rerun recordings")
+    p.add_argument("--presenter-token", default=None, metavar="TOKEN",
+                   help="the presenter link's token (default: a random one beyond loopback; on loopback, "
+                        "giving one makes the other tabs viewers); letters, digits and . _ ~ - only")
+    p.add_argument("--limit", action="append", default=[], metavar="NAME=N",
+                   help="raise (or set) a bound on the settings this server accepts: population, hidden, goals, "
+                        "generations (beyond loopback: 200, 64, 1000, 100000 unless raised); repeatable")
+    p.add_argument("--open", action="store_true",
+                   help="every tab may change the run and the shared settings, also beyond loopback")
     return p.parse_args(argv)
 
 
@@ -64,8 +76,25 @@ def main(argv=None) -> int:
     if not args.no_record and (blocker := not_a_folder(args.recordings)) is not None:
         print(f"error: --recordings must be a folder, but {blocker} is a file", file=sys.stderr)
         return 2
+    from app.access import Access
     from app.notebook import Notebook, NotebookError
     from app.server import LabApp
+
+    if args.open and args.presenter_token is not None:
+        print("error: --open and --presenter-token contradict each other", file=sys.stderr)
+        return 2
+    try:
+        Access(args.host, args.presenter_token, args.open)
+    except ValueError as e:
+        print(f"error: --presenter-token: {e}", file=sys.stderr)
+        return 2
+    from app.limits import parse_limit
+
+    try:
+        limits = dict(parse_limit(text) for text in args.limit)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
 
     t0 = time.perf_counter()
     try:
@@ -74,7 +103,8 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     app = LabApp(args.host, args.port, robot=args.robot, notebook=notebook, recordings=args.recordings,
-                 record=not args.no_record)
+                 record=not args.no_record, presenter_token=args.presenter_token, open_access=args.open,
+                 limits=limits)
     print(f"\nNeuro-IK Lab ready in {time.perf_counter() - t0:.1f} s: {app.url}", flush=True)
     # the first Start would otherwise wait for numba to compile the fitness kernels (~30 s, once)
     from lab.running.warmup import compile_kernels
@@ -82,6 +112,18 @@ def main(argv=None) -> int:
     threading.Thread(target=compile_kernels, name="kernel-warmup", daemon=True).start()
     if args.host in ("0.0.0.0", ""):
         print(f"  on this network: http://{socket.gethostname()}:{app.port}", flush=True)
+    if app.state.limits:
+        print("  settings accepted: at most " + ", ".join(f"{k} {v:,}" for k, v in app.state.limits.items())
+              + " (--limit NAME=N raises one)", flush=True)
+    if app.access.restricted:
+        here = f"http://{socket.gethostname()}:{app.port}" if args.host in ("0.0.0.0", "") else app.url
+        print(f"  presenter link (keep it to yourself; other tabs are viewers): {app.access.link(here)}", flush=True)
+        if here != app.url:
+            print(f"  presenter link on this machine: {app.presenter_url}", flush=True)
+    elif not args.open:
+        print("  every tab is a presenter (loopback only); --presenter-token TOKEN makes other tabs viewers", flush=True)
+    else:
+        print("  --open: every tab may change the run", flush=True)
     print(f"  startup controller: {app.startup_note}; runs list: {args.notebook}. Ctrl-C stops.", flush=True)
     # every way of stopping (Ctrl-C, SIGTERM from a service manager, SIGHUP from a closing terminal)
     # ends as Ctrl-C does: the run is stopped and noted, its recording closed; a second signal waits

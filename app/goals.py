@@ -185,14 +185,24 @@ class TabSession(TabExtras):
         self.remove_button.on_click(lambda e: self.remove_goal())
         self.show_ik.on_update(lambda e: self._toggle_ik())
         self.version = -1
+        self.own = None  # the tab's own replay (app.state.Shown), if any
         self.table_dirty = False
         self.last_ik = self.last_draw = self.last_population = 0.0
         self.population_drawn = None  # (population version, goals, toggles) last drawn
         self.partner_version = None
         self.build()
 
+    @property
+    def shown(self):
+        """What this tab's arms show: the tab's own replay (app/tabreplay.py) while it has one for the
+        shared arm, else the shared state's."""
+        own = self.own
+        if own is not None and own.arm is self.state.arm:
+            return own
+        return self.state.shown
+
     def controller(self):
-        shown = self.state.shown
+        shown = self.shown
         return shown.controller if shown.arm is self.arm else None
 
     def markers(self):
@@ -279,7 +289,7 @@ class TabSession(TabExtras):
         """Redraw every goal with the shown controller when it changed (at most every
         REDRAW_PERIOD while training; at once for another arm); the table when stale; the
         population and a race partner's arm (refresh_population)."""
-        shown, now = self.state.shown, time.monotonic()
+        shown, now = self.shown, time.monotonic()
         if shown.arm is self.arm:
             self.refresh_population(now)
         if now - self.last_draw < REDRAW_PERIOD and shown.arm is self.arm:
@@ -305,7 +315,7 @@ class TabSession(TabExtras):
         self.last_draw = now
 
     def write_table(self, shown=None) -> None:
-        shown, arm = shown or self.state.shown, self.arm
+        shown, arm = shown or self.shown, self.arm
         rows = ["| goal | network | refined | DLS |", "|---|---|---|---|"]
         show = self.show_ik.value
         for g in self.goals:

@@ -3,7 +3,9 @@
 `RunTrack` keeps, for one run (a race has two), the numbers the views draw: best and median MSE
 per generation, each of the method's LivePlot series per generation (read generically from the
 events' extras, as the method declares them in the registry), and the latest population sent
-with its controllers. The drawing helpers here turn them into colours, legends and SVG; nothing
+with its controllers. Its memory is bounded: the series keep at most TRACK_POINTS generations,
+thinned as the run goes on (lab.running.history), so a run of 10^9 generations costs what one of
+5,000 does. The drawing helpers here turn them into colours, legends and SVG; nothing
 here knows viser.
 
 Colours (lab.recording.population, the recordings' too): a candidate's training MSE on one log
@@ -18,10 +20,12 @@ import threading
 
 import numpy as np
 
+from lab.running.history import History, Thinned
 from app.scene import colormap
 from lab.recording.population import SPECIES, mse_colors, mse_scale, species_colors  # noqa: F401 (one scale)
 
 PLOT_POINTS = 400  # the convergence and live plots are decimated to this many generations
+TRACK_POINTS = 4096  # generations a RunTrack keeps of each series (then thinned)
 
 
 def candidate_colors(population, by_species: bool) -> np.ndarray:
@@ -60,17 +64,15 @@ class RunTrack:
         self.method = method
         self.plots = tuple(method.live_plots)
         self._lock = threading.Lock()
-        self.best: list[float] = []
-        self.median: list[float] = []
-        self.series: dict[str, list] = {p.key: [] for p in self.plots}
+        self.history = History(TRACK_POINTS)  # best and median MSE
+        self.series: dict[str, Thinned] = {p.key: Thinned(TRACK_POINTS) for p in self.plots}
         self.population = None  # the latest population sent with its controllers
         self.population_version = 0
         self.extras: dict = {}
 
     def add(self, event) -> None:
         with self._lock:
-            self.best.append(event.best)
-            self.median.append(event.median)
+            self.history.append(event.best, event.median)
             for key, values in self.series.items():
                 values.append(event.extras.get(key))
             self.extras = event.extras
@@ -79,15 +81,18 @@ class RunTrack:
                 self.population_version += 1
 
     def __len__(self) -> int:
-        return len(self.best)
+        return len(self.history)
 
-    def curves(self) -> tuple[np.ndarray, np.ndarray]:
+    def curves(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(0-based generations, best, median) of the kept points."""
         with self._lock:
-            return np.array(self.best, float), np.array(self.median, float)
+            return self.history.arrays()
 
-    def series_of(self, key: str) -> list:
+    def series_of(self, key: str) -> tuple[list[int], list]:
+        """(0-based generations, values) of a live plot's kept points."""
         with self._lock:
-            return list(self.series.get(key, ()))
+            series = self.series.get(key)
+            return series.items() if series is not None else ([], [])
 
     def statistics(self) -> str:
         """The latest value of each of the method's live plots, in words (the panel's line)."""
@@ -108,17 +113,30 @@ def decimate(n: int, points: int = PLOT_POINTS) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, min(n, points)).astype(int)) if n else np.zeros(0, int)
 
 
-def line_data(values: list) -> tuple[np.ndarray, np.ndarray]:
-    """(generation numbers, values) of a line plot, decimated; missing values NaN."""
+def sample(gens: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """A kept series' value at generations `at`: the value of the latest kept generation at or before
+    each (a thinned best-so-far curve is a step function); NaN before the first and after the last."""
+    gens, values, at = np.asarray(gens), np.asarray(values, float), np.asarray(at)
+    out = np.full(len(at), np.nan)
+    if len(gens):
+        i = np.searchsorted(gens, at, side="right") - 1
+        ok = (i >= 0) & (at <= gens[-1])
+        out[ok] = values[i[ok]]
+    return out
+
+
+def line_data(gens: list, values: list) -> tuple[np.ndarray, np.ndarray]:
+    """(generation numbers from 1, values) of a line plot, decimated; missing values NaN."""
     idx = decimate(len(values))
     y = np.array([float(values[i]) if isinstance(values[i], (int, float)) else np.nan for i in idx])
-    return idx + 1.0, y
+    return np.asarray(gens, float)[idx] + 1.0 if len(idx) else np.zeros(0), y
 
 
-def stacked_svg(rows: list, title: str, width: int = 320, height: int = 160) -> str:
+def stacked_svg(gens: list, rows: list, title: str, width: int = 320, height: int = 160) -> str:
     """Stacked bands of {name: size} per generation (neat-python's plot_species, as SVG): each
     name a band in id order, its height the size, zero where it is absent."""
     idx = decimate(len(rows), 200)
+    gens = [gens[i] for i in idx]
     rows = [rows[i] if isinstance(rows[i], dict) else {} for i in idx]
     if not rows:
         return f"<small>{html.escape(title)}: no generation yet.</small>"
@@ -138,7 +156,7 @@ def stacked_svg(rows: list, title: str, width: int = 320, height: int = 160) -> 
         r, g, b = species_colors([name])[0] if isinstance(name, (int, np.integer)) else SPECIES[j % len(SPECIES)]
         bands.append(f'<polygon points="{" ".join(pts)}" fill="rgb({r},{g},{b})" fill-opacity="0.85">'
                      f'<title>{html.escape(str(name))}</title></polygon>')
-    first, last = int(idx[0]) + 1, int(idx[-1]) + 1
+    first, last = int(gens[0]) + 1, int(gens[-1]) + 1
     axes = (f'<line x1="{pad_l}" y1="{4 + h}" x2="{pad_l + w}" y2="{4 + h}" stroke="#888"/>'
             f'<line x1="{pad_l}" y1="4" x2="{pad_l}" y2="{4 + h}" stroke="#888"/>'
             f'<text x="{pad_l - 3}" y="12" font-size="9" text-anchor="end">{total:.0f}</text>'
@@ -151,12 +169,12 @@ def stacked_svg(rows: list, title: str, width: int = 320, height: int = 160) -> 
 
 def lead_line(a: RunTrack, b: RunTrack, label_a: str, label_b: str) -> str:
     """Which run of a race leads, by how much: best MSE at the same generation (the shorter run's)."""
-    best_a, _ = a.curves()
-    best_b, _ = b.curves()
-    n = min(len(best_a), len(best_b))
+    ga, best_a, _ = a.curves()
+    gb, best_b, _ = b.curves()
+    n = min(len(a), len(b))
     if n == 0:
         return "Race: waiting for both runs' first generation."
-    ea, eb = float(best_a[n - 1]), float(best_b[n - 1])
+    ea, eb = float(sample(ga, best_a, [n - 1])[0]), float(sample(gb, best_b, [n - 1])[0])
     if ea == eb:
         return f"Race, generation {n}: level, best MSE {ea:.4g} each."
     (wl, wv), (ll, lv) = ((label_a, ea), (label_b, eb)) if ea < eb else ((label_b, eb), (label_a, ea))

@@ -20,7 +20,8 @@ import lab
 import robots
 from lab import methods
 
-from app.live import decimate, lead_line
+from app.limits import refusal as limits_refusal
+from app.live import decimate, lead_line, sample
 from app.state import SPEEDS, run_label
 from app.teaching import RaceFields, Watching
 
@@ -142,7 +143,10 @@ class TrainingPanel:
                     raise ValueError(f"{handle.label.lower()} must be a whole number, got {v!r}")
                 v = int(v)
             options[name] = v
-        return lab.TrainConfig.preset(robot=self.robot.value, method=method.name, **values, **options)
+        config = lab.TrainConfig.preset(robot=self.robot.value, method=method.name, **values, **options)
+        if (why := limits_refusal(config, self.state.limits)) is not None:
+            raise ValueError(why)
+        return config
 
     def _on_field(self, event) -> None:
         if self._reverting:  # our own write-back of a refused value
@@ -263,15 +267,15 @@ class TrainingPanel:
         self.progress_bar.value = 100.0 * n / p["total"] if p["total"] else 0.0
         self._build_curves(racing=partner is not None)
         self.watching.build_live()
-        curves = [(p["best"], p["median"])] + ([partner.track.curves()] if partner is not None else [])
-        m = max(len(b) for b, _ in curves)
-        idx = decimate(m)
-        columns = [idx + 1.0]
-        for best, median in curves:
+        # the app keeps a bounded, thinned history per run (app/state.py, app/live.py): every series is
+        # sampled at one set of generations, up to the longest run's latest
+        runs = [(p["generations"] - 1, p["best"], p["median"])] + ([partner.track.curves()] if partner else [])
+        m = max((int(g[-1]) + 1 if len(g) else 0) for g, _, _ in runs)
+        at = decimate(m)
+        columns = [at + 1.0]
+        for gens, best, median in runs:
             for values in (best, median):
-                padded = np.full(m, np.nan)
-                padded[:len(values)] = values
-                columns.append(np.maximum(np.nan_to_num(padded[idx], posinf=1e12, nan=np.nan), 1e-12))
+                columns.append(np.maximum(np.nan_to_num(sample(gens, values, at), posinf=1e12, nan=np.nan), 1e-12))
         self.plot.data = tuple(columns) if m else EMPTY_PLOT + ((np.full(2, np.nan),) * 2 if partner else ())
         best_s = f"{p['best'][-1]:.4g}" if n else "-"
         rec = f"  \nRecording: `{p['recording']}`" if p["recording"] else ""

@@ -13,16 +13,15 @@ from __future__ import annotations
 
 import glob
 import os
-import re
 import time
 
 import lab
 import robots
 
+from app import viser_private
 from app.notebook import label
 from app.panels import notify
-
-MAX_UPLOAD = 200 * 2**20  # bytes
+from app.uploads import MAX_UPLOAD, UploadGuard, save_upload
 
 
 class RunsPanel:
@@ -39,13 +38,36 @@ class RunsPanel:
         self._items: dict[str, tuple[str, object]] = {}  # label -> ("entry", dict) or ("file", path)
         self._listed_at, self._listing = 0.0, None
         self.open_button.on_click(lambda e: self.open(self.choice.value, e.client))
-        self.upload.on_upload(lambda e: self.open_upload(self.upload.value.name, self.upload.value.content, e.client))
+        # uploads are checked as they start and as their parts arrive, before viser buffers them
+        self.uploads = UploadGuard(os.path.join(app.recordings, "uploads"), allowed=getattr(app, "upload_refusal", None),
+                                   notify=self._tell)
+        viser_private.guard_uploads(app.server, self.uploads.start, self.uploads.part)
+        self.upload.on_upload(self._on_upload)
         self.slider.on_update(lambda e: self.scrub(int(self.slider.value), e.client))
         self.live_button.on_click(lambda e: self.live())
+
+    # ------------------------------------------------------------------ uploads
+    def _on_upload(self, event) -> None:
+        value = self.upload.value
+        viser_private.forget_upload_value(self.upload)  # else viser keeps the last file in memory
+        try:
+            self.open_upload(value.name, value.content, event.client)
+        finally:
+            self.uploads.done()
+
+    def _tell(self, client_id: int, text: str) -> None:
+        """An upload refused or dropped: told to its tab only (a notification)."""
+        notify(self.app.server.get_clients().get(client_id), "Upload", text)
+
+    def sweep_uploads(self) -> None:
+        """Drop uploads that stalled (and what viser buffered of them)."""
+        for transfer in self.uploads.sweep():
+            viser_private.drop_upload(self.app.server, transfer)
 
     # ------------------------------------------------------------------ the list
     def refresh(self, force: bool = False) -> None:
         """Re-list notebook entries and recordings (every 2 s at most, from the render loop)."""
+        self.sweep_uploads()
         now = time.monotonic()
         if not force and now - self._listed_at < 2.0:
             return
@@ -126,24 +148,24 @@ class RunsPanel:
         return None
 
     def open_upload(self, name: str, content: bytes, client=None) -> str | None:
-        if not name.endswith(".rrd") or len(content) > MAX_UPLOAD or not content.startswith(b"RRF"):
-            return self.refuse(client, f"refused: {name or 'the upload'} is not a Rerun recording (.rrd)")
-        folder = os.path.join(self.app.recordings, "uploads")
-        os.makedirs(folder, exist_ok=True)
-        path = os.path.join(folder, re.sub(r"[^A-Za-z0-9._-]", "_", os.path.basename(name)))
-        tmp = path + ".part"
-        with open(tmp, "wb") as f:
-            f.write(content)
-        try:
-            from lab.recording.replay import read_recording
+        """Save an uploaded recording under recordings/uploads/ (beside, never over, a file of the
+        same name) and open it."""
+        from lab.recording.replay import read_recording
 
-            read_recording(tmp)
-        except Exception as e:
-            os.remove(tmp)
-            return self.refuse(client, f"refused: {name} cannot be replayed: {e}")
-        os.replace(tmp, path)
+        shown = (name or "the upload")[:60]
+        if not name.lower().endswith(".rrd") or len(content) > MAX_UPLOAD or not content.startswith(b"RRF"):
+            return self.refuse(client, f"refused: {shown} is not a Rerun recording (.rrd)")
+        try:
+            path = save_upload(os.path.join(self.app.recordings, "uploads"), name, content, check=read_recording)
+        except OSError as e:
+            return self.refuse(client, f"refused: {shown} could not be saved: {e.strerror or e}")
+        except Exception as e:  # noqa: BLE001 - not a readable recording
+            return self.refuse(client, f"refused: {shown} cannot be replayed: {e}")
         self.refresh(force=True)
-        return self.open_file(path, client)
+        msg = self.open_file(path, client)
+        if msg is None and os.path.basename(path) != os.path.basename(name):
+            self.message.content = f"Saved as `uploads/{os.path.basename(path)}`."
+        return msg
 
     def _show(self, robot: str, controller, source: str, client) -> str | None:
         if robot not in robots.names():

@@ -27,15 +27,18 @@ import viser
 
 import lab.running.worker as lab_worker
 
+from app.access import Access, is_loopback
+from app.limits import limits_for
 from app.goals import TabSession, fmt_len
 from app.lesson import apply_lesson, lesson_link, lesson_params
 from app.notebook import DEFAULT_PATH, Notebook
-from app.panels import TrainingPanel
+from app.panels import TrainingPanel, notify
 from app.runs import RunsPanel
 from app.scene import frame_workspace
+from app.tabreplay import TabReplay
 from app.state import LabState
 from app.views import error_map, map_grid, network_svg
-from app.viser_private import client_host, client_query
+from app.viser_private import client_host, client_query, install_loop_safe_wakeups
 
 log = logging.getLogger(__name__)
 
@@ -74,9 +77,14 @@ def rerun_recorder(folder: str):
 class LabApp:
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, *, robot: str = "planar",
                  notebook: str | Notebook = DEFAULT_PATH, recordings: str = "recordings", startup=True,
-                 record: bool = True):
+                 record: bool = True, presenter_token: str | None = None, open_access: bool = False,
+                 limits: dict[str, int] | None = None):
         """notebook: a Notebook or its path (NotebookError, before anything starts, if the path holds
-        something else). startup: True (each arm's shipped controller, else a quickly trained one),
+        something else). presenter_token, open_access: who may change shared state (app/access.py:
+        beyond loopback only tabs opened with `presenter_url`; on loopback every tab unless a token
+        is given; open_access: every tab, on purpose). limits: bounds raised (or set) at start,
+        app/limits.py: beyond loopback the classroom's bounds apply, with these in their place.
+        startup: True (each arm's shipped controller, else a quickly trained one),
         a controller (shown on the arm it was made for), or None. Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
         notebook = notebook if isinstance(notebook, Notebook) else Notebook(notebook)
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
@@ -87,10 +95,17 @@ class LabApp:
             startup, startups = None, startup_controller
         lab_worker.prestart()  # a warmed-up training process, so that Start trains at once
         self.state = LabState(robot, notebook, startup=startup, startups=startups,
-                              recorder=rerun_recorder(recordings) if record else None)
+                              recorder=rerun_recorder(recordings) if record else None,
+                              limits=limits_for(is_loopback(host), limits))
         self.startup_note = self.state.shown.source
         self.recordings = recordings
+        self.access = Access(host, presenter_token, open_access)
+        self.upload_refusal = self.access.refusal  # uploads: viewers are refused as a transfer starts
+        # the render loop, the run's reader and viser's thread pool all update handles: each update's
+        # wake-up of viser's sender must reach its event loop safely (see app/viser_private.py)
+        install_loop_safe_wakeups()
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.access.install(self.server, notify=self._tell)  # before any tab can change anything
         self.host = host
         self.sessions: dict[int, TabSession] = {}
         self._sessions_lock = threading.Lock()
@@ -98,7 +113,8 @@ class LabApp:
         self.latency: deque = deque(maxlen=100_000)  # (tab, callback start, pose flushed) of marker updates
         self._stop = threading.Event()
         gui = self.server.gui
-        gui.configure_theme(control_width="large")
+        # a classroom shows no "share" button (a public tunnel; only a presenter could use it anyway)
+        gui.configure_theme(control_width="large", show_share_button=not self.access.restricted)
         tabs = gui.add_tab_group(order=1)
         with tabs.add_tab("Train", viser.Icon.BRAIN):
             self.panel = TrainingPanel(gui, self.state, on_robot=self.switch_robot)
@@ -128,8 +144,17 @@ class LabApp:
         host = "127.0.0.1" if self.host in ("0.0.0.0", "") else self.host
         return f"http://{host}:{self.port}"
 
+    @property
+    def presenter_url(self) -> str:
+        """A link whose tab is a presenter (the plain URL when every tab is one)."""
+        return self.access.link(self.url)
+
+    def _tell(self, client_id: int, text: str) -> None:
+        notify(self.server.get_clients().get(client_id), "Refused", text)
+
     # ------------------------------------------------------------------ tabs
     def _connect(self, client: viser.ClientHandle) -> None:
+        presenter = self.access.connected(client)  # a viewer: its line, its shared controls shown disabled
         try:  # a lesson link's settings (app/lesson.py), and the address the tab reached us at
             query, host = client_query(client), client_host(client)
         except Exception:  # noqa: BLE001 - a tab without them is an ordinary tab
@@ -137,14 +162,21 @@ class LabApp:
             query, host = {}, None
         session = TabSession(client, self.state, self.latency)
         session.page_url = f"http://{host}" if host else self.url
+        # a viewer replays in its own tab (a presenter replays for every tab, in the Runs tab)
+        session.replay = None if presenter else TabReplay(client, session, self.runs)
         with self._sessions_lock:
             gone = client.client_id in self._gone  # the tab closed while its scene was being built
             if not gone:
                 self.sessions[client.client_id] = session
         if gone:
             session.close()
+            self.access.disconnected(client.client_id)
             return
-        apply_lesson(self, query, client)
+        if presenter:  # a lesson changes the shared settings: the presenter's to do
+            apply_lesson(self, query, client)
+        elif query.get("lesson") == "1":
+            self._tell(client.client_id, "this lesson link's settings were not applied: the presenter controls "
+                                         "the run (open the link on a lab of your own to train them)")
         self._write_lesson_links([session])
 
     def _write_lesson_links(self, sessions) -> None:
@@ -157,6 +189,7 @@ class LabApp:
         with self._sessions_lock:
             session = self.sessions.pop(client.client_id, None)
             self._gone.add(client.client_id)
+        self.access.disconnected(client.client_id)
         if session is not None:
             session.close()
 
@@ -240,11 +273,15 @@ class LabApp:
                 if t0 - last_panel > PANEL_PERIOD:
                     last_panel = t0
                     self.panel.refresh()
+                    self.access.sync_viewers()
                 if t0 - last_views > VIEWS_PERIOD or self._drawn[1] is not self.state.arm:
                     last_views = t0
                     self._draw_views()
                     self.runs.refresh()
                     self._write_lesson_links(sessions)
+                    for s in sessions:
+                        if getattr(s, "replay", None) is not None:
+                            s.replay.sync()
             except Exception:  # the loop must survive anything one frame does
                 log.exception("render loop")
             self._stop.wait(max(0.0, period - (time.perf_counter() - t0)))

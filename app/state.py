@@ -20,9 +20,11 @@ import numpy as np
 
 import lab
 import robots
+from lab.running.history import History
 from lab.running.runner import speed_period
 from lab.running.worker import ProcessRunner
 
+from app.limits import refusal as limits_refusal
 from app.live import RunTrack
 from app.notebook import Notebook, entry_from_summary
 from app.startup import made_for
@@ -30,6 +32,9 @@ from app.startup import made_for
 SPEEDS = {"1 generation/s": 1.0, "5 generations/s": 5.0, "20 generations/s": 20.0, "unlimited": None}
 
 log = logging.getLogger(__name__)
+# points of a run's MSE history the app keeps (lab.running.history.History): every generation up to
+# this many, then fewer and fewer, so a run of 10^9 generations takes as little memory as one of 5,000
+HISTORY_POINTS = 4096
 
 
 @dataclass(frozen=True)
@@ -81,11 +86,13 @@ class _Tap:
 
 class LabState:
     def __init__(self, robot: str = "planar", notebook: Notebook | None = None, startup=None,
-                 recorder=None, startups=None):
+                 recorder=None, startups=None, limits: dict | None = None):
         """startup: controller shown first (or None); startups: callable(robot name) -> (controller,
         note), the controller an arm opens with (app.startup.startup_controller), called once per arm;
         recorder: callable(runner) -> object with .path that records the run
-        (lab.recording.RerunLogger), or None for no recordings."""
+        (lab.recording.RerunLogger), or None for no recordings. limits: the bounds this server puts
+        on settings (app/limits.py; None: the lab's own)."""
+        self.limits = limits
         self._lock = threading.RLock()
         self.notebook = notebook or Notebook()
         self.recorder = recorder
@@ -125,9 +132,10 @@ class LabState:
         """Plot data and counters of the current run (copies, any thread)."""
         with self._lock:
             r = self.runner
+            gens, best, median = self._history.arrays()
             return dict(
-                generation=len(self._best), total=r.config.generations if r else 0,
-                state=r.state if r else "idle", best=np.array(self._best), median=np.array(self._median),
+                generation=len(self._history), total=r.config.generations if r else 0,
+                state=r.state if r else "idle", best=best, median=median, generations=gens + 1,
                 evals_per_s=self._evals / self._seconds if self._seconds > 0 else 0.0,
                 recording=self.recording, run_id=r.run_id if r else None,
             )
@@ -198,7 +206,10 @@ class LabState:
         goals (its robot, targets and goal seed are config's), each in its own worker process."""
         with self._lock:
             if self.running:
-                return f"refused: a run is going (generation {len(self._best)}); stop it first"
+                return f"refused: a run is going (generation {len(self._history)}); stop it first"
+            for c in (config, partner):
+                if c is not None and (why := limits_refusal(c, self.limits)) is not None:
+                    return f"refused: {why}"
             if partner is not None and (partner.robot, partner.targets, partner.goal_seed, partner.resample) != \
                     (config.robot, config.targets, config.goal_seed, config.resample):
                 return "refused: a race runs on the same arm and the same goals (robot, targets, goal seed)"
@@ -207,7 +218,7 @@ class LabState:
                 if msg:
                     return msg
             try:
-                runners = [ProcessRunner(c) for c in (config, partner) if c is not None]
+                runners = [ProcessRunner(c, history_limit=HISTORY_POINTS) for c in (config, partner) if c is not None]
             except Exception as e:
                 return f"refused: cannot build this run: {e}"
             recordings = [self._record(r) for r in runners]
@@ -291,15 +302,14 @@ class LabState:
             self._show_startup()
 
     def _clear_history(self) -> None:
-        self._best, self._median = [], []
+        self._history = History(HISTORY_POINTS)
         self._evals, self._seconds = 0, 0.0
 
     def _on_generation(self, runner: ProcessRunner, event: lab.GenerationEvent) -> None:
         with self._lock:
             if runner is not self.runner:  # a run that was reset away
                 return
-            self._best.append(event.best)
-            self._median.append(event.median)
+            self._history.append(event.best, event.median)
             self._evals, self._seconds = event.evaluations, event.seconds
             if self.track is not None:
                 self.track.add(event)

@@ -63,7 +63,7 @@ class Watching:
                     folder = self.gui.add_folder(title)
                     with folder:
                         if plot.kind == "stacked":
-                            shown = self.gui.add_html(stacked_svg([], plot.title))
+                            shown = self.gui.add_html(stacked_svg([], [], plot.title))
                         else:
                             shown = self.gui.add_uplot(
                                 data=EMPTY_LINE, title=plot.title, aspect=2.0,
@@ -99,11 +99,11 @@ class Watching:
         for plot, track, shown, _folder in self.live:
             if track is None:
                 continue
-            values = track.series_of(plot.key)
+            gens, values = track.series_of(plot.key)
             if plot.kind == "stacked":
-                shown.content = stacked_svg(values, plot.title)
+                shown.content = stacked_svg(gens, values, plot.title)
             elif values:
-                x, y = line_data(values)
+                x, y = line_data(gens, values)
                 shown.data = (x, np.maximum(y, 1e-300) if plot.log else y)
 
 

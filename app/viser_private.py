@@ -6,6 +6,8 @@ public API where one exists. When viser changes, `check()` names what is gone.
 
 from __future__ import annotations
 
+import asyncio
+import inspect
 import re
 import urllib.parse
 
@@ -84,10 +86,18 @@ def client_query(client) -> dict[str, str]:
     Reach: `client._viser_server._websock_server._live_connections[client_id]` is the tab's
     websockets ServerConnection (set before any connect callback runs), whose public `.request.path`
     is the handshake's path with its query."""
-    missing = query_api_missing(getattr(client, "_viser_server", None))
+    return connection_query(getattr(client, "_viser_server", None), client.client_id) or {}
+
+
+def connection_query(server, client_id: int) -> dict[str, str] | None:
+    """client_query by the tab's id (its connection is known before viser's connect callbacks run,
+    from the websocket handshake on): None when there is no such connection (any more)."""
+    missing = query_api_missing(server)
     if missing:
         raise ViserChanged(f"viser changed: {', '.join(missing)} missing; a tab's query cannot be read")
-    connection = client._viser_server._websock_server._live_connections.get(client.client_id)
+    connection = server._websock_server._live_connections.get(client_id)
+    if connection is None:
+        return None
     request = getattr(connection, "request", None)
     return parse_query(getattr(request, "path", "") or "")
 
@@ -100,6 +110,247 @@ def query_api_missing(server) -> list[str]:
     if not isinstance(getattr(websock, "_live_connections", None), dict):
         return ["WebsockServer._live_connections"]
     return []
+
+
+# ---------------------------------------------------------------------- updates from other threads
+# viser is meant to be driven from any thread (its examples update handles from the main thread;
+# sync callbacks run in its thread pool; AsyncMessageBuffer.push takes a threading.Lock "to prevent
+# race conditions when pushing messages from different threads" and wakes the loop with
+# call_soon_threadsafe). But push() also calls `self.message_event.set()` directly, in the pushing
+# thread: asyncio.Event.set() iterates the event's waiters (one future per tab's sender waiting
+# on that buffer) while the loop's thread appends and removes them, which raises
+# `RuntimeError: deque mutated during iteration` in the pushing thread (the message is buffered,
+# but the caller's update stops half-way) and resolves futures off the loop (a wake-up can be
+# lost). tests/test_viser_private.py reproduces it with viser's class alone: 100 waiting senders
+# on one buffer, pushes from another thread every 20 ms: 85 errors in 954 pushes (viser 1.1.1).
+# The fix: each buffer's message event hands a set() from another thread to its loop
+# (call_soon_threadsafe), so only the loop's thread touches its waiters. Nothing reads the flag
+# synchronously (viser 1.1.1: only window_loop awaits and clears it).
+class LoopSafeEvent(asyncio.Event):
+    """An asyncio.Event of `loop` whose set() may be called from any thread."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop):
+        super().__init__()
+        self._owner = loop
+        self._pending = False  # a set() is on its way to the loop
+
+    def set(self) -> None:
+        try:
+            here = asyncio.get_running_loop()
+        except RuntimeError:  # a thread with no running loop
+            here = None
+        if here is self._owner:
+            super().set()
+            return
+        # Already set, or a set on its way: nothing more to wake (a sender reads the buffer's message
+        # counter, which push() raised before calling this, after it clears the event). This keeps a
+        # burst of pushes inside atomic() to one wake-up of the loop instead of one per message.
+        if self._value or self._pending:
+            return
+        self._pending = True
+        try:
+            self._owner.call_soon_threadsafe(self._set_here)
+        except RuntimeError:  # the loop is closed (the server stopped): nothing to wake
+            self._pending = False
+
+    def _set_here(self) -> None:
+        self._pending = False
+        super().set()
+
+
+def install_loop_safe_wakeups() -> None:
+    """Make every viser message buffer created from now on wake its loop safely from any thread
+    (viser.infra AsyncMessageBuffer.message_event becomes a LoopSafeEvent). Call it before
+    creating the ViserServer; idempotent; it changes viser's class for the whole process.
+    ViserChanged, naming it, when the class is not there any more."""
+    cls = _message_buffer_class()
+    if getattr(cls, "_loop_safe", False):
+        return
+    original = cls.__init__
+
+    def __init__(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        self.message_event = LoopSafeEvent(self.event_loop)
+
+    cls.__init__ = __init__
+    cls._loop_safe = True
+
+
+def _message_buffer_class():
+    try:
+        from viser.infra._async_message_buffer import AsyncMessageBuffer
+    except ImportError as e:
+        raise ViserChanged(f"viser changed: viser.infra._async_message_buffer.AsyncMessageBuffer missing ({e})") from e
+    fields = getattr(AsyncMessageBuffer, "__dataclass_fields__", {})
+    missing = [f for f in ("event_loop", "message_event") if f not in fields]
+    if missing:
+        raise ViserChanged(f"viser changed: AsyncMessageBuffer has no {', '.join(missing)}")
+    return AsyncMessageBuffer
+
+
+# ---------------------------------------------------------------------- shared GUI: who may change it
+# Elements of server.gui are shared by every tab. guard_shared_gui drops a tab's change of one of them
+# (a value typed, a button pressed or held) before viser applies it, unless allow(client_id) says the
+# tab may: viser never sets the value, never calls the callbacks, never echoes it to other tabs.
+def guard_shared_gui(server, allow, refused=None) -> None:
+    """allow(client_id) -> bool; refused(client_id, uuid): called for each dropped change (in
+    viser's event loop). Covers every element of server.gui, present and future. Idempotent."""
+    from viser import _messages
+
+    missing = shared_gui_api_missing(server)
+    if missing:
+        raise ViserChanged(f"viser changed: {', '.join(missing)} missing; shared controls cannot be guarded")
+    if getattr(server, "_lab_gui_guarded", False):
+        return
+    shared = server.gui._gui_input_handle_from_uuid
+
+    def check(client_id, message) -> bool:
+        if message.uuid not in shared or allow(client_id):
+            return True
+        if refused is not None:
+            refused(client_id, message.uuid)
+        return False
+
+    handlers = server._websock_server._incoming_handlers
+    for cls in (_messages.GuiUpdateMessage, _messages.GuiButtonHoldMessage):
+        if handlers.get(cls):
+            _guard(handlers, cls, check)
+    # Server-wide requests any tab may send: viser's titlebar "share" button opens (and closes) a
+    # public tunnel to the server through share.viser.studio; forms' submit and dirty marks and
+    # command-palette triggers reach every tab. Only tabs allowed to change shared state may.
+    for name in SERVER_WIDE_REQUESTS:
+        cls = getattr(_messages, name, None)
+        if cls is not None and handlers.get(cls):
+            _guard(handlers, cls, lambda client_id, message: allow(client_id))
+    server._lab_gui_guarded = True
+
+
+SERVER_WIDE_REQUESTS = ("ShareUrlRequest", "ShareUrlDisconnect", "GuiFormSubmitMessage", "GuiFormDirtyMessage",
+                        "CommandTriggerMessage")
+
+
+def shared_gui_api_missing(server) -> list[str]:
+    missing = []
+    try:
+        from viser import _messages
+
+        _messages.GuiUpdateMessage  # noqa: B018
+    except (ImportError, AttributeError):
+        return ["viser._messages.GuiUpdateMessage"]
+    handlers = getattr(getattr(server, "_websock_server", None), "_incoming_handlers", None)
+    if not isinstance(handlers, dict):
+        missing.append("WebsockServer._incoming_handlers")
+    elif not handlers.get(_messages.GuiUpdateMessage):
+        missing.append("a handler of GuiUpdateMessage")
+    if not isinstance(getattr(getattr(server, "gui", None), "_gui_input_handle_from_uuid", None), dict):
+        missing.append("GuiApi._gui_input_handle_from_uuid")
+    return missing
+
+
+def shared_inputs(server) -> dict:
+    """uuid -> handle of every input element (buttons included) of server.gui."""
+    return dict(server.gui._gui_input_handle_from_uuid)
+
+
+def send_gui_props(client, uuid: str, **props) -> None:
+    """Set props (e.g. disabled=True, value=...) of a GUI element in one tab only: the other tabs and
+    the server's own state are untouched (a shared element looks disabled to a viewer)."""
+    from viser import _messages
+
+    client._websock_connection.queue_message(_messages.GuiUpdateMessage(uuid, props))
+
+
+# ---------------------------------------------------------------------- uploads
+# viser 1.1.1 buffers an upload's parts in memory (GuiApi._current_file_upload_states) as they come
+# and only then hands the whole file to the button's callbacks: a size cap checked there comes after
+# the memory is spent, an unfinished transfer is held until its tab closes, and the last file stays
+# in the button's value. guard_uploads puts our checks in front of viser's own handlers.
+def guard_uploads(server, on_start, on_part) -> None:
+    """In front of viser's upload handlers of `server` (shared GUI): on_start(client_id, transfer_id,
+    filename, size_bytes) and on_part(client_id, transfer_id, nbytes) return True to let viser
+    have the message. A refused start is never seen by viser (its parts are then ignored: viser
+    drops parts of unknown transfers); a refused part drops the transfer and what viser buffered
+    of it. Both run in viser's event loop: keep them short. Idempotent per server."""
+    from viser import _messages
+
+    handlers = _upload_handlers(server)
+    if getattr(server, "_lab_uploads_guarded", False):
+        return
+    _guard(handlers, _messages.FileTransferStartUpload,
+           lambda cid, m: on_start(cid, m.transfer_uuid, m.filename, int(m.size_bytes)))
+
+    def allow_part(cid, m):
+        if on_part(cid, m.transfer_uuid, len(m.content)):
+            return True
+        drop_upload(server, m.transfer_uuid)
+        return False
+
+    _guard(handlers, _messages.FileTransferPart, allow_part)
+    server._lab_uploads_guarded = True
+
+
+def _guard(handlers: dict, message_cls, allow) -> None:
+    """Replace viser's handlers of message_cls with one that calls them only when
+    allow(client_id, message) is true."""
+    originals = tuple(handlers[message_cls])
+    if any(inspect.iscoroutinefunction(cb) for cb in originals):
+        async def handler(client_id, message):
+            if allow(client_id, message):
+                for cb in originals:
+                    out = cb(client_id, message)
+                    if inspect.isawaitable(out):
+                        await out
+    else:
+        def handler(client_id, message):
+            if allow(client_id, message):
+                for cb in originals:
+                    cb(client_id, message)
+    handlers[message_cls] = [handler]
+
+
+def _upload_handlers(server) -> dict:
+    missing = upload_api_missing(server)
+    if missing:
+        raise ViserChanged(f"viser changed: {', '.join(missing)} missing; uploads cannot be guarded")
+    return server._websock_server._incoming_handlers
+
+
+def upload_api_missing(server) -> list[str]:
+    """What of the private API the upload guard uses this viser server lacks (empty: all there)."""
+    missing = []
+    try:
+        from viser import _messages
+
+        _messages.FileTransferStartUpload, _messages.FileTransferPart  # noqa: B018
+    except (ImportError, AttributeError):
+        return ["viser._messages.FileTransferStartUpload / FileTransferPart"]
+    handlers = getattr(getattr(server, "_websock_server", None), "_incoming_handlers", None)
+    if not isinstance(handlers, dict):
+        missing.append("WebsockServer._incoming_handlers")
+    elif not getattr(server, "_lab_uploads_guarded", False):
+        for cls in (_messages.FileTransferStartUpload, _messages.FileTransferPart):
+            if not handlers.get(cls):
+                missing.append(f"a handler of {cls.__name__}")
+    if not isinstance(getattr(getattr(server, "gui", None), "_current_file_upload_states", None), dict):
+        missing.append("GuiApi._current_file_upload_states")
+    return missing
+
+
+def drop_upload(server, transfer_id: str) -> None:
+    """Forget an unfinished upload and the parts viser has buffered of it (later parts are ignored)."""
+    server.gui._current_file_upload_states.pop(transfer_id, None)
+
+
+def buffered_uploads(server) -> dict[str, int]:
+    """transfer id -> bytes viser holds in memory, of every unfinished upload."""
+    states = dict(server.gui._current_file_upload_states)
+    return {k: sum(len(p) for p in dict(v.get("parts", {})).values()) for k, v in states.items()}
+
+
+def forget_upload_value(handle) -> None:
+    """Let go of the last uploaded file, which viser keeps in the upload button's value."""
+    impl = handle._impl
+    impl.value = type(impl.value)(name="", content=b"")
 
 
 def check(handle) -> list[str]:
@@ -122,9 +373,10 @@ def check(handle) -> list[str]:
 def client_host(client) -> str | None:
     """The Host header a tab (viser.ClientHandle) connected with: the address its browser reached this
     server at (None when the tab has gone). Same reach as client_query (ViserChanged when it is gone)."""
-    missing = query_api_missing(getattr(client, "_viser_server", None))
+    server = getattr(client, "_viser_server", None)
+    missing = query_api_missing(server)
     if missing:
         raise ViserChanged(f"viser changed: {', '.join(missing)} missing; a tab's address cannot be read")
-    connection = client._viser_server._websock_server._live_connections.get(client.client_id)
+    connection = server._websock_server._live_connections.get(client.client_id)
     headers = getattr(getattr(connection, "request", None), "headers", None)
     return headers.get("Host") if headers is not None else None

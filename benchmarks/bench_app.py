@@ -24,6 +24,16 @@ redrawn at most 5 times a second per tab as the run sends populations, at most 1
 --no-population; the headless run computes the same populations (lab.Runner sends them to its
 subscribers) so both sides pay for them.
 
+A lecture hall: `--clients 100 --dragging 20 --hz 10 --classroom` (the server restricted by a
+presenter token, so the 100 tabs are viewers, as students' tabs are). Every mode counts the
+tracebacks the server printed or logged (target: none).
+
+    python benchmarks/bench_app.py --cycles 200     # tabs connect and disconnect 200 times, one by one:
+                                                    # memory (target: within 20 MB), threads, open files
+    python benchmarks/bench_app.py --soak 600       # 10 minutes of back-to-back runs with 10 tabs (one
+                                                    # dragging): the memory's slope (target: flat)
+    python benchmarks/bench_app.py --soak 300 --run-seconds 300   # one long run: the memory's slope
+
 The clients share the machine's cores with the server (a classroom's browsers would not), so
 both numbers are pessimistic. No Rerun recording in either case, unless --record: then both
 record (headless with lab.recording.logger.RerunLogger, as `python -m lab train` does by default; the
@@ -37,7 +47,10 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import gc  # noqa: E402
+import io  # noqa: E402
 import json  # noqa: E402
+import logging  # noqa: E402
 import resource  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -198,6 +211,149 @@ def serve_clients(url: str, clients: int, dragging: int, seconds: float, hz: flo
     print(json.dumps({"rtt": rtts}), flush=True)
 
 
+class Tracebacks(io.TextIOBase):
+    """Counts the tracebacks the server prints (viser's thread pool, threading's excepthook) or logs
+    (logging with exc_info), passing stderr through."""
+
+    def __init__(self, stream):
+        self.stream, self.count, self.first = stream, 0, None
+
+    def write(self, text: str) -> int:
+        if "Traceback (most recent call last)" in text:
+            self.count += 1
+        if self.count and self.first is None:
+            self.first = ""
+        if self.first is not None and len(self.first) < 4000:
+            self.first += text
+        return self.stream.write(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+def count_tracebacks() -> Tracebacks:
+    tb = Tracebacks(sys.stderr)
+    sys.stderr = tb
+    logging.basicConfig(stream=tb, level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s", force=True)
+    return tb
+
+
+def rss_mb(pid: int | str = "self") -> float:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:")) / 1024
+    except (OSError, StopIteration):
+        return float("nan")
+
+
+def threads_and_files() -> tuple[int, int]:
+    return len(os.listdir("/proc/self/task")), len(os.listdir("/proc/self/fd"))
+
+
+def cycles(app, n: int) -> None:
+    """n tabs connect (scene built) and disconnect, one after the other: the server's memory, threads
+    and open files after, against before (after 10 cycles of warm-up)."""
+    from app.probe import Probe
+
+    def one() -> None:
+        probe = Probe(app.url).start()
+        probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+        owner = int(probe.owner("/tab/goal0/marker"))
+        deadline = time.monotonic() + 20
+        while owner not in app.sessions and time.monotonic() < deadline:
+            time.sleep(0.01)
+        probe.close()
+        deadline = time.monotonic() + 20
+        while owner in app.sessions and time.monotonic() < deadline:
+            time.sleep(0.01)
+
+    for _ in range(10):
+        one()
+    time.sleep(1.0)
+    gc.collect()
+    m0, (t0, f0) = rss_mb(), threads_and_files()
+    start = time.perf_counter()
+    samples = []
+    for k in range(n):
+        one()
+        if (k + 1) % 50 == 0:
+            gc.collect()
+            samples.append((k + 1, rss_mb()))
+    time.sleep(1.0)
+    gc.collect()
+    m1, (t1, f1) = rss_mb(), threads_and_files()
+    print(f"{n} connect/disconnect cycles in {time.perf_counter() - start:.0f} s (load average {os.getloadavg()[0]:.1f}): "
+          f"memory {m0:.1f} -> {m1:.1f} MB ({m1 - m0:+.1f} MB; after each 50: "
+          f"{', '.join(f'{v:.1f}' for _k, v in samples)}), threads {t0} -> {t1}, open files {f0} -> {f1}")
+
+
+def soak(app, seconds: float, tabs: int = 10, run_seconds: float = 20.0) -> None:
+    """Back-to-back runs (each stopped after run_seconds) with `tabs` tabs connected, one dragging at
+    10 Hz: the server's memory sampled every 10 s and its least-squares slope."""
+    from app.probe import Probe
+
+    probes = [Probe(app.url).start() for _ in range(tabs)]
+    for p in probes:
+        p.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+    stop = threading.Event()
+
+    def trim(probe, keep=lambda m: False) -> None:
+        """The headless tabs live in this process and keep every message they get: let them go, so that
+        the memory measured is the server's."""
+        with probe._cond:
+            probe.messages[:] = [(t, m) for t, m in probe.messages if keep(m)]
+
+    def drag() -> None:
+        rng = np.random.default_rng(0)
+        while not stop.is_set():
+            trim(probes[0], keep=lambda m: m.get("name") == "/tab/goal0/marker")
+            try:
+                probes[0].drag("/tab/goal0/marker", (rng.uniform(-5, 20), rng.uniform(-15, 20), 0.0))
+            except TimeoutError:
+                pass
+            stop.wait(0.1)
+
+    dragger = threading.Thread(target=drag, daemon=True)
+    dragger.start()
+    samples, worker, runs, t0 = [], [], 0, time.perf_counter()
+    next_sample, generations = t0, 0
+    try:
+        while time.perf_counter() - t0 < seconds:
+            assert app.state.start(lab.TrainConfig.preset(**CONFIG)) is None
+            runs += 1
+            end = time.perf_counter() + run_seconds
+            while time.perf_counter() < end and time.perf_counter() - t0 < seconds:
+                if time.perf_counter() >= next_sample:
+                    for p in probes[1:]:
+                        trim(p)
+                    gc.collect()
+                    samples.append((time.perf_counter() - t0, rss_mb()))
+                    worker.append((time.perf_counter() - t0, rss_mb(app.state.runner.pid)))
+                    next_sample += 10.0
+                time.sleep(0.2)
+            generations += app.state.progress()["generation"]
+            app.state.stop()
+            app.state.reset()
+    finally:
+        stop.set()
+        dragger.join(5)
+        for p in probes:
+            p.close()
+    t = np.array([s[0] for s in samples])
+    m = np.array([s[1] for s in samples])
+    half = len(m) // 2
+    slope = np.polyfit(t / 60, m, 1)[0] if len(m) > 2 else float("nan")
+    slope2 = np.polyfit(t[half:] / 60, m[half:], 1)[0] if len(m) - half > 2 else float("nan")
+    w = np.array([v for _t, v in worker])
+    wt = np.array([t for t, _v in worker])
+    ok = np.isfinite(w)
+    wslope = np.polyfit(wt[ok] / 60, w[ok], 1)[0] if runs == 1 and ok.sum() > 2 else float("nan")
+    print(f"soak: {runs} back-to-back runs ({generations:,} generations) in {seconds:.0f} s with {tabs} tabs (one dragging at 10 Hz), load average "
+          f"{os.getloadavg()[0]:.1f}: memory {m[0]:.1f} -> {m[-1]:.1f} MB (max {m.max():.1f}); slope "
+          f"{slope:+.2f} MB/min over the whole soak, {slope2:+.2f} MB/min over its second half"
+          + (f"; the run's worker process {w[ok][0]:.1f} -> {w[ok][-1]:.1f} MB, {wslope:+.2f} MB/min" if runs == 1 else ""))
+
+
 def pct(x, q) -> float:
     return 1e3 * float(np.percentile(x, q)) if len(x) else float("nan")
 
@@ -215,11 +371,28 @@ def main() -> None:
     ap.add_argument("--hz", type=float, default=30.0, help="marker updates per second per dragging tab")
     ap.add_argument("--no-population", dest="population", action="store_false",
                     help="the tabs' population view off (on by default)")
+    ap.add_argument("--classroom", action="store_true",
+                    help="the server restricted by a presenter token: the tabs are viewers, as students' are")
+    ap.add_argument("--cycles", type=int, default=0, help="instead: this many connect/disconnect cycles")
+    ap.add_argument("--soak", type=float, default=0.0, help="instead: this many seconds of back-to-back runs")
+    ap.add_argument("--run-seconds", type=float, default=20.0,
+                    help="--soak: each run's length (as long as the soak: one long run)")
     args = ap.parse_args()
     from app.server import LabApp
 
+    tracebacks = count_tracebacks()
     folder = tempfile.mkdtemp(prefix="bench-app-")
-    app = LabApp(port=0, notebook=os.path.join(folder, "notebook.json"), recordings=folder, record=args.record)
+    app = LabApp(port=0, notebook=os.path.join(folder, "notebook.json"), recordings=folder, record=args.record,
+                 presenter_token="bench-presenter" if args.classroom else None)
+    if args.cycles or args.soak:
+        try:
+            cycles(app, args.cycles) if args.cycles else soak(app, args.soak, run_seconds=args.run_seconds)
+        finally:
+            app.stop()
+        print(f"tracebacks printed or logged by the server: {tracebacks.count}")
+        if tracebacks.first:
+            print(tracebacks.first, file=sys.__stderr__)
+        return
     record_arrivals(app)
     heads, apps = [], []
     load = os.getloadavg()
@@ -258,6 +431,10 @@ def main() -> None:
     print(f"  per CPU-second of the optimizer: {100 * per_cpu_a / per_cpu_h:.0f} % "
           f"({per_cpu_a:,.0f} vs {per_cpu_h:,.0f}); the app's process used "
           f"{np.mean([a['app_cpu'] for a in apps]):.2f} cores, the client process {np.mean([a['client_cpu'] for a in apps]):.2f}")
+    print(f"tracebacks printed or logged by the server: {tracebacks.count}"
+          f"{' (tabs were viewers: --classroom)' if args.classroom else ''}")
+    if tracebacks.first:
+        print(tracebacks.first, file=sys.__stderr__)
 
 
 if __name__ == "__main__":

@@ -112,3 +112,21 @@ def test_replay_shows_the_recorded_population_of_that_generation(app):
     finally:
         app.runs.live()
         probe.close()
+
+
+def test_uploads_of_one_name_are_kept_side_by_side_and_odd_names_are_saved_visibly(app):
+    entry = next(e for e in app.state.notebook.entries() if e.get("recording") and os.path.exists(e["recording"]))
+    with open(entry["recording"], "rb") as f:
+        content = f.read()
+    uploads = os.path.join(app.recordings, "uploads")
+    assert app.runs.open_upload("shared.rrd", content) is None
+    assert app.runs.open_upload("shared.rrd", content) is None  # another tab's file of the same name
+    assert "shared-2.rrd" in app.runs.message.content
+    assert {"shared.rrd", "shared-2.rrd"} <= set(os.listdir(uploads))
+    assert app.runs.open_upload(".rrd", content) is None  # was saved hidden, never listed
+    assert app.runs.open_upload("x" * 300 + ".rrd", content) is None  # was 'File name too long'
+    app.runs.refresh(force=True)
+    listed = [o for o in app.runs.choice.options if o.startswith("file: uploads/")]
+    assert "file: uploads/upload.rrd" in listed and f"file: uploads/{'x' * 100}.rrd" in listed
+    assert not any(f.startswith(".") for f in os.listdir(uploads))
+    app.runs.live()

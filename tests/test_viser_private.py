@@ -120,3 +120,94 @@ def test_viser_s_own_client_honours_the_websocket_parameter_and_keeps_it_on_relo
             assert list(server.queries.values())[-1] == {"token": "abc", "lesson": "two"}, page.url
         finally:
             browser.close()
+
+
+def stress(seconds: float, safe: bool, senders: int = 100, period: float = 0.02, stop_at_error: bool = False) -> dict:
+    """viser's message buffer with `senders` waiting consumers (one per tab, as on the broadcast
+    buffer) in an event loop's thread, and pushes from this thread every `period` s: the errors
+    the pushes raised, and whether every consumer got the last message (no lost wake-up)."""
+    import asyncio
+    import sys
+
+    from viser import _messages
+    from viser.infra._async_message_buffer import AsyncMessageBuffer
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # thread switches as often as possible: the race shows in seconds
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+
+    async def make():
+        b = AsyncMessageBuffer(loop, persistent_messages=True)
+        b.message_event = viser_private.LoopSafeEvent(loop) if safe else asyncio.Event()
+        return b
+
+    buf = asyncio.run_coroutine_threadsafe(make(), loop).result()
+    last: dict[int, float] = {}
+
+    async def consumer(k):
+        async for window in buf.window_generator(k):
+            last[k] = window[-1].position[2]
+
+    async def busy():  # the loop's thread is never idle (as with tabs dragging)
+        while True:
+            await asyncio.sleep(0)
+
+    tasks = [asyncio.run_coroutine_threadsafe(consumer(k), loop) for k in range(senders)]
+    tasks.append(asyncio.run_coroutine_threadsafe(busy(), loop))
+    errors, n = [], 0
+    try:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and not (stop_at_error and errors):
+            try:
+                buf.push(_messages.SetPositionMessage("/n", (0.0, 0.0, float(n))))
+            except RuntimeError as e:
+                errors.append(str(e))
+            n += 1
+            time.sleep(period)
+        sys.setswitchinterval(interval)
+        time.sleep(0.5)
+        got_last = sum(v == float(n - 1) for v in last.values())
+    finally:
+        sys.setswitchinterval(interval)
+        buf.set_done()  # the consumers end
+        for t in tasks[:-1]:
+            try:
+                t.result(5)
+            except Exception:  # noqa: BLE001 - a consumer that failed still ends
+                pass
+        tasks[-1].cancel()
+        time.sleep(0.05)
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(5)
+        loop.close()
+    return dict(pushes=n, errors=errors, got_last=got_last, senders=senders)
+
+
+def test_viser_alone_raises_when_a_thread_pushes_while_tabs_wait():
+    """The fault, with viser's own buffer and event (viser 1.1.1): if this fails, viser has fixed
+    it, and install_loop_safe_wakeups can go."""
+    r = stress(20.0, safe=False, stop_at_error=True)
+    assert r["errors"] and "deque mutated during iteration" in r["errors"][0], r
+
+
+def test_with_loop_safe_wakeups_no_push_raises_and_every_tab_gets_the_last_message():
+    r = stress(6.0, safe=True)
+    assert r["errors"] == [], r
+    assert r["got_last"] == r["senders"], r
+
+
+def test_install_makes_every_new_buffer_loop_safe():
+    viser_private.install_loop_safe_wakeups()
+    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        assert isinstance(s._websock_server._broadcast_buffer.message_event, viser_private.LoopSafeEvent)
+    finally:
+        s.stop()
+
+
+def test_the_private_api_for_guarding_uploads_is_still_there(server):
+    assert viser_private.upload_api_missing(server) == [], f"viser {viser.__version__} changed"
+    viser_private.guard_uploads(server, lambda *a: True, lambda *a: True)
+    assert viser_private.upload_api_missing(server) == [] and viser_private.buffered_uploads(server) == {}

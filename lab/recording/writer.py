@@ -32,6 +32,7 @@ import rerun as rr
 import robots
 
 from lab.recording import views
+from lab.recording.decimation import long_run
 from lab.recording.population import display_goal, mse_colors, population_logged, species_colors
 from lab.running.pipes import EventDecoder, claim_stdout, messages
 from lab.recording.logger import APPLICATION_ID, FORMAT_VERSION, compact
@@ -44,6 +45,20 @@ DISPLAY_INTERVAL = 0.1  # seconds between writes of the display-only series (log
 # a flush that has not reached the file in this long never will (Rerun's file sink thread died:
 # a full disk); healthy ones take milliseconds
 FLUSH_TIMEOUT = 15.0
+DISK_CHECK_INTERVAL = 1.0  # seconds between looks at the free space of the recording's filesystem
+RESERVE_MAX = 256 * 2**20  # bytes kept free: 2 % of the filesystem, at most this (LAB_RECORDING_RESERVE overrides)
+
+
+def reserve(path: str) -> int:
+    """Bytes the recording leaves free on its filesystem: when less is free, it stops, closed and readable."""
+    if os.environ.get("LAB_RECORDING_RESERVE"):
+        return int(os.environ["LAB_RECORDING_RESERVE"])
+    total = shutil.disk_usage(os.path.dirname(os.path.abspath(path))).total
+    return min(RESERVE_MAX, total // 50)
+
+
+class NearlyFull(Exception):
+    """The recording's filesystem has less free than its reserve: the file is closed and the recording stops."""
 
 
 class Writer:
@@ -65,23 +80,31 @@ class Writer:
         self._posed = (None, -(10**9))  # (controller, generation) of the last pose written
         self._search_keys: list | None = None  # the backend's numeric extras, in a fixed order
         self._last_event = None
+        self._last_written = None  # index of the last generation whose rows are written
         self._display: list = []  # events whose display-only series are not written yet
         self._display_sent = time.monotonic()
 
     def write(self, events: list) -> None:
         """Controllers first, then /mse: a file cut anywhere holds the controller of every generation
         whose /mse row it holds. The display-only series follow every DISPLAY_INTERVAL (fewer chunks:
-        each costs ~0.3 ms of CPU); no row of any series is ever dropped."""
+        each costs ~0.3 ms of CPU). Generations are logged by the rule lab.recording.decimation.long_run
+        (every one below 10,000; beyond, fewer per tenfold), the run's last one always (end())."""
+        if not events:
+            return
+        self._write_rows([e for e in events if long_run(e.index)])
+        self._last_event = events[-1]
+        self._write_pose(events[-1])
+        self._write_populations(events)
+
+    def _write_rows(self, events: list) -> None:
         if not events:
             return
         self._write_controllers(events)
         self._send_rows("mse", events, [_mse_row(e) for e in events])
         self._display += events
+        self._last_written = events[-1].index
         if time.monotonic() - self._display_sent >= DISPLAY_INTERVAL:
             self._write_display()
-        self._last_event = events[-1]
-        self._write_pose(events[-1])
-        self._write_populations(events)
 
     def _write_populations(self, events: list) -> None:
         """/world/population: each candidate's end-effector point at the display goal, coloured by its
@@ -105,10 +128,14 @@ class Writer:
             self._rec.log("population", rr.AnyValues(**values))
 
     def end(self, summary: dict | None) -> None:
-        """What is still pending (display series, the last pose), and the summary of a clean close."""
+        """What is still pending (the last generation, display series, the last pose), and the summary
+        of a clean close."""
+        last = self._last_event
+        if last is not None and self._last_written != last.index:
+            self._write_rows([last])
         self._write_display()
-        if self._last_event is not None:
-            self._write_pose(self._last_event, final=True)
+        if last is not None:
+            self._write_pose(last, final=True)
         if summary is not None:
             self._rec.log("summary", rr.TextDocument(json.dumps(summary, indent=1)), static=True)
 
@@ -206,6 +233,9 @@ def main() -> int:
     header = first[0][1]
     try:
         return _write(header, first, stream, ack)
+    except NearlyFull as e:  # closed with its footer: readable; not compacted (that needs room)
+        _tell(ack, b"E" + str(e).encode("utf-8", "replace"))
+        return 1
     except Exception as e:  # a full disk, a vanished folder: one line to the logger, no traceback
         _tell(ack, b"E" + _why(e, header["path"]).encode("utf-8", "replace"))
         # at once: Rerun's RecordingStream flushes, with no time limit, when it is dropped, and a
@@ -217,6 +247,8 @@ def _write(header: dict, first: list, stream, ack: int) -> int:
     writer = Writer(header)
     decode, summary, clean, batch = EventDecoder(header["run_id"]), None, False, first[1:]
     t0 = time.monotonic()
+    checked = -DISK_CHECK_INTERVAL  # the first batch is followed by a look at the free space
+    keep = reserve(header["path"])
     try:
         while batch is not None:  # None: end of input without "end" (the training process was killed)
             events = []
@@ -228,6 +260,13 @@ def _write(header: dict, first: list, stream, ack: int) -> int:
             writer.write(events)
             if clean:
                 break
+            if time.monotonic() - checked >= DISK_CHECK_INTERVAL:
+                checked = time.monotonic()
+                free = shutil.disk_usage(os.path.dirname(os.path.abspath(header["path"]))).free
+                if free < keep:
+                    writer.end(None)
+                    raise NearlyFull(f"the disk is nearly full ({free:,} bytes free on its filesystem, under the "
+                                     f"{keep:,} a recording leaves free); the file is closed")
             writer.flush()
             time.sleep(max(0.0, WRITE_INTERVAL - (time.monotonic() - t0)))  # what arrives meanwhile waits in the pipe
             t0 = time.monotonic()

@@ -33,6 +33,7 @@ import robots
 from lab.methods import Backend, Population, make_backend
 from lab.recording.population import display_goal, population_logged
 from lab.running.config import TrainConfig
+from lab.running.history import History
 from lab.problem.controllers import Controller
 from lab.problem.encoding import Encoding
 from lab.problem import Problem
@@ -73,7 +74,7 @@ class Snapshot:
     generation: int  # generations completed
     best: float
     controller: Controller | None
-    history: np.ndarray  # best MSE so far, per generation
+    history: np.ndarray  # best MSE so far, per generation (per kept generation if the runner's history is bounded)
 
 
 @dataclass(frozen=True)
@@ -109,16 +110,17 @@ class RunBase:
     the subclass's: Runner trains in a thread of this process, lab.running.worker.ProcessRunner in a process
     of its own; subscribers cannot tell them apart."""
 
-    def __init__(self, config: TrainConfig, problem: Problem | None = None):
+    def __init__(self, config: TrainConfig, problem: Problem | None = None, history_limit: int | None = None):
+        """history_limit: keep at most this many points of the best and median MSE history
+        (lab.running.history.History; None: every generation, as lab.evolve's run.history gives)."""
         self.config = config
         self.problem = problem or build_problem(config)
         self.run_id = uuid.uuid4().hex[:12]
         self._subscribers: list = []
         self._lock = threading.Lock()
         self._state = "idle"
-        self._history: list[float] = []
+        self._history = History(history_limit)  # best and median MSE per generation (bounded if asked)
         self._best: tuple[float, Controller | None] = (float("inf"), None)  # updated with the history
-        self._median: list[float] = []
         self._seconds = 0.0
         self._evaluations = 0
         self._summary: RunSummary | None = None
@@ -154,7 +156,7 @@ class RunBase:
 
     def snapshot(self) -> Snapshot:
         with self._lock:
-            return Snapshot(self._state, len(self._history), *self._best, np.array(self._history))
+            return Snapshot(self._state, len(self._history), *self._best, self._history.arrays()[1])
 
     # ------------------------------------------------------------------ for the subclasses
     def _claim(self) -> None:
@@ -175,8 +177,7 @@ class RunBase:
         """Record a generation, then hand it to every subscriber, in subscription order."""
         with self._lock:
             self._best = (event.best, event.controller)
-            self._history.append(event.best)
-            self._median.append(event.median)
+            self._history.append(event.best, event.median)
             self._seconds, self._evaluations = event.seconds, event.evaluations
             subscribers = list(self._subscribers)
         for callback in subscribers:
@@ -191,11 +192,12 @@ class RunBase:
         generation published, the final controller scored on the training and held-out goals."""
         p = self.problem
         with self._lock:
-            history, median = np.array(self._history), np.array(self._median)
+            _gens, history, median = self._history.arrays()
+            generations = len(self._history)
             seconds, evaluations = self._seconds, self._evaluations
         scored = controller is not None
         return RunSummary(
-            run_id=self.run_id, config=self.config, state=state, generations=len(history), evaluations=evaluations,
+            run_id=self.run_id, config=self.config, state=state, generations=generations, evaluations=evaluations,
             seconds=seconds, controller=controller,
             train_mse=p.controller_mse(controller) if scored else float("inf"),
             test_mse=p.controller_mse(controller, p.test_goals) if scored else float("inf"),
@@ -249,8 +251,9 @@ def speed_period(generations_per_second: float | None) -> float:
 
 
 class Runner(RunBase):
-    def __init__(self, config: TrainConfig, problem: Problem | None = None, blas_threads: int | None = 1):
-        super().__init__(config, problem)
+    def __init__(self, config: TrainConfig, problem: Problem | None = None, blas_threads: int | None = 1,
+                 history_limit: int | None = None):
+        super().__init__(config, problem, history_limit)
         self.backend: Backend = make_backend(self.problem, config)
         self.blas_threads = blas_threads
         self._wake = threading.Condition(self._lock)  # pause, resume, step, stop and speed changes

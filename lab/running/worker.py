@@ -46,8 +46,9 @@ class ProcessRunner(RunBase):
 
     backend = None
 
-    def __init__(self, config: TrainConfig, blas_threads: int | None = 1):
-        super().__init__(config)
+    def __init__(self, config: TrainConfig, blas_threads: int | None = 1, history_limit: int | None = None):
+        super().__init__(config, history_limit=history_limit)
+        self.history_limit = history_limit
         self.blas_threads = blas_threads
         self._proc: subprocess.Popen | None = None
         self._send_lock = threading.Lock()
@@ -64,7 +65,7 @@ class ProcessRunner(RunBase):
         """Hand the run to a worker process; returns at once."""
         self._claim()
         self._proc = _take_worker()
-        self._command("run", self.config, self.run_id, self.blas_threads)
+        self._command("run", self.config, self.run_id, self.blas_threads, self.history_limit)
         if self._speed is not None:
             self._command("speed", self._speed)
         if self._stop_asked:
@@ -183,9 +184,9 @@ def main(argv: list[str]) -> int:
     first = next(stream, None)
     if not first:
         return 0  # a spare whose parent ended without using it
-    (_, config, run_id, blas_threads), pending = first[0], first[1:]
-    try:
-        runner = Runner(config, blas_threads=blas_threads)
+    (_, config, run_id, blas_threads, *more), pending = first[0], first[1:]
+    try:  # the worker keeps the history its parent keeps (a bounded one: memory flat over long runs)
+        runner = Runner(config, blas_threads=blas_threads, history_limit=more[0] if more else None)
     except Exception as e:
         pipes.send(out, ("failed", f"{type(e).__name__}: {e}"))
         return 1

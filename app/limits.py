@@ -1,0 +1,54 @@
+"""What a shared server accepts: settings bounded by what one machine can serve a class with.
+
+The lab's own bounds (lab.running.config.LIMITS: population 10,000, hidden 256, 10^9 generations)
+keep one run within one machine; a run at those took 1.9-2.9 GiB and a whole core, about 2.4 s a
+generation. A server reachable beyond loopback (`--host 0.0.0.0`) accepts at most CLASSROOM
+instead, which every arm's and method's defaults fit (the real arms: 32 hidden units, 300 goals,
+40,000 generations); `python -m app --limit population=1000` raises one at start.
+"""
+
+from __future__ import annotations
+
+import lab.running.config as config_mod
+
+# name -> the TrainConfig field it bounds, and its classroom value
+CLASSROOM = {"population": 200, "hidden": 64, "goals": 1000, "generations": 100_000}
+FIELD = {"population": "population", "hidden": "hidden", "goals": "targets", "generations": "generations"}
+LAB = {"population": config_mod.LIMITS["population"], "hidden": config_mod.LIMITS["hidden"],
+       "goals": config_mod.LIMITS["goals"], "generations": 10**9}
+
+
+def parse_limit(text: str) -> tuple[str, int]:
+    """'population=1000' -> ('population', 1000); ValueError naming what is wrong."""
+    name, sep, value = text.partition("=")
+    name = name.strip()
+    if not sep or name not in CLASSROOM:
+        raise ValueError(f"--limit takes NAME=N with NAME one of {', '.join(CLASSROOM)}, got {text!r}")
+    try:
+        n = int(value)
+    except ValueError:
+        raise ValueError(f"--limit {name}: a whole number, got {value!r}") from None
+    if not 1 <= n <= LAB[name]:
+        raise ValueError(f"--limit {name}: must be in 1..{LAB[name]:,} (the lab's own bound), got {n:,}")
+    return name, n
+
+
+def limits_for(host_is_loopback: bool, raised: dict[str, int] | None = None) -> dict[str, int] | None:
+    """The bounds a server applies: None (the lab's own) on loopback unless some are given; beyond
+    loopback CLASSROOM with the given ones in place of its values."""
+    if host_is_loopback and not raised:
+        return None
+    return {**CLASSROOM, **(raised or {})}
+
+
+def refusal(config, limits: dict[str, int] | None) -> str | None:
+    """Why this server does not accept config (None: it does)."""
+    if not limits:
+        return None
+    for name, most in limits.items():
+        value = getattr(config, FIELD[name], None)
+        if value is not None and value > most:
+            label = "training goals" if name == "goals" else name
+            return (f"{label} must be at most {most:,} on this shared server, got {value:,} "
+                    f"(start it with --limit {name}=N to raise it)")
+    return None

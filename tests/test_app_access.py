@@ -1,0 +1,256 @@
+"""Presenter and viewers (app/access.py), tried as a hostile student would: with headless tabs
+(app/probe.py) on a server restricted by a presenter token, a viewer's Start, Stop, settings,
+robot and uploads change nothing; the presenter's do. Real browser tabs: tests/test_app_browser.py."""
+
+from __future__ import annotations
+
+import sqlite3
+import time
+
+import pytest
+from viser import _messages
+
+from app.access import REFUSED, Access, is_loopback
+from app.probe import Probe
+from app.server import LabApp
+
+pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
+TOKEN = "s3cret-Token_1"
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("access")
+    lab_app = LabApp(port=0, notebook=str(folder / "notebook.db"), recordings=str(folder / "rec"),
+                     presenter_token=TOKEN)
+    lab_app.panel.generations.value, lab_app.panel.population.value = 100_000, 10
+    yield lab_app
+    if lab_app.state.running:
+        lab_app.state.reset()
+    lab_app.stop()
+
+
+def tab_of(url):
+    probe = Probe(url).start()
+    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+    return probe
+
+
+@pytest.fixture
+def presenter(app):
+    ws = app.presenter_url.split("websocket=")[1]
+    import urllib.parse
+
+    probe = tab_of(urllib.parse.unquote(ws))
+    yield probe
+    probe.close()
+
+
+@pytest.fixture
+def viewer(app):
+    probe = tab_of(app.url)
+    yield probe
+    probe.close()
+
+
+def wait_until(predicate, timeout=20.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def gui_uuid(probe, label):
+    return probe.wait_for(lambda m: m["type"].startswith("Gui") and m.get("props", {}).get("label") == label)["uuid"]
+
+
+def refused(probe, since=0):
+    return probe.wait_for(lambda m: m["type"].startswith("Notification") and REFUSED in str(m), 10, since)
+
+
+def test_who_is_restricted():
+    assert not Access("127.0.0.1").restricted and Access("127.0.0.1").token is None
+    assert Access("127.0.0.1", "tok").restricted
+    a, b = Access("0.0.0.0"), Access("0.0.0.0")
+    assert a.restricted and a.token and a.token != b.token and len(a.token) >= 20
+    assert not Access("0.0.0.0", open=True).restricted
+    assert is_loopback("::1") and is_loopback("localhost") and not is_loopback("192.168.1.5")
+    assert TOKEN not in repr(Access("0.0.0.0", TOKEN))
+    with pytest.raises(ValueError):
+        Access("0.0.0.0", "a&b")
+
+
+def test_a_viewer_cannot_start_stop_or_change_settings_and_the_presenter_can(app, presenter, viewer):
+    assert wait_until(lambda: len(app.sessions) >= 2)
+    # the viewer is told, and sees the shared controls disabled in its own tab only
+    viewer.wait_for(lambda m: m["type"] == "GuiMarkdownMessage" and "Viewer" in str(m))
+    start_uuid = gui_uuid(viewer, "Start")
+    viewer.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == start_uuid
+                    and m["updates"].get("disabled") is True)
+    assert not any(m["type"] == "GuiUpdateMessage" and m["updates"].get("disabled") is True
+                   for _t, m in presenter.messages)
+    assert not any(m["type"] == "GuiMarkdownMessage" and "Viewer" in str(m) for _t, m in presenter.messages)
+
+    viewer.click("Start")
+    refused(viewer)
+    time.sleep(0.5)
+    assert not app.state.running
+
+    population = gui_uuid(viewer, "Population")
+    n = len(viewer.messages)
+    viewer.send(_messages.GuiUpdateMessage(uuid=population, updates={"value": 10_000.0}))
+    refused(viewer, n)
+    assert app.panel.population.value == 10  # never applied, never echoed
+    viewer.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == population
+                    and m["updates"].get("value") == 10, 10, n)  # its widget is put back
+    assert not any(m["type"] == "GuiUpdateMessage" and m.get("uuid") == population
+                   and m["updates"].get("value") == 10_000.0 for _t, m in presenter.messages)
+
+    robot = gui_uuid(viewer, "Robot")
+    viewer.send(_messages.GuiUpdateMessage(uuid=robot, updates={"value": "ur5"}))
+    time.sleep(0.5)
+    assert app.state.arm.name == "planar"
+
+    presenter.click("Start")
+    assert wait_until(lambda: app.state.progress()["generation"] >= 3)
+    for label in ("Pause", "Stop", "Reset"):
+        viewer.click(label)
+    time.sleep(1.0)
+    assert app.state.running and app.state.runner.state == "running"
+    presenter.click("Stop")
+    assert wait_until(lambda: not app.state.running)
+
+
+def test_a_viewer_cannot_upload(app, viewer):
+    button = viewer.wait_for(lambda m: m["type"] == "GuiUploadButtonMessage")["uuid"]
+    viewer.send(_messages.FileTransferStartUpload(source_component_uuid=button, transfer_uuid="v1", filename="x.rrd",
+                                                  mime_type="x", part_count=1, size_bytes=10))
+    refused(viewer)
+    from app import viser_private
+
+    assert viser_private.buffered_uploads(app.server) == {}
+
+
+def test_a_wrong_or_missing_token_is_a_viewer(app):
+    for url in (app.url + "/?token=wrong", app.url + "/?token=", app.url + f"/?token={TOKEN}x"):
+        probe = tab_of(url)
+        try:
+            probe.wait_for(lambda m: m["type"] == "GuiMarkdownMessage" and "Viewer" in str(m))
+        finally:
+            probe.close()
+
+
+def test_the_token_is_never_written_to_the_notebook_or_recordings(app, presenter):
+    presenter.click("Start")
+    assert wait_until(lambda: app.state.running and app.state.progress()["generation"] >= 3)
+    recording = app.state.recording
+    presenter.click("Stop")
+    assert wait_until(lambda: not app.state.running)
+    time.sleep(1.0)
+    con = sqlite3.connect(app.state.notebook.path)
+    dump = "\n".join(con.iterdump())
+    con.close()
+    assert "run" in dump.lower() and TOKEN not in dump
+    import os
+
+    assert recording and wait_until(lambda: os.path.exists(recording), 30)
+    assert TOKEN.encode() not in open(recording, "rb").read()
+
+
+def test_on_loopback_without_a_token_every_tab_is_a_presenter(tmp_path):
+    app = LabApp(port=0, notebook=str(tmp_path / "nb.db"), recordings=str(tmp_path / "rec"), record=False)
+    try:
+        assert not app.access.restricted and app.presenter_url == app.url
+        probe = tab_of(app.url)
+        try:
+            assert app.access.is_presenter(int(probe.owner("/tab/goal0/marker")))
+        finally:
+            probe.close()
+    finally:
+        app.stop()
+
+
+def test_python_m_app_beyond_loopback_prints_a_presenter_link_that_makes_a_presenter(tmp_path, capsys):
+    import signal
+    import subprocess
+    import sys
+    import urllib.parse
+
+    from app.__main__ import main
+
+    assert main(["--open", "--presenter-token", "x", "--port", "0"]) == 2
+    assert "contradict" in capsys.readouterr().err
+    assert main(["--presenter-token", "a b", "--port", "0"]) == 2
+    assert "--presenter-token" in capsys.readouterr().err
+    proc = subprocess.Popen([sys.executable, "-m", "app", "--host", "0.0.0.0", "--port", "0", "--no-record",
+                             "--notebook", str(tmp_path / "nb.db")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    try:
+        link = None
+        for line in proc.stdout:
+            if "presenter link on this machine:" in line:
+                link = line.rsplit(" ", 1)[-1].strip()
+                break
+        assert link and "websocket=" in link
+        ws = urllib.parse.unquote(link.split("websocket=")[1])
+        token = ws.split("token=")[1]
+        assert len(token) >= 20
+        for url, role in ((ws, "presenter"), (ws.split("?")[0], "viewer")):
+            probe = tab_of(url)
+            try:
+                time.sleep(1.5)
+                viewer_line = any(m["type"] == "GuiMarkdownMessage" and "Viewer" in str(m) for _t, m in probe.messages)
+                assert viewer_line == (role == "viewer"), role
+            finally:
+                probe.close()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(30)
+
+
+def test_a_viewer_replays_a_run_in_its_own_tab_only(app, presenter, viewer):
+    import numpy as np
+
+    from app.notebook import label
+    from lab.recording.replay import load_controller
+
+    if not any(e.get("recording") for e in app.state.notebook.entries()):  # a run with a recording
+        presenter.click("Start")
+        assert wait_until(lambda: app.state.running and app.state.progress()["generation"] >= 3)
+        presenter.click("Stop")
+        assert wait_until(lambda: not app.state.running)
+    viewer.wait_for(lambda m: m["type"] == "GuiFolderMessage" and m["props"]["label"] == "Replay (this tab)")
+    assert not any(m["type"] == "GuiFolderMessage" and m["props"]["label"] == "Replay (this tab)"
+                   for _t, m in presenter.messages)
+    entry = next(e for e in reversed(app.state.notebook.entries()) if e.get("recording"))
+    assert wait_until(lambda: __import__("os").path.exists(entry["recording"]), 30)
+    app.runs.refresh(force=True)
+    vid, pid = int(viewer.owner("/tab/goal0/marker")), int(presenter.owner("/tab/goal0/marker"))
+    assert wait_until(lambda: vid in app.sessions and pid in app.sessions)
+    mine, theirs = app.sessions[vid], app.sessions[pid]
+    shared = app.state.shown.version
+    assert mine.replay.open(label(entry)) is None
+    assert app.state.shown.version == shared and not app.state.replaying  # nobody else's view changed
+    assert "this tab" in mine.shown.source and theirs.shown is app.state.shown
+    goal = mine.goals[0].goal
+    mine.replay.slider.value = 2  # scrub to generation 2 (as the viewer's slider would)
+    expected = load_controller(entry["recording"], 1)
+    assert np.allclose(mine.controller()(goal[None]), expected(goal[None]))
+    mine.replay.live()
+    assert mine.shown is app.state.shown
+
+
+def test_a_viewer_cannot_open_a_public_share_tunnel(app, viewer, presenter, monkeypatch):
+    """viser's titlebar 'share' button asks the server for a public URL (a tunnel through
+    share.viser.studio): from a viewer, the request never reaches viser."""
+    asked = []
+    monkeypatch.setattr(app.server, "request_share_url", lambda *a, **k: asked.append(1))
+    monkeypatch.setattr(app.server, "disconnect_share_url", lambda *a, **k: asked.append(0))
+    viewer.send(_messages.ShareUrlRequest())
+    viewer.send(_messages.ShareUrlDisconnect())
+    time.sleep(1.0)
+    assert asked == []
+    presenter.send(_messages.ShareUrlRequest())  # the presenter may (the lab never asks by itself)
+    assert wait_until(lambda: asked == [1], 10)

@@ -1,0 +1,65 @@
+"""Bounded growth of the app over long runs: the MSE history the app and its runner keep is
+bounded (lab.running.history.History), spread over the whole run, with the latest generation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import lab
+from lab.running.history import History
+
+
+def test_an_unbounded_history_keeps_every_generation():
+    h = History()
+    for g in range(1000):
+        h.append(1.0 / (g + 1), 2.0 / (g + 1))
+    gens, best, median = h.arrays()
+    assert len(h) == 1000 and gens.tolist() == list(range(1000)) and best[-1] == 1 / 1000 and median[0] == 2
+
+
+@pytest.mark.parametrize("n", [1, 4095, 4096, 4097, 10_000, 1_000_003])
+def test_a_bounded_history_keeps_at_most_its_limit_spread_over_the_run_and_the_latest(n):
+    h = History(4096)
+    for g in range(n):
+        h.append(float(g), float(-g))
+    gens, best, median = h.arrays()
+    assert len(h) == n and len(gens) <= 4097
+    assert gens[0] == 0 and gens[-1] == n - 1 and best[-1] == n - 1 and median[-1] == -(n - 1)
+    assert np.all(np.diff(gens) > 0) and np.array_equal(best, gens.astype(float))
+    if n <= 4096:
+        assert gens.tolist() == list(range(n))
+    else:
+        assert len(gens) >= 2048  # never fewer than half the limit
+        assert np.diff(gens[:-1]).max() == h.stride  # evenly spread
+
+
+def test_the_apps_state_keeps_a_bounded_history_of_a_long_run():
+    from app.state import HISTORY_POINTS, LabState
+
+    state = LabState("planar")
+
+    class Fake:
+        run_id, config, state = "f" * 12, lab.TrainConfig.preset(robot="planar", generations=10**6), "running"
+
+    state.runner = fake = Fake()
+    for g in range(50_000):
+        state._on_generation(fake, lab.GenerationEvent(run_id="f", index=g, best=1.0 / (g + 1), gen_best=1.0, median=2.0, worst=3.0,
+                                                         evaluations=50 * (g + 1), seconds=0.001 * g, improved=False,
+                                                         controller=None))
+    p = state.progress()
+    assert p["generation"] == 50_000 and len(p["best"]) <= HISTORY_POINTS + 1
+    assert p["generations"][-1] == 50_000 and p["best"][-1] == pytest.approx(1 / 50_000)
+
+
+def test_a_process_runner_with_a_bounded_history_bounds_its_worker_s_too():
+    from lab.running.worker import ProcessRunner
+
+    config = lab.TrainConfig.preset(robot="planar", generations=600, population=6, targets=10, test_goals=10)
+    runner = ProcessRunner(config, history_limit=64)
+    summary = runner.run()
+    assert summary.state == "finished" and summary.generations == 600
+    assert len(summary.history) <= 65 and len(summary.median_history) == len(summary.history)
+    assert summary.history[-1] == pytest.approx(summary.train_mse, rel=1e-9)
+    snap = runner.snapshot()
+    assert snap.generation == 600 and len(snap.history) <= 65

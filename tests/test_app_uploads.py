@@ -1,0 +1,171 @@
+"""Uploads, tried as a hostile tab would (headless clients speaking viser's upload protocol):
+refused before viser buffers a byte when too large, dropped when the parts outgrow the declared
+size or stall, limited per tab and by the upload folder's cap; saved names never collide, are
+never hidden and never too long; the last file does not stay in the button's value."""
+
+from __future__ import annotations
+
+import os
+import time
+import uuid
+
+import pytest
+from viser import _messages
+
+from app import viser_private
+from app.probe import Probe
+from app.server import LabApp
+from app.uploads import UploadGuard, safe_name, save_upload
+
+pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
+MiB = 2**20
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("uploads")
+    lab_app = LabApp(port=0, notebook=str(folder / "notebook.db"), recordings=str(folder / "rec"), record=False)
+    yield lab_app
+    lab_app.stop()
+
+
+@pytest.fixture
+def tab(app):
+    probe = Probe(app.url).start()
+    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+    yield probe
+    probe.close()
+    app.runs.uploads._starts.clear()  # each test starts with a fresh rate budget
+
+
+def wait_until(predicate, timeout=20.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def start(tab, name, size, parts):
+    button = tab.wait_for(lambda m: m["type"] == "GuiUploadButtonMessage")["uuid"]
+    transfer = uuid.uuid4().hex
+    tab.send(_messages.FileTransferStartUpload(source_component_uuid=button, transfer_uuid=transfer, filename=name,
+                                               mime_type="application/octet-stream", part_count=parts, size_bytes=size))
+    return button, transfer
+
+
+def part(tab, button, transfer, index, content):
+    tab.send(_messages.FileTransferPart(source_component_uuid=button, transfer_uuid=transfer, part_index=index,
+                                        content=content))
+
+
+def notified(tab, text, timeout=10.0):
+    return tab.wait_for(lambda m: m["type"].startswith("Notification") and text in str(m), timeout)
+
+
+def test_a_too_large_upload_is_refused_before_viser_buffers_a_byte(app, tab):
+    button, transfer = start(tab, "big.rrd", 300 * MiB, 300)
+    notified(tab, "at most 200 MiB")
+    for k in range(3):
+        part(tab, button, transfer, k, b"R" * MiB)
+    time.sleep(0.3)
+    assert viser_private.buffered_uploads(app.server) == {}
+    assert app.runs.uploads.in_flight() == 0
+
+
+def test_parts_beyond_the_declared_size_drop_the_transfer(app, tab):
+    button, transfer = start(tab, "liar.rrd", MiB, 4)
+    part(tab, button, transfer, 0, b"R" * (MiB // 2))
+    assert wait_until(lambda: viser_private.buffered_uploads(app.server).get(transfer) == MiB // 2)
+    part(tab, button, transfer, 1, b"R" * MiB)  # more than the rest it declared
+    notified(tab, "more than the 1 MiB it declared")
+    assert wait_until(lambda: viser_private.buffered_uploads(app.server) == {})
+    part(tab, button, transfer, 2, b"R" * 100)  # later parts are ignored
+    time.sleep(0.2)
+    assert viser_private.buffered_uploads(app.server) == {} and app.runs.uploads.in_flight() == 0
+
+
+def test_a_stalled_upload_is_dropped_after_the_timeout(app, tab):
+    app.runs.uploads.idle_timeout = 0.5
+    try:
+        button, transfer = start(tab, "slow.rrd", 4 * MiB, 4)
+        part(tab, button, transfer, 0, b"R" * MiB)
+        assert wait_until(lambda: transfer in viser_private.buffered_uploads(app.server))
+        notified(tab, "stalled")  # the render loop sweeps once a second
+        assert viser_private.buffered_uploads(app.server) == {}
+        assert app.runs.uploads.in_flight() == 0
+    finally:
+        app.runs.uploads.idle_timeout = 30.0
+
+
+def test_one_upload_at_a_time_and_the_last_file_is_not_kept(app, tab):
+    button, first = start(tab, "a.rrd", 2 * MiB, 2)
+    part(tab, button, first, 0, b"R" * MiB)
+    assert wait_until(lambda: first in viser_private.buffered_uploads(app.server))
+    other = Probe(app.url).start()
+    try:
+        start(other, "b.rrd", MiB, 1)
+        notified(other, "another upload is under way")
+    finally:
+        other.close()
+    part(tab, button, first, 1, b"R" * MiB)  # complete: not a recording, refused by the app
+    notified(tab, "not a Rerun recording")
+    assert wait_until(lambda: app.runs.uploads.in_flight() == 0)
+    assert app.runs.upload.value.content == b""  # viser's copy of the file is let go
+    assert viser_private.buffered_uploads(app.server) == {}
+
+
+def test_a_viewer_is_refused_before_anything_is_buffered(app, tab):
+    guard = app.runs.uploads
+    allowed = guard.allowed
+    guard.allowed = lambda cid: "the presenter controls uploads"
+    try:
+        button, transfer = start(tab, "x.rrd", MiB, 1)
+        notified(tab, "the presenter controls uploads")
+        part(tab, button, transfer, 0, b"R" * MiB)
+        time.sleep(0.2)
+        assert viser_private.buffered_uploads(app.server) == {}
+    finally:
+        guard.allowed = allowed
+
+
+def test_a_tab_may_start_only_so_many_uploads_a_minute(tmp_path):
+    now = [0.0]
+    guard = UploadGuard(str(tmp_path), rate=(4, 60.0), clock=lambda: now[0])
+    for k in range(4):
+        assert guard.start(1, f"t{k}", "r.rrd", 10)
+        guard._active.clear()  # as if each had finished
+    assert "too many uploads" in guard.refusal(1, "r.rrd", 10, "t4")
+    assert guard.refusal(2, "r.rrd", 10, "u0") is None  # another tab has its own budget
+    guard._active.clear()
+    now[0] = 61.0
+    assert guard.refusal(1, "r.rrd", 10, "t5") is None
+
+
+def test_the_upload_folder_has_a_cap(tmp_path):
+    (tmp_path / "old.rrd").write_bytes(b"R" * 900)
+    guard = UploadGuard(str(tmp_path), folder_cap=1000)
+    assert "the upload folder is full" in guard.refusal(1, "new.rrd", 200, "t")
+    assert guard.refusal(1, "new.rrd", 100, "t") is None
+
+
+def test_saved_names_never_collide_are_never_hidden_and_never_too_long(tmp_path):
+    first = save_upload(str(tmp_path), "shared.rrd", b"one")
+    second = save_upload(str(tmp_path), "shared.rrd", b"two")
+    assert os.path.basename(first) == "shared.rrd" and os.path.basename(second) == "shared-2.rrd"
+    assert open(first, "rb").read() == b"one" and open(second, "rb").read() == b"two"
+    assert safe_name(".rrd") == "upload.rrd" and safe_name("..hidden.rrd") == "hidden.rrd"
+    assert safe_name("../../etc/x y.rrd") == "x_y.rrd"
+    long = save_upload(str(tmp_path), "a" * 300 + ".rrd", b"three")
+    assert len(os.path.basename(long)) == 104 and open(long, "rb").read() == b"three"
+    assert sorted(os.listdir(tmp_path)) == sorted(["shared.rrd", "shared-2.rrd", os.path.basename(long)])
+
+
+def test_a_file_that_fails_its_check_leaves_nothing(tmp_path):
+    def bad(path):
+        raise ValueError("not a recording")
+
+    with pytest.raises(ValueError):
+        save_upload(str(tmp_path), "x.rrd", b"RRF", check=bad)
+    assert os.listdir(tmp_path) == []
