@@ -348,10 +348,13 @@ def soak(app, seconds: float, tabs: int = 10, run_seconds: float = 20.0) -> None
     wt = np.array([t for t, _v in worker])
     ok = np.isfinite(w)
     wslope = np.polyfit(wt[ok] / 60, w[ok], 1)[0] if runs == 1 and ok.sum() > 2 else float("nan")
+    wh = wt[ok] >= wt[ok][-1] / 2 if ok.any() else ok  # its second half: after the worker's warm-up
+    wslope2 = np.polyfit(wt[ok][wh] / 60, w[ok][wh], 1)[0] if runs == 1 and wh.sum() > 2 else float("nan")
     print(f"soak: {runs} back-to-back runs ({generations:,} generations) in {seconds:.0f} s with {tabs} tabs (one dragging at 10 Hz), load average "
           f"{os.getloadavg()[0]:.1f}: memory {m[0]:.1f} -> {m[-1]:.1f} MB (max {m.max():.1f}); slope "
           f"{slope:+.2f} MB/min over the whole soak, {slope2:+.2f} MB/min over its second half"
-          + (f"; the run's worker process {w[ok][0]:.1f} -> {w[ok][-1]:.1f} MB, {wslope:+.2f} MB/min" if runs == 1 else ""))
+          + (f"; the run's worker process {w[ok][0]:.1f} -> {w[ok][-1]:.1f} MB, {wslope:+.2f} MB/min "
+             f"({wslope2:+.2f} over the second half)" if runs == 1 else ""))
 
 
 def pct(x, q) -> float:
