@@ -264,14 +264,14 @@ class TrainingPanel:
         self._build_curves(racing=partner is not None)
         self.watching.build_live()
         curves = [(p["best"], p["median"])] + ([partner.track.curves()] if partner is not None else [])
-        m = max(len(b) for b, _ in curves)
+        # a race is drawn up to the generation both runs have reached (uPlot has no gaps for NaN in
+        # a log scale: a shorter series padded with NaN dropped to the axis); the status says each's count
+        m = min(len(b) for b, _ in curves)
         idx = decimate(m)
         columns = [idx + 1.0]
         for best, median in curves:
             for values in (best, median):
-                padded = np.full(m, np.nan)
-                padded[:len(values)] = values
-                columns.append(np.maximum(np.nan_to_num(padded[idx], posinf=1e12, nan=np.nan), 1e-12))
+                columns.append(np.maximum(np.nan_to_num(values[idx], posinf=1e12, nan=1e12), 1e-12))
         self.plot.data = tuple(columns) if m else EMPTY_PLOT + ((np.full(2, np.nan),) * 2 if partner else ())
         best_s = f"{p['best'][-1]:.4g}" if n else "-"
         rec = f"  \nRecording: `{p['recording']}`" if p["recording"] else ""
