@@ -256,7 +256,7 @@ class TrainingPanel:
         n = p["generation"]
         partner = self.state.partner
         going = p["state"] == "running" or (partner is not None and partner.runner.state == "running")
-        self.watching.refresh_population()
+        self.watching.refresh_population(force)
         if n == self._shown_gen and not force and not going:
             return
         self._shown_gen = n
@@ -283,4 +283,4 @@ class TrainingPanel:
             status += "  \n" + lead_line(self.state.track, partner.track, run_label(self.state.runner.config),
                                           partner.label)
         self.status.content = status
-        self.watching.refresh_live()
+        self.watching.refresh_live(force)
