@@ -260,7 +260,7 @@ class TrainingPanel:
         n = p["generation"]
         partner = self.state.partner
         going = p["state"] == "running" or (partner is not None and partner.runner.state == "running")
-        self.watching.refresh_population()
+        self.watching.refresh_population(force)
         if n == self._shown_gen and not force and not going:
             return
         self._shown_gen = n
@@ -268,14 +268,16 @@ class TrainingPanel:
         self._build_curves(racing=partner is not None)
         self.watching.build_live()
         # the app keeps a bounded, thinned history per run (app/state.py, app/live.py): every series is
-        # sampled at one set of generations, up to the longest run's latest
+        # sampled at one set of generations; a race is drawn up to the generation both runs have reached
+        # (uPlot has no gaps for NaN in a log scale: a shorter series padded with NaN dropped to the
+        # axis); the status says each run's count
         runs = [(p["generations"] - 1, p["best"], p["median"])] + ([partner.track.curves()] if partner else [])
-        m = max((int(g[-1]) + 1 if len(g) else 0) for g, _, _ in runs)
+        m = min((int(g[-1]) + 1 if len(g) else 0) for g, _, _ in runs)
         at = decimate(m)
         columns = [at + 1.0]
         for gens, best, median in runs:
             for values in (best, median):
-                columns.append(np.maximum(np.nan_to_num(sample(gens, values, at), posinf=1e12, nan=np.nan), 1e-12))
+                columns.append(np.maximum(np.nan_to_num(sample(gens, values, at), posinf=1e12, nan=1e12), 1e-12))
         self.plot.data = tuple(columns) if m else EMPTY_PLOT + ((np.full(2, np.nan),) * 2 if partner else ())
         best_s = f"{p['best'][-1]:.4g}" if n else "-"
         rec = f"  \nRecording: `{p['recording']}`" if p["recording"] else ""
@@ -287,4 +289,4 @@ class TrainingPanel:
             status += "  \n" + lead_line(self.state.track, partner.track, run_label(self.state.runner.config),
                                           partner.label)
         self.status.content = status
-        self.watching.refresh_live()
+        self.watching.refresh_live(force)

@@ -46,8 +46,16 @@ class GoalExtras:
                 if h is not None:
                     h.visible = False
             return
-        self.cloud = scene.add_point_cloud(f"{base}/population", reach.astype(np.float32), colors,
-                                           point_size=0.015 * size, point_shape="circle", precision="float32")
+        points = np.ascontiguousarray(reach, dtype=np.float32)
+        colors = np.ascontiguousarray(colors, dtype=np.uint8)
+        if self.cloud is not None and len(np.asarray(self.cloud.points)) == len(points):
+            # the same node, new values: about 0.1 ms against 0.7 ms for adding it again
+            self.cloud.points, self.cloud.colors = points, colors
+            if not self.cloud.visible:
+                self.cloud.visible = True
+        else:
+            self.cloud = scene.add_point_cloud(f"{base}/population", points, colors, point_size=0.015 * size,
+                                               point_shape="circle", precision="float32")
         if faint:
             chain = self.tab.arm.joint_positions(q)  # (n, nq + 2, 3)
             segments = np.stack([chain[:, :-1], chain[:, 1:]], axis=2).reshape(-1, 2, 3)

@@ -5,6 +5,8 @@ settings. Read generically from the runs' RunTracks (app/live.py); nothing here 
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import viser
 import viser.uplot
@@ -15,6 +17,7 @@ from lab import methods
 from app.live import line_data, population_legend, stacked_svg
 from app.state import run_label
 
+LIVE_PERIOD = 1.0  # s: the legend, statistics and live plots change at most once a second (to every tab)
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
 EMPTY_LINE = (np.array([0.0, 1.0]), np.full(2, np.nan))
 
@@ -31,6 +34,7 @@ class Watching:
         self.live: list = []  # (LivePlot, its RunTrack or None, what shows it, its folder)
         self._live_for = None
         self._population_shown = None
+        self._population_at = self._live_at = -LIVE_PERIOD
         self.build_live()
 
     def lanes(self) -> list:
@@ -75,8 +79,13 @@ class Watching:
                             self.gui.add_markdown(plot.about)
                     self.live.append((plot, track, shown, folder))
 
-    def refresh_population(self) -> None:
-        """The population legend and the method's statistics (set only when they change)."""
+    def refresh_population(self, force: bool = False) -> None:
+        """The population legend and the method's statistics (set only when they change, at most
+        every LIVE_PERIOD: every tab gets each change of the shared panel)."""
+        now = time.monotonic()
+        if now - self._population_at < LIVE_PERIOD and not force:
+            return
+        self._population_at = now
         lanes = self.lanes()
         replayed = self.panel.state.replayed_population if self.panel.state.replaying else None
         if replayed is not None:
@@ -95,7 +104,12 @@ class Watching:
             self._population_shown = (legend, stats)
             self.legend.content, self.statistics.content = legend, stats
 
-    def refresh_live(self) -> None:
+    def refresh_live(self, force: bool = False) -> None:
+        """The live plots' data, at most every LIVE_PERIOD."""
+        now = time.monotonic()
+        if now - self._live_at < LIVE_PERIOD and not force:
+            return
+        self._live_at = now
         for plot, track, shown, _folder in self.live:
             if track is None:
                 continue

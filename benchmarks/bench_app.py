@@ -169,6 +169,7 @@ def with_app(app, clients: int, dragging: int, seconds: float, hz: float, popula
             work.append(flushed - start)
     app.state.stop()
     app.state.reset()
+    time.sleep(3.0)  # the next warm worker (lab.running.worker.prestart) imports and loads its kernels: not in the next round
     if app.state.recorder is not None:
         time.sleep(3.0)  # the recording's compaction (by its writer process), before the next round
     runner_cpu = meter.cores(t0, t1)

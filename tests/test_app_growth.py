@@ -63,3 +63,38 @@ def test_a_process_runner_with_a_bounded_history_bounds_its_worker_s_too():
     assert summary.history[-1] == pytest.approx(summary.train_mse, rel=1e-9)
     snap = runner.snapshot()
     assert snap.generation == 600 and len(snap.history) <= 65
+
+
+def test_a_run_track_keeps_bounded_series_and_a_race_compares_at_one_generation():
+    """A race's tracks (app/live.py RunTrack: best/median and the method's live-plot series, NEAT's
+    species dicts included) are bounded like the app's history; the lead line compares both runs'
+    best so far at the generation both have reached, read from the thinned step curves."""
+    from app.live import TRACK_POINTS, RunTrack, lead_line, sample
+
+    tracks = []
+    for method, n, scale in (("neat", 20_000, 1.0), ("cmaes", 9_000, 0.5)):
+        t = RunTrack(lab.methods.get(method))
+        for g in range(n):
+            extras = {"species_sizes": {1: 30, 2: 20}, "sigma": 0.1}
+            t.add(lab.GenerationEvent(run_id="r", index=g, best=scale / (g + 1), gen_best=1.0, median=2.0, worst=3.0,
+                                      evaluations=0, seconds=0.0, improved=False, controller=None, extras=extras))
+        tracks.append(t)
+    neat, cma = tracks
+    gens, best, _ = neat.curves()
+    assert len(neat) == 20_000 and len(gens) <= TRACK_POINTS + 1 and gens[-1] == 19_999
+    for key in neat.series:
+        g, values = neat.series_of(key)
+        assert len(g) <= TRACK_POINTS + 1 and g[-1] == 19_999 and values[-1] == {1: 30, 2: 20}
+    # the value at a generation between kept points is the latest kept one at or before it
+    assert sample(gens, best, [8_999])[0] >= 1.0 / 9_000
+    line = lead_line(neat, cma, "NEAT", "CMA-ES")
+    assert "generation 9000" in line and "CMA-ES leads" in line
+
+
+def test_populations_are_logged_on_generations_whose_rows_are_logged():
+    from lab.recording.decimation import long_run, population_logged
+
+    logged = [g for g in range(0, 3_000_000, 10) if population_logged(g)]
+    assert all(long_run(g) for g in logged)
+    assert sum(population_logged(g) for g in range(50_000)) == 100 + 4_990
+    assert not population_logged(100_010) and population_logged(100_100)

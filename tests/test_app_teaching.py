@@ -136,7 +136,7 @@ def test_the_population_is_drawn_at_each_tabs_own_goal(app, tab):
     set_field(tab, "GuiCheckboxMessage", "Population as faint arms", True)
     assert wait_until(lambda: session.goals[0].faint is not None and session.goals[0].faint.visible, 5)
     assert np.asarray(session.goals[0].faint.points).shape == (len(population) * (arm.nq + 1), 2, 3)
-    assert "log scale" in app.panel.legend.content
+    assert wait_until(lambda: "log scale" in app.panel.legend.content, 5)  # the legend changes at most once a second
 
 
 def test_a_race_runs_two_processes_on_the_same_goals_and_both_enter_the_notebook(app, tab):

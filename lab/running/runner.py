@@ -40,7 +40,7 @@ from lab.problem import Problem
 
 log = logging.getLogger(__name__)
 
-POPULATION_PERIOD = 0.1  # s: at most this often a population goes out with its controllers (live views)
+POPULATION_PERIOD = 0.2  # s: at most this often a population goes out with its controllers (the tabs redraw at 5 Hz)
 
 
 @dataclass(frozen=True)
