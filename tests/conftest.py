@@ -40,3 +40,21 @@ def keep_random_state():
     state = random.getstate()
     yield
     random.setstate(state)
+
+
+def make_app(folder, **kwargs):
+    """A LabApp on a free port with its notebook and recordings in `folder` (no recording unless
+    record=True is passed); the caller stops it."""
+    from app.server import LabApp
+
+    kwargs.setdefault("record", False)
+    return LabApp(port=0, notebook=str(Path(folder) / "notebook.db"), recordings=str(Path(folder) / "rec"), **kwargs)
+
+
+def open_tab(app):
+    """A headless tab (app.probe.Probe) connected to app, once its first goal's label has arrived."""
+    from app.probe import Probe
+
+    probe = Probe(app.url).start()
+    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+    return probe

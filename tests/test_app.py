@@ -24,6 +24,7 @@ from app.notebook import Notebook, NotebookError
 from app.probe import Probe
 from app.server import LabApp
 from app.startup import made_for
+from conftest import make_app, open_tab
 
 import lab
 import robots
@@ -34,16 +35,14 @@ pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connecti
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("app")
-    lab_app = LabApp(port=0, notebook=str(folder / "notebook.json"), recordings=str(folder / "rec"), record=False)
+    lab_app = make_app(tmp_path_factory.mktemp("app"))
     yield lab_app
     lab_app.stop()
 
 
 @pytest.fixture
 def tab(app):
-    probe = Probe(app.url).start()
-    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+    probe = open_tab(app)
     yield probe
     probe.close()
 

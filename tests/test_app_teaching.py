@@ -10,23 +10,21 @@ import pytest
 from viser import _messages
 
 from app.probe import Probe
-from app.server import LabApp
+from conftest import make_app, open_tab
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("teaching")
-    lab_app = LabApp(port=0, notebook=str(folder / "notebook.db"), recordings=str(folder / "rec"), record=False)
+    lab_app = make_app(tmp_path_factory.mktemp("teaching"))
     yield lab_app
     lab_app.stop()
 
 
 @pytest.fixture
 def tab(app):
-    probe = Probe(app.url).start()
-    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+    probe = open_tab(app)
     yield probe
     probe.close()
     app.state.reset()

@@ -14,7 +14,7 @@ from viser import _messages
 
 from app import viser_private
 from app.probe import Probe
-from app.server import LabApp
+from conftest import make_app, open_tab
 from app.uploads import UploadGuard, safe_name, save_upload
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
@@ -23,16 +23,14 @@ MiB = 2**20
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("uploads")
-    lab_app = LabApp(port=0, notebook=str(folder / "notebook.db"), recordings=str(folder / "rec"), record=False)
+    lab_app = make_app(tmp_path_factory.mktemp("uploads"))
     yield lab_app
     lab_app.stop()
 
 
 @pytest.fixture
 def tab(app):
-    probe = Probe(app.url).start()
-    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+    probe = open_tab(app)
     yield probe
     probe.close()
     app.runs.uploads._starts.clear()  # each test starts with a fresh rate budget
