@@ -1,6 +1,7 @@
 """Helpers shared by the test modules."""
 
 import random
+import shutil
 import time
 from pathlib import Path
 
@@ -10,6 +11,18 @@ import lab
 
 # every registered method: tests that hold for any method are parametrized over these
 METHODS = lab.methods.names()
+CHROMIUM = shutil.which("chromium")  # Debian's, for the real-browser tests
+NEEDS_CHROMIUM = pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (`make browser` installs it)")
+
+
+def wait_until(predicate, timeout: float = 30.0, step: float = 0.02) -> bool:
+    """Poll predicate() every `step` s until it is true (True) or `timeout` s have passed (False)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(step)
+    return False
 
 
 def process_ended(pid: int) -> bool:

@@ -24,7 +24,7 @@ from app.notebook import Notebook, NotebookError
 from app.probe import Probe
 from app.server import LabApp
 from app.startup import made_for
-from conftest import make_app, open_tab
+from conftest import make_app, open_tab, wait_until
 
 import lab
 import robots
@@ -46,14 +46,6 @@ def tab(app):
     yield probe
     probe.close()
 
-
-def wait_until(predicate, timeout=20.0, step=0.02):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(step)
-    return False
 
 
 def session_of(app, probe):

@@ -13,6 +13,7 @@ from viser import _messages
 from app.access import REFUSED, Access, is_loopback
 from app.probe import Probe
 from app.server import LabApp
+from conftest import wait_until
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 TOKEN = "s3cret-Token_1"
@@ -52,14 +53,6 @@ def viewer(app):
     yield probe
     probe.close()
 
-
-def wait_until(predicate, timeout=20.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 def gui_uuid(probe, label):

@@ -6,26 +6,17 @@ keeps both tabs' screenshots."""
 from __future__ import annotations
 
 import os
-import shutil
 import time
 
 import pytest
+from conftest import CHROMIUM, NEEDS_CHROMIUM, wait_until
 
-CHROMIUM = shutil.which("chromium")
 pytestmark = [
-    pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (`make browser` installs it)"),
+    NEEDS_CHROMIUM,
     pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection"),
 ]
 sync_api = pytest.importorskip("playwright.sync_api", reason="the playwright package is not installed")
 
-
-def wait_until(predicate, timeout=30.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return False
 
 
 def test_two_browser_tabs_a_presenter_and_a_viewer(tmp_path):

@@ -10,7 +10,7 @@ import pytest
 from viser import _messages
 
 from app.probe import Probe
-from conftest import make_app, open_tab
+from conftest import make_app, open_tab, wait_until
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 
@@ -31,14 +31,6 @@ def tab(app):
     app.panel.speed.value = "unlimited"
     app.panel.race.enabled.value = False
 
-
-def wait_until(predicate, timeout=30.0, step=0.02):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(step)
-    return False
 
 
 def settled(count, quiet=0.5, timeout=15.0) -> int:

@@ -14,7 +14,7 @@ from viser import _messages
 
 from app import viser_private
 from app.probe import Probe
-from conftest import make_app, open_tab
+from conftest import make_app, open_tab, wait_until
 from app.uploads import UploadGuard, safe_name, save_upload
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
@@ -35,14 +35,6 @@ def tab(app):
     probe.close()
     app.runs.uploads._starts.clear()  # each test starts with a fresh rate budget
 
-
-def wait_until(predicate, timeout=20.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 def start(tab, name, size, parts):

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import lab
-from conftest import METHODS
+from conftest import METHODS, wait_until as wait_for
 import robots
 from lab.methods.cmaes import CMAESBackend
 from lab.methods.neat import NEATBackend, compile_genomes, genome_program, genome_to_controller, program_hidden
@@ -435,14 +435,6 @@ def test_runners_in_threads_equal_sequential_runs(method):
 def long_runner(method="cmaes"):
     return lab.Runner(lab.TrainConfig(method=method, generations=100_000, population=20, targets=20, test_goals=20))
 
-
-def wait_for(pred, timeout=5.0):
-    t = time.monotonic()
-    while not pred():
-        if time.monotonic() - t > timeout:
-            return False
-        time.sleep(0.005)
-    return True
 
 
 def resume_then_stop(r, g0: int):

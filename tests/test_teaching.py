@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import lab
-from conftest import METHODS
+from conftest import METHODS, wait_until as wait_for
 from lab import methods
 from lab.recording.population import display_goal, population_logged
 from lab.running.runner import POPULATION_PERIOD
@@ -20,14 +20,6 @@ def config(method="cmaes", **changes):
     base = dict(method=method, generations=100_000, population=max(m.min_population, 20), targets=20, test_goals=20)
     return lab.TrainConfig(**{**base, **changes})
 
-
-def wait_for(pred, timeout=10.0):
-    t = time.monotonic()
-    while not pred():
-        if time.monotonic() - t > timeout:
-            return False
-        time.sleep(0.005)
-    return True
 
 
 def settled(count, quiet=0.4, timeout=10.0) -> int:
