@@ -188,6 +188,10 @@ class TabSession(TabExtras):
         self.own = None  # the tab's own replay (app.state.Shown), if any
         self.table_dirty = False
         self.last_ik = self.last_draw = self.last_population = 0.0
+        # redraws caused by training, at most every `period` s: the render loop lengthens it for a hall
+        # of viewers (LabApp: all viewer tabs together redraw at most HALL_REDRAWS times a second)
+        self.period = REDRAW_PERIOD
+        self.presenter = True
         self.population_drawn = None  # (population version, goals, toggles) last drawn
         self.partner_version = None
         self.build()
@@ -285,25 +289,30 @@ class TabSession(TabExtras):
                 self.request_ik()
                 self.write_table()
 
-    def refresh(self) -> None:
-        """Redraw every goal with the shown controller when it changed (at most every
-        REDRAW_PERIOD while training; at once for another arm); the table when stale; the
-        population and a race partner's arm (refresh_population)."""
+    def refresh(self) -> bool:
+        """Redraw every goal with the shown controller when it changed (at most every `period`
+        while training; at once for another arm); the table when stale; the population and a race
+        partner's arm (refresh_population). All in one frame to the tab (one atomic block). True
+        when it sent anything."""
+        with self.client.atomic():
+            return self._refresh()
+
+    def _refresh(self) -> bool:
         shown, now = self.shown, time.monotonic()
-        if shown.arm is self.arm:
-            self.refresh_population(now)
-        if now - self.last_draw < REDRAW_PERIOD and shown.arm is self.arm:
-            return
+        drew = self.refresh_population(now) if shown.arm is self.arm else False
+        if now - self.last_draw < self.period and shown.arm is self.arm:
+            return drew
         if shown.version == self.version:
             if self.table_dirty:
                 with self.lock:
                     self.table_dirty = False
                     self.write_table()
                 self.last_draw = now
-            return
+                return True
+            return drew
         with self.lock:
             if self.closed:
-                return
+                return drew
             if shown.arm is not self.arm:
                 self.build()
             self.version = shown.version
@@ -313,6 +322,7 @@ class TabSession(TabExtras):
             self.write_table(shown)
             self.table_dirty = False
         self.last_draw = now
+        return True
 
     def write_table(self, shown=None) -> None:
         shown, arm = shown or self.shown, self.arm

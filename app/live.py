@@ -28,10 +28,22 @@ PLOT_POINTS = 400  # the convergence and live plots are decimated to this many g
 TRACK_POINTS = 4096  # generations a RunTrack keeps of each series (then thinned)
 
 
+_last_colors: tuple = (None, None, None)  # (population, by_species, colors): every tab draws the same population
+
+
 def candidate_colors(population, by_species: bool) -> np.ndarray:
+    """(n, 3) uint8: each candidate's colour (by species, else by training MSE); computed once per
+    population for all the tabs that draw it."""
+    global _last_colors
+    last, how, colors = _last_colors
+    if last is population and how == by_species:
+        return colors
     if by_species and population.species is not None:
-        return species_colors(population.species)
-    return mse_colors(population.mse)
+        colors = species_colors(population.species)
+    else:
+        colors = mse_colors(population.mse)
+    _last_colors = (population, by_species, colors)
+    return colors
 
 
 def swatch(rgb, text: str) -> str:

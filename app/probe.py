@@ -36,17 +36,24 @@ def encode(message) -> bytes:
 
 
 class Probe:
-    def __init__(self, url: str, width: int = 1280, height: int = 800):
+    def __init__(self, url: str, width: int = 1280, height: int = 800, loop: asyncio.AbstractEventLoop | None = None):
+        """loop: an event loop running in another thread, shared by many probes (benchmarks: one
+        thread for a hall of tabs); by default the probe runs its own loop in its own thread."""
         self.url = url.replace("http://", "ws://").replace("https://", "wss://")
         self.size = (width, height)
         self.messages: list[tuple[float, dict]] = []  # (arrival time, message)
+        self.frames = 0  # frames received
+        self.decoding = True  # False (`drain`): frames are read and counted, not decoded nor kept
         self._cond = threading.Condition()
-        self._loop = asyncio.new_event_loop()
+        self._own = loop is None
+        self._loop = asyncio.new_event_loop() if loop is None else loop
         self._thread = threading.Thread(target=self._loop.run_forever, daemon=True, name="viser-probe")
         self._ws = None
+        self._closed = False
 
     def start(self, timeout: float = 20.0) -> "Probe":
-        self._thread.start()
+        if self._own:
+            self._thread.start()
         asyncio.run_coroutine_threadsafe(self._connect(), self._loop).result(timeout)
         return self
 
@@ -63,12 +70,23 @@ class Probe:
         try:
             async for raw in self._ws:
                 t = time.perf_counter()
+                self.frames += 1
+                if not self.decoding:
+                    continue
                 msgs = decode(raw)
                 with self._cond:
                     self.messages.extend((t, m) for m in msgs)
                     self._cond.notify_all()
         except Exception:  # closed
             pass
+
+    def drain(self) -> "Probe":
+        """From now on read the server's frames without decoding or keeping them: a tab that only
+        watches, as a browser on another machine would cost this one nothing (benchmarks)."""
+        self.decoding = False
+        with self._cond:
+            self.messages.clear()
+        return self
 
     def send(self, message) -> None:
         asyncio.run_coroutine_threadsafe(self._ws.send(encode(message)), self._loop).result(10)
@@ -112,9 +130,11 @@ class Probe:
 
     def close(self) -> None:
         """Close the socket (the server sees the tab go) and stop the client's loop; idempotent."""
-        if not self._loop.is_running():
+        if self._closed or not self._loop.is_running():
             return
+        self._closed = True
         if self._ws is not None:
             asyncio.run_coroutine_threadsafe(self._ws.close(), self._loop).result(10)
-        self._loop.call_soon_threadsafe(self._loop.stop)
-        self._thread.join(5)
+        if self._own:
+            self._loop.call_soon_threadsafe(self._loop.stop)
+            self._thread.join(5)

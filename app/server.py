@@ -15,6 +15,7 @@ and refreshes progress, plot, map and network.
 from __future__ import annotations
 
 import logging
+import math
 import sys
 import threading
 import time
@@ -29,7 +30,7 @@ import lab.running.worker as lab_worker
 
 from app.access import Access, is_loopback
 from app.limits import limits_for
-from app.goals import TabSession, fmt_len
+from app.goals import REDRAW_PERIOD, TabSession, fmt_len
 from app.lesson import apply_lesson, lesson_link, lesson_params
 from app.notebook import DEFAULT_PATH, Notebook
 from app.panels import TrainingPanel, notify
@@ -43,6 +44,15 @@ from app.viser_private import client_host, client_query, install_loop_safe_wakeu
 log = logging.getLogger(__name__)
 
 FPS = 30.0
+# A lecture hall: every viewer tab redraws the presenter's run (arms, population, table). Together
+# they redraw at most this many times a second (each in turn, a few a frame), so a tab's period
+# grows beyond REDRAW_PERIOD with the number of viewers (100 tabs: each once a second); a tab's own
+# drags move its arm at once, and presenter tabs keep REDRAW_PERIOD. See benchmarks/bench_app.py.
+HALL_REDRAWS = 100.0
+# The shared panel and views go to every tab (each tab's copy serialized and compressed on its own):
+# beyond HALL_TABS tabs their periods grow in proportion (100 tabs: the panel each second, the error
+# map and network every 4 s).
+HALL_TABS = 25
 PANEL_PERIOD = 0.25  # s: progress, plot and status
 VIEWS_PERIOD = 1.0  # s: error map and network drawing (each a few ms and a few kB per tab)
 # Python hands the GIL over every 5 ms by default: a marker callback waiting behind another thread
@@ -161,6 +171,7 @@ class LabApp:
             log.exception("cannot read the query of tab %s", client.client_id)
             query, host = {}, None
         session = TabSession(client, self.state, self.latency)
+        session.presenter = presenter
         session.page_url = f"http://{host}" if host else self.url
         # a viewer replays in its own tab (a presenter replays for every tab, in the Runs tab)
         session.replay = None if presenter else TabReplay(client, session, self.runs)
@@ -260,21 +271,22 @@ class LabApp:
 
     # ------------------------------------------------------------------ render loop
     def _loop(self) -> None:
-        """Tabs every frame (each redraws at most every REDRAW_PERIOD), the panel 4 times a
-        second, the error map, network and runs list once a second (at once after a change of arm)."""
-        period, last_panel, last_views = 1.0 / FPS, 0.0, 0.0
+        """Tabs every frame (each redraws at most every REDRAW_PERIOD; viewers within HALL_REDRAWS), the panel 4 times a
+        second, the error map, network and runs list once a second (at once after a change of arm);
+        those two less often with more than HALL_TABS tabs."""
+        period, last_panel, last_views, turn = 1.0 / FPS, 0.0, 0.0, 0
         while not self._stop.is_set():
             t0 = time.perf_counter()
             try:
                 with self._sessions_lock:
                     sessions = list(self.sessions.values())
-                for s in sessions:
-                    s.refresh()
-                if t0 - last_panel > PANEL_PERIOD:
+                turn = self._refresh_tabs(sessions, turn)
+                hall = max(1.0, len(sessions) / HALL_TABS)
+                if t0 - last_panel > PANEL_PERIOD * hall:
                     last_panel = t0
                     self.panel.refresh()
                     self.access.sync_viewers()
-                if t0 - last_views > VIEWS_PERIOD or self._drawn[1] is not self.state.arm:
+                if t0 - last_views > VIEWS_PERIOD * hall or self._drawn[1] is not self.state.arm:
                     last_views = t0
                     self._draw_views()
                     self.runs.refresh()
@@ -285,6 +297,28 @@ class LabApp:
             except Exception:  # the loop must survive anything one frame does
                 log.exception("render loop")
             self._stop.wait(max(0.0, period - (time.perf_counter() - t0)))
+
+    def _refresh_tabs(self, sessions: list, turn: int) -> int:
+        """Refresh every presenter tab, and viewer tabs in turn from `turn` until HALL_REDRAWS / FPS
+        of them have redrawn this frame; each viewer's period is stretched so that all of them
+        together stay within HALL_REDRAWS a second. Returns where the next frame's turn starts."""
+        viewers = [s for s in sessions if not s.presenter]
+        hall = max(REDRAW_PERIOD, len(viewers) / HALL_REDRAWS)
+        for s in sessions:
+            if s.presenter:
+                s.refresh()
+        if not viewers:
+            return 0
+        budget, n = max(1, math.ceil(HALL_REDRAWS / FPS)), len(viewers)
+        turn %= n
+        for k in range(n):
+            s = viewers[(turn + k) % n]
+            s.period = hall
+            if s.refresh():
+                budget -= 1
+                if budget == 0:
+                    return (turn + k + 1) % n
+        return turn
 
     def stop(self) -> None:
         self._stop.set()

@@ -80,35 +80,38 @@ class TabExtras:
         self.population_drawn = None
         self.last_population = 0.0
 
-    def refresh_population(self, now: float) -> None:
-        """Redraw the population clouds (at most every POPULATION_PERIOD) when the population, a goal
-        or a toggle changed; the race partner's arm when its controller changed."""
+    def refresh_population(self, now: float) -> bool:
+        """Redraw the population clouds (at most every POPULATION_PERIOD, or the tab's longer `period`)
+        when the population, a goal or a toggle changed; the race partner's arm when its controller
+        changed. True when it sent anything."""
         state = self.state
         partner = state.partner
+        drew = False
         with self.lock:
             if self.closed or not self.goals:
-                return
+                return drew
             g0 = self.goals[0]
             if partner is not None and partner.version != self.partner_version:
                 if g0.partner_view is None:
                     g0.partner_view = ArmView(self.client.scene, self.arm, "/tab/goal0/partner", opacity=0.6, tint=PARTNER)
                 self.partner_version = partner.version
                 g0.update_partner(self.partner_controller())
-                self.table_dirty = True
+                self.table_dirty = drew = True
             elif partner is None and g0.partner_view is not None and g0.partner_view.visible:
                 g0.update_partner(None)
-                self.partner_version = None
-            if now - self.last_population < POPULATION_PERIOD:
-                return
+                self.partner_version, drew = None, True
+            if now - self.last_population < max(POPULATION_PERIOD, self.period):
+                return drew
             track = state.track
             population = track.population if track is not None and not state.replaying else state.replayed_population
             goals = np.stack([g.goal for g in self.goals])
             key = (id(population), goals.tobytes(), self.show_population.value, self.faint_arms.value,
                    self.by_species.value)
             if key == self.population_drawn:
-                return
+                return drew
             self.population_drawn, self.last_population = key, now
             self._draw_population(population, goals)
+        return True
 
     def _draw_population(self, population, goals: np.ndarray) -> None:
         if population is None or not self.show_population.value or population.controllers is None \

@@ -98,3 +98,66 @@ def test_populations_are_logged_on_generations_whose_rows_are_logged():
     assert all(long_run(g) for g in logged)
     assert sum(population_logged(g) for g in range(50_000)) == 100 + 4_990
     assert not population_logged(100_010) and population_logged(100_100)
+
+
+class _Tab:
+    """A tab for the render loop's scheduler: redraws when its period has passed (frames of 1/FPS s)."""
+
+    def __init__(self, presenter: bool, clock: list):
+        from app.goals import REDRAW_PERIOD
+
+        self.presenter, self.clock, self.period, self.last, self.draws = presenter, clock, REDRAW_PERIOD, -1e9, []
+
+    def refresh(self) -> bool:
+        if self.clock[0] - self.last < self.period:
+            return False
+        self.last = self.clock[0]
+        self.draws.append(self.clock[0])
+        return True
+
+
+@pytest.mark.parametrize("viewers", [5, 100, 400])
+def test_a_hall_of_viewer_tabs_redraws_within_its_budget_each_tab_in_turn_and_presenters_at_full_rate(viewers):
+    from app.goals import REDRAW_PERIOD
+    from app.server import FPS, HALL_REDRAWS, LabApp
+
+    clock = [0.0]
+    tabs = [_Tab(True, clock)] + [_Tab(False, clock) for _ in range(viewers)]
+    frames, turn, per_frame = int(10 * FPS), 0, []
+    for f in range(frames):
+        clock[0] = f / FPS
+        before = sum(len(t.draws) for t in tabs[1:])
+        turn = LabApp._refresh_tabs(None, tabs, turn)
+        per_frame.append(sum(len(t.draws) for t in tabs[1:]) - before)
+    period = max(REDRAW_PERIOD, viewers / HALL_REDRAWS)
+    assert all(t.period == period for t in tabs[1:])
+    assert max(per_frame) <= np.ceil(HALL_REDRAWS / FPS)  # never a burst of every tab in one frame
+    assert sum(per_frame) <= HALL_REDRAWS * 10 + viewers  # all viewers together: the budget a second
+    # every viewer has its turn, about once a period; the presenter redraws every REDRAW_PERIOD
+    gaps = [np.diff(t.draws).max() for t in tabs[1:]]
+    assert min(len(t.draws) for t in tabs[1:]) >= 1 and max(gaps) <= period + 2 / FPS + 1e-9
+    assert len(tabs[0].draws) >= 10 / (REDRAW_PERIOD + 1 / FPS)
+
+
+def test_the_ik_thread_solves_a_hall_of_dragging_tabs_within_its_rate():
+    import time
+
+    from app.ikworker import IK_PERIOD, IK_RATE, IKWorker
+
+    class Tab:
+        def __init__(self):
+            self.last_ik, self.solves = 0.0, 0
+
+        def solve_ik(self):
+            self.last_ik = time.monotonic()
+            self.solves += 1
+
+    worker, tabs = IKWorker(), [Tab() for _ in range(40)]
+    end = time.monotonic() + 2.0
+    while time.monotonic() < end:  # 40 tabs dragging: every tab asks every 10 ms
+        for t in tabs:
+            worker.request(t)
+        time.sleep(0.01)
+    solves = sum(t.solves for t in tabs)
+    assert solves <= IK_RATE * 2.0 * 1.25 + len(tabs)  # 40 tabs would be 400 a second at IK_PERIOD
+    assert all(t.solves >= 2 for t in tabs) and 40 / IK_PERIOD > IK_RATE

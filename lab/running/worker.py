@@ -26,12 +26,17 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from itertools import chain
 
 
 from lab.running import pipes
 from lab.running.config import TrainConfig
 from lab.running.runner import RunBase, RunSummary, speed_period
+
+# s: the reader takes the worker's events in batches this far apart (hundreds of generations a second
+# would otherwise wake it, and take the GIL from the app's threads, hundreds of times a second)
+READ_PERIOD = 0.02
 
 log = logging.getLogger(__name__)
 
@@ -134,6 +139,7 @@ class ProcessRunner(RunBase):
                     summary = body
                 elif kind == "failed":
                     error = body
+            time.sleep(READ_PERIOD)  # the next read takes this while's events at once: not a wake-up per generation
         self._proc.stdin.close()
         self._proc.stdout.close()
         code = self._proc.wait()
