@@ -14,6 +14,7 @@ and refreshes progress, plot, map and network.
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import math
 import sys
@@ -53,6 +54,27 @@ HALL_REDRAWS = 100.0
 # beyond HALL_TABS tabs their periods grow in proportion (100 tabs: the panel each second, the error
 # map and network every 4 s).
 HALL_TABS = 25
+# glibc keeps memory that Python and numpy freed in its arenas (a run's events, populations, messages to
+# the tabs): a server up for a day of classes grew by about 1 MB a run (benchmarks/bench_app.py --soak),
+# flat once it hands that back, which it does this often
+TRIM_PERIOD = 30.0  # s
+
+
+def release_freed_memory() -> bool:
+    """Return the allocator's free memory to the system (glibc's malloc_trim; False where there is none)."""
+    global _malloc_trim
+    if _malloc_trim is None:
+        try:
+            _malloc_trim = ctypes.CDLL("libc.so.6").malloc_trim  # ctypes lets go of the GIL meanwhile
+        except (OSError, AttributeError):
+            _malloc_trim = False
+    if not _malloc_trim:
+        return False
+    _malloc_trim(0)
+    return True
+
+
+_malloc_trim = None
 PANEL_PERIOD = 0.25  # s: progress, plot and status
 VIEWS_PERIOD = 1.0  # s: error map and network drawing (each a few ms and a few kB per tab)
 # Python hands the GIL over every 5 ms by default: a marker callback waiting behind another thread
@@ -273,8 +295,9 @@ class LabApp:
     def _loop(self) -> None:
         """Tabs every frame (each redraws at most every REDRAW_PERIOD; viewers within HALL_REDRAWS), the panel 4 times a
         second, the error map, network and runs list once a second (at once after a change of arm);
-        those two less often with more than HALL_TABS tabs."""
-        period, last_panel, last_views, turn = 1.0 / FPS, 0.0, 0.0, 0
+        those two less often with more than HALL_TABS tabs; freed memory back to the system every
+        TRIM_PERIOD."""
+        period, last_panel, last_views, turn, last_trim = 1.0 / FPS, 0.0, 0.0, 0, time.perf_counter()
         while not self._stop.is_set():
             t0 = time.perf_counter()
             try:
@@ -294,26 +317,33 @@ class LabApp:
                     for s in sessions:
                         if getattr(s, "replay", None) is not None:
                             s.replay.sync()
+                if t0 - last_trim > TRIM_PERIOD:
+                    last_trim = t0
+                    release_freed_memory()
             except Exception:  # the loop must survive anything one frame does
                 log.exception("render loop")
             self._stop.wait(max(0.0, period - (time.perf_counter() - t0)))
 
     def _refresh_tabs(self, sessions: list, turn: int) -> int:
-        """Refresh every presenter tab, and viewer tabs in turn from `turn` until HALL_REDRAWS / FPS
-        of them have redrawn this frame; each viewer's period is stretched so that all of them
-        together stay within HALL_REDRAWS a second. Returns where the next frame's turn starts."""
-        viewers = [s for s in sessions if not s.presenter]
+        """Refresh every presenter tab of a restricted server (a classroom's), and the other tabs in
+        turn from `turn` until HALL_REDRAWS / FPS of them have redrawn this frame; their period is
+        stretched so that all of them together stay within HALL_REDRAWS a second (on a server where
+        every tab is a presenter, all tabs share that budget). Returns where the next frame's turn
+        starts."""
+        restricted = self.access.restricted
+        viewers = [s for s in sessions if not (s.presenter and restricted)]
         hall = max(REDRAW_PERIOD, len(viewers) / HALL_REDRAWS)
         for s in sessions:
-            if s.presenter:
+            if s.presenter and restricted:
                 s.refresh()
+        for s in viewers:
+            s.period = hall
         if not viewers:
             return 0
         budget, n = max(1, math.ceil(HALL_REDRAWS / FPS)), len(viewers)
         turn %= n
         for k in range(n):
             s = viewers[(turn + k) % n]
-            s.period = hall
             if s.refresh():
                 budget -= 1
                 if budget == 0:

@@ -35,7 +35,10 @@ tracebacks the server printed or logged (target: none).
     python benchmarks/bench_app.py --soak 300 --run-seconds 300   # one long run: the memory's slope
 
 The clients share the machine's cores with the server (a classroom's browsers would not), so
-both numbers are pessimistic. No Rerun recording in either case, unless --record: then both
+both numbers are pessimistic. To keep that cost small the tabs share one event loop (one thread),
+and the tabs that only watch read the server's frames without decoding them (app.probe.Probe.drain);
+the client process's CPU is reported over the drag window (connecting 100 tabs is not in it), and
+so are the frames a second the server sent to all tabs. No Rerun recording in either case, unless --record: then both
 record (headless with lab.recording.logger.RerunLogger, as `python -m lab train` does by default; the
 app with its recorder, as `make app` does).
 """

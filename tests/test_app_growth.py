@@ -121,13 +121,15 @@ def test_a_hall_of_viewer_tabs_redraws_within_its_budget_each_tab_in_turn_and_pr
     from app.goals import REDRAW_PERIOD
     from app.server import FPS, HALL_REDRAWS, LabApp
 
-    clock = [0.0]
+    from types import SimpleNamespace
+
+    clock, hall = [0.0], SimpleNamespace(access=SimpleNamespace(restricted=True))  # a classroom's server
     tabs = [_Tab(True, clock)] + [_Tab(False, clock) for _ in range(viewers)]
     frames, turn, per_frame = int(10 * FPS), 0, []
     for f in range(frames):
         clock[0] = f / FPS
         before = sum(len(t.draws) for t in tabs[1:])
-        turn = LabApp._refresh_tabs(None, tabs, turn)
+        turn = LabApp._refresh_tabs(hall, tabs, turn)
         per_frame.append(sum(len(t.draws) for t in tabs[1:]) - before)
     period = max(REDRAW_PERIOD, viewers / HALL_REDRAWS)
     assert all(t.period == period for t in tabs[1:])
@@ -161,3 +163,36 @@ def test_the_ik_thread_solves_a_hall_of_dragging_tabs_within_its_rate():
     solves = sum(t.solves for t in tabs)
     assert solves <= IK_RATE * 2.0 * 1.25 + len(tabs)  # 40 tabs would be 400 a second at IK_PERIOD
     assert all(t.solves >= 2 for t in tabs) and 40 / IK_PERIOD > IK_RATE
+
+
+def test_where_every_tab_is_a_presenter_all_tabs_share_the_hall_budget():
+    from types import SimpleNamespace
+
+    from app.server import HALL_REDRAWS, LabApp
+
+    clock, server = [0.0], SimpleNamespace(access=SimpleNamespace(restricted=False))  # loopback, no token
+    tabs = [_Tab(True, clock) for _ in range(200)]
+    LabApp._refresh_tabs(server, tabs, 0)
+    assert all(t.period == 200 / HALL_REDRAWS for t in tabs)
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as f:
+        import os
+
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+@pytest.mark.skipif(not __import__("os").path.exists("/proc/self/statm"), reason="reads /proc")
+def test_the_server_hands_memory_freed_between_live_blocks_back_to_the_system():
+    from app.server import release_freed_memory
+
+    if not release_freed_memory():
+        pytest.skip("no glibc malloc_trim here")
+    blocks = [np.ones(512) for _ in range(60_000)]  # 4 kB each, from malloc's heap: about 240 MB
+    keep = blocks[::20]
+    del blocks  # 95 % freed, in holes between the kept blocks: the heap's top is not free, nothing goes back
+    held = _rss_mb()
+    release_freed_memory()
+    assert _rss_mb() < held - 50, (held, _rss_mb())  # 80-180 MB seen
+    assert all(b[0] == 1.0 for b in keep)
