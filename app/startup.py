@@ -73,12 +73,15 @@ def startup_controller(robot: str = "planar"):
     return run.controller, f"trained at startup in {time.perf_counter() - t0:.1f} s (held-out MSE {run.test_mse:.3g})"
 
 
-def write_pretrained(run, held_out: dict | None = None) -> str:
-    """Write a run as the shipped controller of its arm and method; returns the path."""
+def write_pretrained(run, held_out: dict | None = None, selection: dict | None = None) -> str:
+    """Write a run as the shipped controller of its arm and method; returns the path. selection: how
+    it was picked among runs of several training seeds (benchmarks/bench_arms.py --seeds), if it was."""
     path = pretrained_path(run.config.robot, run.config.method)
     os.makedirs(PRETRAINED_DIR, exist_ok=True)
     doc = {"settings": run.config.to_dict(), "train_mse": run.train_mse, "test_mse": run.test_mse,
            "seconds": run.seconds, "held_out": held_out, "controller": run.controller.to_dict()}
+    if selection is not None:
+        doc["selection"] = selection
     tmp = f"{path}.tmp"
     with open(tmp, "w", encoding="utf-8") as f:
         json.dump(doc, f)

@@ -14,6 +14,14 @@ TRAC-IK, 99.2 % success on the UR5 at 0.37 ms per solve (full 6-D pose, Beeson a
     .venv/bin/python benchmarks/bench_arms.py --robots ur5,planar --write-pretrained
     .venv/bin/python benchmarks/bench_arms.py --from-pretrained        # measure the shipped controllers
     .venv/bin/python benchmarks/bench_arms.py --timing 1500            # seconds a default budget takes here
+    .venv/bin/python benchmarks/bench_arms.py --robots kinova --seeds 0,1 --write-pretrained   # best of 2 seeds
+
+--seeds 0,1,2 trains each arm once per seed and keeps the run whose refined success (then median
+error) is best on 2,000 *validation* goals (goal seed VALIDATION: other random joint vectors than the
+held-out goals, which only measure the kept run); each candidate's validation figures are printed, and
+--write-pretrained records the selection in the shipped file. A network's tail, and so the refinement,
+depends on where training happened to cut the workspace between IK branches: on the Kinova seed 0
+refines 87.1 % of held-out goals within 3 steps, seed 1 99.45 %.
 
 --timing N runs N generations of each arm's defaults with the fitness on one thread and on
 LAB_THREADS (default: the cores, at most 4), interleaved, and prints seconds per generation and the
@@ -32,11 +40,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
+import numpy as np  # noqa: E402
+
 import lab  # noqa: E402
 import robots  # noqa: E402
 from lab.experiments import arms  # noqa: E402
 
 REAL = tuple(n for n in robots.names() if robots.kind(n) == "real")
+VALIDATION = 1  # goal seed of the validation goals that pick among training seeds (held-out goals: 0)
 # the defaults every arm had before the real-arm defaults (commit 6712b02): the paper arms' settings
 BEFORE = dict(generations=1000, population=50, targets=70, hidden=5, margin=2.0, features="reach", sigma0=0.2,
               separable=False, diagonal=100)
@@ -77,10 +88,34 @@ def timing(names: list[str], generations: int, seed: int) -> None:
             os.environ[THREADS_VAR] = saved
 
 
+def best_of(name: str, seeds: list[int]) -> tuple:
+    """lab.evolve(name, seed=s) for each seed; the run with the best (refined success, -median error)
+    on the validation goals, and the selection's record (None for a single seed)."""
+    if len(seeds) == 1:
+        return lab.evolve(name, seed=seeds[0]), None
+    arm = robots.load(name)
+    goals = arms.held_out_goals(arm, goal_seed=VALIDATION)
+    best, tried = None, []
+    for seed in seeds:
+        run = lab.evolve(name, seed=seed)
+        ref = arms.refined(arm, run.controller, goals)
+        median = float(np.median(arms.position_errors(arm, run.controller, goals)))
+        tried.append({"seed": seed, "refined_success": ref["success"], "median": median, "seconds": run.seconds})
+        print(f"  {name} seed {seed}: validation refined {100 * ref['success']:.2f} %, median "
+              f"{median * (1000 if robots.in_metres(name) else 1):.2f} {'mm' if robots.in_metres(name) else ''}, "
+              f"{run.seconds:.0f} s", flush=True)
+        if best is None or (ref["success"], -median) > best[0]:
+            best = ((ref["success"], -median), run)
+    return best[1], {"validation_goal_seed": VALIDATION, "validation_goals": len(goals), "tried": tried,
+                     "kept": best[1].config.seed}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robots", default=",".join(REAL), help=f"comma-separated (default: {','.join(REAL)})")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seeds", default=None,
+                    help="comma-separated training seeds: keep the run best on the validation goals (default: --seed)")
     ap.add_argument("--dls-goals", type=int, default=500, help="held-out goals DLS is timed on (default 500)")
     ap.add_argument("--write-pretrained", action="store_true",
                     help="also write each run as the app's shipped controller (app/pretrained/)")
@@ -113,12 +148,13 @@ def main() -> None:
                 doc = json.load(f)
             controller, settings, seconds = lab.controller_from_dict(doc["controller"]), doc["settings"], doc["seconds"]
         else:
-            run = lab.evolve(name, seed=args.seed)
+            seeds = [int(x) for x in args.seeds.split(",")] if args.seeds else [args.seed]
+            run, selection = best_of(name, seeds)
             controller, settings, seconds = run.controller, run.config.to_dict(), run.seconds
             if args.write_pretrained:
                 from app.startup import write_pretrained
 
-                print("  wrote", write_pretrained(run, arms.held_out(robots.load(name), controller)))
+                print("  wrote", write_pretrained(run, arms.held_out(robots.load(name), controller), selection))
         stats, ref, dls = measure(name, controller, args.dls_goals)
         rows.append((name, settings, seconds, stats, ref, dls))
         need = next((k + 1 for k, v in enumerate(ref["by_steps"]) if v >= 0.99), None)
