@@ -71,3 +71,20 @@ def open_tab(app):
     probe = Probe(app.url).start()
     probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
     return probe
+
+
+@pytest.fixture(scope="module")
+def app(request, tmp_path_factory):
+    """A LabApp for the test module (make_app's defaults); a module that needs other arguments
+    defines its own `app`."""
+    lab_app = make_app(tmp_path_factory.mktemp(request.module.__name__.rsplit(".", 1)[-1]))
+    yield lab_app
+    lab_app.stop()
+
+
+@pytest.fixture
+def tab(app):
+    """A headless tab of the module's app, closed after the test (a module may extend it)."""
+    probe = open_tab(app)
+    yield probe
+    probe.close()

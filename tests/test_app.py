@@ -24,27 +24,13 @@ from app.notebook import Notebook, NotebookError
 from app.probe import Probe
 from app.server import LabApp
 from app.startup import made_for
-from conftest import make_app, open_tab, wait_until
+from conftest import wait_until
 
 import lab
 import robots
 
 # the render loop may redraw a tab in the instant between its socket closing and its session ending
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
-
-
-@pytest.fixture(scope="module")
-def app(tmp_path_factory):
-    lab_app = make_app(tmp_path_factory.mktemp("app"))
-    yield lab_app
-    lab_app.stop()
-
-
-@pytest.fixture
-def tab(app):
-    probe = open_tab(app)
-    yield probe
-    probe.close()
 
 
 

@@ -10,23 +10,14 @@ import pytest
 from viser import _messages
 
 from app.probe import Probe
-from conftest import make_app, open_tab, wait_until
+from conftest import wait_until
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 
 
-@pytest.fixture(scope="module")
-def app(tmp_path_factory):
-    lab_app = make_app(tmp_path_factory.mktemp("teaching"))
-    yield lab_app
-    lab_app.stop()
-
-
 @pytest.fixture
-def tab(app):
-    probe = open_tab(app)
-    yield probe
-    probe.close()
+def tab(tab, app):  # conftest's tab and app
+    yield tab
     app.state.reset()
     app.panel.speed.value = "unlimited"
     app.panel.race.enabled.value = False

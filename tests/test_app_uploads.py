@@ -14,25 +14,16 @@ from viser import _messages
 
 from app import viser_private
 from app.probe import Probe
-from conftest import make_app, open_tab, wait_until
+from conftest import wait_until
 from app.uploads import UploadGuard, safe_name, save_upload
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 MiB = 2**20
 
 
-@pytest.fixture(scope="module")
-def app(tmp_path_factory):
-    lab_app = make_app(tmp_path_factory.mktemp("uploads"))
-    yield lab_app
-    lab_app.stop()
-
-
 @pytest.fixture
-def tab(app):
-    probe = open_tab(app)
-    yield probe
-    probe.close()
+def tab(tab, app):  # conftest's tab and app
+    yield tab
     app.runs.uploads._starts.clear()  # each test starts with a fresh rate budget
 
 
