@@ -13,8 +13,10 @@ TRAC-IK, 99.2 % success on the UR5 at 0.37 ms per solve (full 6-D pose, Beeson a
     .venv/bin/python benchmarks/bench_arms.py                          # the 8 real arms (about 40 min)
     .venv/bin/python benchmarks/bench_arms.py --robots ur5,planar --write-pretrained
     .venv/bin/python benchmarks/bench_arms.py --from-pretrained        # measure the shipped controllers
+    .venv/bin/python benchmarks/bench_arms.py --from-pretrained --robots so101 --failures   # where it fails
     .venv/bin/python benchmarks/bench_arms.py --timing 1500            # seconds a default budget takes here
     .venv/bin/python benchmarks/bench_arms.py --robots kinova --seeds 0,1 --write-pretrained   # best of 2 seeds
+    .venv/bin/python benchmarks/bench_arms.py --robots ur5 --seeds 0,1,2 --reuse-shipped --write-pretrained
 
 --seeds 0,1,2 trains each arm once per seed and keeps the run whose refined success (then median
 error) is best on 2,000 *validation* goals (goal seed VALIDATION: other random joint vectors than the
@@ -60,6 +62,21 @@ def measure(name: str, controller, dls_goals: int) -> tuple:
             arms.dls_from_rest(arm, goals[:dls_goals]))
 
 
+def failure_sectors(name: str, errors: np.ndarray) -> str:
+    """Where the refinement fails: the held-out goals' azimuth atan2(y, x) in 30-degree sectors from
+    -180 degrees, failures / goals per sector (errors: the refined error of each held-out goal)."""
+    arm = robots.load(name)
+    goals = arms.held_out_goals(arm)
+    if goals.shape[1] < 2:
+        return f"{name}: no azimuth (one task axis)"
+    phi = np.degrees(np.arctan2(goals[:, 1], goals[:, 0]))
+    edges = np.arange(-180, 181, 30)
+    fail = errors >= arms.tolerance(arm)
+    per = np.histogram(phi[fail], edges)[0], np.histogram(phi, edges)[0]
+    return (f"{name}: refinement failures by goal azimuth, 30-degree sectors from -180: "
+            + " ".join(f"{f}/{n}" for f, n in zip(*per)))
+
+
 def timing(names: list[str], generations: int, seed: int) -> None:
     from lab.problem.fitness import THREADS_VAR, default_threads
 
@@ -88,16 +105,41 @@ def timing(names: list[str], generations: int, seed: int) -> None:
             os.environ[THREADS_VAR] = saved
 
 
-def best_of(name: str, seeds: list[int]) -> tuple:
+def shipped_run(name: str, seed: int):
+    """The shipped controller of `name` as a lab Run, when it is the run lab.evolve(name, seed=seed)
+    would make (its recorded settings are that call's; the same seed gives the same run), else None."""
+    import json
+
+    from app.startup import pretrained_path
+
+    try:
+        with open(pretrained_path(name), encoding="utf-8") as f:
+            doc = json.load(f)
+    except OSError:
+        return None
+    config = lab.TrainConfig.preset(robot=name, seed=seed)
+    if doc.get("settings") != config.to_dict():
+        return None
+    controller = lab.controller_from_dict(doc["controller"])
+    return lab.Run(config, controller, doc["train_mse"], doc["test_mse"], np.array([]), np.array([]),
+                   controller.n_params, doc["seconds"], 0, "finished", "shipped")
+
+
+def best_of(name: str, seeds: list[int], reuse: bool = False) -> tuple:
     """lab.evolve(name, seed=s) for each seed; the run with the best (refined success, -median error)
-    on the validation goals, and the selection's record (None for a single seed)."""
+    on the validation goals, and the selection's record (None for a single seed). reuse: a seed whose
+    run is the shipped controller (shipped_run) is taken from its file instead of trained again."""
     if len(seeds) == 1:
         return lab.evolve(name, seed=seeds[0]), None
     arm = robots.load(name)
     goals = arms.held_out_goals(arm, goal_seed=VALIDATION)
     best, tried = None, []
     for seed in seeds:
-        run = lab.evolve(name, seed=seed)
+        run = shipped_run(name, seed) if reuse else None
+        if run is None:
+            run = lab.evolve(name, seed=seed)
+        else:
+            print(f"  {name} seed {seed}: the shipped controller is this seed's run (same settings): not retrained")
         ref = arms.refined(arm, run.controller, goals)
         median = float(np.median(arms.position_errors(arm, run.controller, goals)))
         tried.append({"seed": seed, "refined_success": ref["success"], "median": median, "seconds": run.seconds})
@@ -116,6 +158,11 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--seeds", default=None,
                     help="comma-separated training seeds: keep the run best on the validation goals (default: --seed)")
+    ap.add_argument("--reuse-shipped", action="store_true",
+                    help="with --seeds: take a seed's run from the shipped file when that file is its run (same "
+                         "settings), instead of training it again")
+    ap.add_argument("--failures", action="store_true",
+                    help="also print where the refinement fails: failures per 30-degree sector of goal azimuth")
     ap.add_argument("--dls-goals", type=int, default=500, help="held-out goals DLS is timed on (default 500)")
     ap.add_argument("--write-pretrained", action="store_true",
                     help="also write each run as the app's shipped controller (app/pretrained/)")
@@ -149,7 +196,7 @@ def main() -> None:
             controller, settings, seconds = lab.controller_from_dict(doc["controller"]), doc["settings"], doc["seconds"]
         else:
             seeds = [int(x) for x in args.seeds.split(",")] if args.seeds else [args.seed]
-            run, selection = best_of(name, seeds)
+            run, selection = best_of(name, seeds, args.reuse_shipped)
             controller, settings, seconds = run.controller, run.config.to_dict(), run.seconds
             if args.write_pretrained:
                 from app.startup import write_pretrained
@@ -157,6 +204,8 @@ def main() -> None:
                 print("  wrote", write_pretrained(run, arms.held_out(robots.load(name), controller), selection))
         stats, ref, dls = measure(name, controller, args.dls_goals)
         rows.append((name, settings, seconds, stats, ref, dls))
+        if args.failures:
+            print(failure_sectors(name, ref["errors"]), flush=True)
         need = next((k + 1 for k, v in enumerate(ref["by_steps"]) if v >= 0.99), None)
         print(f"{name}: {settings['method']} hidden {settings['hidden']}, {settings['targets']} goals, "
               f"{settings['generations']} x {settings['population']}, {seconds:.0f} s; median {stats['median']:.1f} "
