@@ -43,8 +43,11 @@ def made_for(controller, arm: robots.Arm) -> bool:
     """Whether a controller was made for this arm: its goals are the arm's task coordinates and
     its outputs the arm's joints, within the arm's limits."""
     enc = getattr(controller, "encoding", None)
-    return (enc is not None and tuple(enc.task_axes) == tuple(arm.task_axes) and len(enc.q_lo) == arm.nq
+    fits = (enc is not None and tuple(enc.task_axes) == tuple(arm.task_axes) and len(enc.q_lo) == arm.nq
             and bool(np.allclose(enc.q_lo, arm.lower)) and bool(np.allclose(enc.q_hi, arm.upper)))
+    chain = getattr(controller, "chain", None)  # a multi-head MLP picks its head by this arm's kinematics
+    return fits and (chain is None or all(np.shape(a) == np.shape(b) and np.allclose(a, b)
+                                          for a, b in zip(chain, arm.chain.arrays)))
 
 
 def load_pretrained(robot: str):

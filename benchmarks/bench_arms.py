@@ -77,6 +77,19 @@ def failure_sectors(name: str, errors: np.ndarray) -> str:
             + " ".join(f"{f}/{n}" for f, n in zip(*per)))
 
 
+def parse_setting(text: str) -> tuple:
+    """'heads=2' -> ('heads', 2): an int, else a float, else true/false, else the string."""
+    name, sep, raw = text.partition("=")
+    if not sep or not name:
+        raise SystemExit(f"--set wants NAME=VALUE, got {text!r}")
+    for cast in (int, float):
+        try:
+            return name, cast(raw)
+        except ValueError:
+            pass
+    return name, {"true": True, "false": False}.get(raw.lower(), raw)
+
+
 def timing(names: list[str], generations: int, seed: int) -> None:
     from lab.problem.fitness import THREADS_VAR, default_threads
 
@@ -125,19 +138,21 @@ def shipped_run(name: str, seed: int):
                    controller.n_params, doc["seconds"], 0, "finished", "shipped")
 
 
-def best_of(name: str, seeds: list[int], reuse: bool = False) -> tuple:
+def best_of(name: str, seeds: list[int], reuse: bool = False, settings: dict | None = None) -> tuple:
     """lab.evolve(name, seed=s) for each seed; the run with the best (refined success, -median error)
     on the validation goals, and the selection's record (None for a single seed). reuse: a seed whose
-    run is the shipped controller (shipped_run) is taken from its file instead of trained again."""
+    run is the shipped controller (shipped_run) is taken from its file instead of trained again.
+    settings: given to lab.evolve beside the seed (--set), e.g. {"heads": 2}."""
+    settings = settings or {}
     if len(seeds) == 1:
-        return lab.evolve(name, seed=seeds[0]), None
+        return lab.evolve(name, seed=seeds[0], **settings), None
     arm = robots.load(name)
     goals = arms.held_out_goals(arm, goal_seed=VALIDATION)
     best, tried = None, []
     for seed in seeds:
-        run = shipped_run(name, seed) if reuse else None
+        run = shipped_run(name, seed) if reuse and not settings else None
         if run is None:
-            run = lab.evolve(name, seed=seed)
+            run = lab.evolve(name, seed=seed, **settings)
         else:
             print(f"  {name} seed {seed}: the shipped controller is this seed's run (same settings): not retrained")
         ref = arms.refined(arm, run.controller, goals)
@@ -161,6 +176,9 @@ def main() -> None:
     ap.add_argument("--reuse-shipped", action="store_true",
                     help="with --seeds: take a seed's run from the shipped file when that file is its run (same "
                          "settings), instead of training it again")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="a training setting other than the arm's default, e.g. --set heads=2 --set generations=30000 "
+                         "(repeatable; TrainConfig fields and the method's options)")
     ap.add_argument("--failures", action="store_true",
                     help="also print where the refinement fails: failures per 30-degree sector of goal azimuth")
     ap.add_argument("--dls-goals", type=int, default=500, help="held-out goals DLS is timed on (default 500)")
@@ -196,7 +214,7 @@ def main() -> None:
             controller, settings, seconds = lab.controller_from_dict(doc["controller"]), doc["settings"], doc["seconds"]
         else:
             seeds = [int(x) for x in args.seeds.split(",")] if args.seeds else [args.seed]
-            run, selection = best_of(name, seeds, args.reuse_shipped)
+            run, selection = best_of(name, seeds, args.reuse_shipped, dict(parse_setting(x) for x in args.set))
             controller, settings, seconds = run.controller, run.config.to_dict(), run.seconds
             if args.write_pretrained:
                 from app.startup import write_pretrained

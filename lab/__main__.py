@@ -57,6 +57,9 @@ def _train_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--paper", action="store_true", help="the paper's method literally (lab.running.config.PAPER_PRESET)")
     p.add_argument("--hidden", type=int, default=None, help="MLP hidden units; graph methods: initial hidden nodes")
+    p.add_argument("--heads", type=int, default=None,
+                   help="MLP output heads, each a joint-value proposal; the one closest to the goal answers "
+                        "(default: the method's for the arm, else 1)")
     p.add_argument("--features", default=None, choices=FEATURES, help="network inputs")
     p.add_argument("--margin", type=float, default=None, help="output range widening before clipping to the limits")
     p.add_argument("--test-goals", type=int, default=None, help="held-out goals (default 1000)")
@@ -123,7 +126,7 @@ def train(args) -> int:
         config = TrainConfig.preset(
             paper=args.paper, robot=args.robot, method=args.method, generations=args.generations,
             population=args.population, targets=args.targets, seed=args.seed, hidden=args.hidden,
-            features=args.features, margin=args.margin, test_goals=args.test_goals, resample=args.resample,
+            heads=args.heads, features=args.features, margin=args.margin, test_goals=args.test_goals, resample=args.resample,
             **given_options(args))
     except (ValueError, TypeError) as e:
         print(f"error: {e}", file=sys.stderr)

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lab.problem import Problem
-from lab.problem.controllers import Controller
+from lab.problem.controllers import Controller, mlp_joints  # noqa: F401 (mlp_joints: methods import it from here)
 
 if TYPE_CHECKING:
     from lab.running.config import TrainConfig
@@ -99,8 +99,9 @@ def population_joints(controllers, goals: np.ndarray) -> np.ndarray:
     first = controllers[0]
     enc = first.encoding
     same = all(c.encoding is enc for c in controllers)  # one pickle keeps them one object
-    if same and all(isinstance(c, MLPController) and c.hidden == first.hidden for c in controllers):
-        return mlp_joints(enc, first.hidden, np.stack([c.weights for c in controllers]), goals)
+    if same and all(isinstance(c, MLPController) and c.hidden == first.hidden and c.heads == first.heads
+                    and np.array_equal(c.anchors, first.anchors) for c in controllers):
+        return mlp_joints(enc, first.hidden, np.stack([c.weights for c in controllers]), goals, first)
     elif same and all(isinstance(c, GraphController) for c in controllers):
         a = run_programs(compile_programs(controllers), enc.inputs(goals))
     else:
@@ -108,16 +109,15 @@ def population_joints(controllers, goals: np.ndarray) -> np.ndarray:
     return enc.joints(a.reshape(-1, enc.n_outputs)).reshape(len(controllers), len(goals), -1)
 
 
-def mlp_joints(encoding, hidden: int, W: np.ndarray, goals: np.ndarray) -> np.ndarray:
-    """(P, g, nq) joint values of the paper's MLPs of weight rows W (P, N) on goals (g, task dims)."""
-    from lab.problem import kernels
+def mlp_shape(problem: Problem, config: TrainConfig):
+    """A zero-weight MLPController of the run's shape (config.hidden, config.heads; several heads carry
+    the arm's kinematic chain): what a method's networks are built like (MLPController(s.encoding,
+    s.hidden, weights, s.heads, s.anchors, s.chain))."""
+    from lab.problem.controllers import MLPController, mlp_size
 
-    goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
-    XT = np.ascontiguousarray(encoding.inputs(goals).T)
-    A = np.empty((encoding.n_outputs, len(W) * len(goals)))
-    kernels.mlp_outputs(XT, np.ascontiguousarray(W, dtype=np.float64), hidden, A)
-    a = A.reshape(encoding.n_outputs, len(W), len(goals)).transpose(1, 2, 0)
-    return encoding.joints(a.reshape(-1, encoding.n_outputs)).reshape(len(W), len(goals), -1)
+    enc, heads = problem.encoding, int(getattr(config, "heads", None) or 1)
+    return MLPController(enc, config.hidden, np.zeros(mlp_size(enc.n_inputs, config.hidden, enc.n_outputs * heads)),
+                         heads, None, problem.arm.chain.arrays if heads > 1 else None)
 
 
 @dataclass(frozen=True)

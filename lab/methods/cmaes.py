@@ -18,10 +18,10 @@ from dataclasses import dataclass
 import numpy as np
 
 import robots
-from lab.methods.base import Backend, Options, StepResult, mlp_joints, option
+from lab.methods.base import Backend, Options, StepResult, mlp_joints, mlp_shape, option
 from lab.methods.registry import LivePlot, Method, SpeedReference, register
 from lab.problem.checks import flag, real, whole
-from lab.problem.controllers import MLPController, mlp_size
+from lab.problem.controllers import MAX_HEADS, MLPController, mlp_size
 
 REAL_ARM_GENERATIONS = 50_000  # 3.5-4.5 minutes on the 2-core machine (fitness on both cores) for a 5-7 joint arm
 STALL = 150  # generations without 1% improvement that end a start (restarts only)
@@ -62,8 +62,9 @@ class CMAESOptions(Options):
 class CMAESBackend(Backend):
     def __init__(self, problem, config):
         super().__init__(problem, config)
-        enc = problem.encoding
-        self.dim = mlp_size(enc.n_inputs, config.hidden, enc.n_outputs)
+        self.shape = mlp_shape(problem, config)  # a zero-weight MLP of this run's hidden size and heads
+        self.offsets = None if self.shape.heads == 1 else self.shape.offsets
+        self.dim = self.shape.n_params
         self.rng = np.random.default_rng(config.seed)
         self.restarts = 0
         self._start()
@@ -87,15 +88,16 @@ class CMAESBackend(Backend):
 
     @classmethod
     def settings(cls, problem, config) -> dict:
-        enc = problem.encoding
         o = config.options
-        return {"dim": mlp_size(enc.n_inputs, config.hidden, enc.n_outputs), "hidden": config.hidden,
+        return {"dim": mlp_size(problem.encoding.n_inputs, config.hidden, problem.encoding.n_outputs * config.heads),
+                "hidden": config.hidden, **({"heads": config.heads} if config.heads > 1 else {}),
                 "sigma0": o.sigma0, "diagonal": o.diagonal, "popsize": config.population, "restarts": o.restarts,
                 "separable": o.separable, "stall_generations": STALL, "cma": _cma().__version__}
 
     def _step(self) -> StepResult:
         X = np.asarray(self.es.ask())
-        f = self.problem.mlp_mse(X, self.config.hidden)
+        hidden = self.config.hidden
+        f = self.problem.mlp_mse(X, hidden) if self.offsets is None else self.problem.mlp_mse(X, hidden, offsets=self.offsets)
         finite = np.isfinite(f)
         worst = f[finite].max() if finite.any() else 1.0
         self.es.tell(list(X), np.where(finite, f, 10.0 * worst + 1e6).tolist())
@@ -104,7 +106,7 @@ class CMAESBackend(Backend):
             # sampler that draws from numpy's global, unseeded generator: give it ours back
             self.es.sm.randn = self.es.opts["randn"]
         i = int(np.argmin(f))
-        self._offer(f[i], lambda: MLPController(self.problem.encoding, self.config.hidden, X[i].copy()))
+        self._offer(f[i], lambda: self.mlp(X[i].copy()))
         self._asked = X
         # the spread of the sampled weights: their standard deviation across the population, the
         # mean over the weights (sigma times the mean scale of C's axes, as sampled)
@@ -117,12 +119,16 @@ class CMAESBackend(Backend):
 
     keeps_candidates = True
 
+    def mlp(self, weights) -> MLPController:
+        """An MLP of this run's shape with these weights."""
+        s = self.shape
+        return MLPController(s.encoding, s.hidden, weights, s.heads, s.anchors, s.chain)
+
     def _candidate_controllers(self):
-        enc, hidden = self.problem.encoding, self.config.hidden
-        return [MLPController(enc, hidden, x) for x in self._asked]
+        return [self.mlp(x) for x in self._asked]
 
     def _candidate_joints(self, goals):
-        return mlp_joints(self.problem.encoding, self.config.hidden, self._asked, goals)
+        return mlp_joints(self.problem.encoding, self.config.hidden, self._asked, goals, self.shape)
 
     def _start_is_over(self, gen_best: float) -> bool:
         if gen_best < 0.99 * self._start_best:
@@ -140,7 +146,7 @@ def reference_loop(config, problem, generations: int) -> float:
 
     enc = problem.encoding
     rng = np.random.default_rng(config.seed)
-    dim = mlp_size(enc.n_inputs, config.hidden, enc.n_outputs)
+    dim = mlp_size(enc.n_inputs, config.hidden, enc.n_outputs * config.heads)
     es = _cma().CMAEvolutionStrategy(rng.normal(0, 0.1, dim), config.options.sigma0,
                                      {"popsize": config.population, "seed": np.nan, "verbose": -9, "verb_log": 0,
                                       "randn": lambda *s: rng.standard_normal(s), "maxiter": np.inf})
@@ -178,7 +184,7 @@ METHOD = register(Method(
     defaults=defaults,
     # the paper fixes no hidden size or step size: the values a reader of the paper would pick
     paper=dict(features="cartesian", margin=0.0, hidden=8, sigma0=0.5, diagonal=0, restarts=False),
-    min_population=4, min_hidden=1,
+    min_population=4, min_hidden=1, max_heads=MAX_HEADS,
     search_title="CMA-ES step size and restarts", search_series="CMA-ES step size sigma and the number of restarts",
     cost=1.0, ablations=("features=polar", "features=cartesian", "margin=0.5", "hidden=8", "sigma0=0.4", "diagonal=0"),
     reference=SpeedReference("pycma ask/tell, sphere", 1.25, reference_loop),

@@ -71,6 +71,7 @@ class Method:
     controller: what its networks are, "mlp" (the paper's fixed MLP) or "graph" (NEAT-like);
         recordings and the app draw them accordingly.
     min_population / min_hidden: the smallest population and hidden size it accepts.
+    max_heads: the most output heads its MLPs may have (TrainConfig.heads; 1: single-head networks only).
     search_title / search_series: its /search plot (StepResult.extras) in words, for the
         recording's views; cost: CPU per evaluation relative to CMA-ES, to schedule experiments;
     ablations: settings compared with its defaults in benchmarks/bench_quality.py ("sigma0=0.4").
@@ -94,6 +95,7 @@ class Method:
     paper: Mapping | None = None
     min_population: int = 2
     min_hidden: int = 0
+    max_heads: int = 1
     search_title: str = "search state"
     search_series: str = "the method's own numbers per generation"
     cost: float = 1.0

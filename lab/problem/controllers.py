@@ -39,25 +39,89 @@ def mlp_size(n_inputs: int, hidden: int, n_outputs: int) -> int:
     return (n_inputs + 1) * hidden + hidden * n_outputs
 
 
+HEAD_CORNERS = (0.0, -0.7, 0.7, -0.35, 0.35, -0.85, 0.85, -0.5)  # head k's anchor: mid + c_k h (MAX_HEADS of them)
+MAX_HEADS = len(HEAD_CORNERS)
+
+
+def head_anchors(encoding: Encoding, heads: int) -> np.ndarray:
+    """(heads, nq) the joint values each head of a multi-hypothesis MLP starts from: head k at
+    mid + c_k h on every joint (h the half range, c = HEAD_CORNERS: 0, -0.7, +0.7, ...), so the
+    heads begin at opposite corners of the joint box, on different IK branches (elbow up and down,
+    leaning forward and back); head 0 is the single-head network's start, mid-range."""
+    heads = int(heads)
+    if not 1 <= heads <= MAX_HEADS:
+        raise ValueError(f"heads must be an integer in [1, {MAX_HEADS}], got {heads!r}")
+    mid, half = 0.5 * (encoding.q_lo + encoding.q_hi), 0.5 * (encoding.q_hi - encoding.q_lo)
+    return np.stack([mid + c * half for c in HEAD_CORNERS[:heads]])
+
+
+def anchor_offsets(encoding: Encoding, anchors: np.ndarray) -> np.ndarray:
+    """(heads nq,) output pre-activation offsets that put each head's zero-weight output on its
+    anchor: atanh of the anchor's place in the output mapping (mid-range: 0)."""
+    a = (np.asarray(anchors, dtype=np.float64) - encoding.q_offset) / encoding.q_scale - 1.0
+    return np.ascontiguousarray(np.arctanh(np.clip(a, -0.999, 0.999)).reshape(-1))
+
+
 @dataclass(frozen=True, eq=False)
 class MLPController:
-    """The paper's MLP: w_i (ni+1, nh) with the bias as last input, then w_o (nh, no)."""
+    """The paper's MLP: w_i (ni+1, nh) with the bias as last input, then w_o (nh, no).
+
+    heads > 1: a multi-hypothesis network. Its output layer has heads x nq outputs, head k's with
+    fixed pre-activation offsets that start it at anchors[k] (head_anchors); every head proposes
+    joint values and the controller answers with the head whose end effector lands closest to the
+    goal, by forward kinematics of `chain` (the arm's robots.kinematics.ChainKinematics.arrays,
+    carried with the controller). Its fitness is the mean over goals of the smallest squared
+    error over the heads (kernels.mlp_heads_mse): a single continuous network must cut the
+    workspace somewhere between IK branches; heads that start on different branches can each
+    serve a part of it (SO100, SO101: goals behind the base need the arm folded back over its
+    shoulder, which no single-head run found).
+    """
 
     encoding: Encoding
     hidden: int
     weights: np.ndarray  # (N,)
+    heads: int = 1
+    anchors: np.ndarray | None = None  # (heads, nq); None: head_anchors(encoding, heads)
+    chain: tuple | None = None  # the arm's kinematic arrays; needed when heads > 1
     kind: str = "mlp"
 
     def __post_init__(self):
-        n = mlp_size(self.encoding.n_inputs, self.hidden, self.encoding.n_outputs)
+        if isinstance(self.heads, bool) or not isinstance(self.heads, (int, np.integer)) \
+                or not 1 <= self.heads <= MAX_HEADS:
+            raise ValueError(f"heads must be an integer in [1, {MAX_HEADS}], got {self.heads!r}")
+        n = mlp_size(self.encoding.n_inputs, self.hidden, self.encoding.n_outputs * self.heads)
         w = np.ascontiguousarray(self.weights, dtype=np.float64)
         if w.shape != (n,):
-            raise ValueError(f"MLP with {self.hidden} hidden units needs {n} weights, got shape {w.shape}")
+            heads = "" if self.heads == 1 else f" and {self.heads} heads"
+            raise ValueError(f"MLP with {self.hidden} hidden units{heads} needs {n} weights, got shape {w.shape}")
         object.__setattr__(self, "weights", w)
+        object.__setattr__(self, "heads", int(self.heads))
+        anchors = head_anchors(self.encoding, self.heads) if self.anchors is None else \
+            np.asarray(self.anchors, dtype=np.float64)
+        if anchors.shape != (self.heads, self.encoding.n_outputs) or not np.all(np.isfinite(anchors)):
+            raise ValueError(f"anchors must be {self.heads} x {self.encoding.n_outputs} finite joint values, "
+                             f"got shape {anchors.shape}")
+        object.__setattr__(self, "anchors", anchors)
+        if self.heads > 1:
+            if self.chain is None:
+                raise ValueError("an MLP with several heads needs the arm's kinematic chain to pick a head")
+            object.__setattr__(self, "chain", check_chain(self.chain, self.encoding.n_outputs))
 
     @property
     def n_params(self) -> int:
         return self.weights.size
+
+    @property
+    def n_outputs(self) -> int:
+        """The network's outputs: heads x joints."""
+        return self.heads * self.encoding.n_outputs
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """(heads nq,) the fixed output pre-activation offsets (zeros for one head)."""
+        if self.heads == 1:
+            return np.zeros(self.encoding.n_outputs)
+        return anchor_offsets(self.encoding, self.anchors)
 
     @property
     def w_i(self) -> np.ndarray:
@@ -67,21 +131,102 @@ class MLPController:
     @property
     def w_o(self) -> np.ndarray:
         ni = self.encoding.n_inputs
-        return self.weights[(ni + 1) * self.hidden :].reshape(self.hidden, self.encoding.n_outputs)
+        return self.weights[(ni + 1) * self.hidden :].reshape(self.hidden, self.n_outputs)
 
     def outputs(self, goals: np.ndarray) -> np.ndarray:
-        """Network outputs a_o in [-1, 1], (n, nq)."""
+        """Network outputs a_o in [-1, 1] of the answering head, (n, nq)."""
+        if self.heads > 1:
+            return self.head_outputs(goals)[self.choose(goals), np.arange(len(goals))]
         XT = np.ascontiguousarray(self.encoding.inputs(goals).T)
         out = np.empty((self.encoding.n_outputs, XT.shape[1]))
         kernels.mlp_outputs(XT, self.weights[None, :], self.hidden, out)
         return out.T
 
+    def head_outputs(self, goals: np.ndarray) -> np.ndarray:
+        """(heads, n, nq): every head's outputs in [-1, 1]."""
+        return mlp_head_outputs(self.encoding, self.hidden, self.offsets, self.weights[None, :], goals)[0]
+
+    def choose(self, goals: np.ndarray) -> np.ndarray:
+        """(n,) the head that answers each goal: the one whose end effector lands closest."""
+        return choose_heads(self.encoding, self.chain, self.encoding.joints(self.head_outputs(goals)), goals)
+
     def __call__(self, goals: np.ndarray) -> np.ndarray:
+        if self.heads > 1:
+            return mlp_joints(self.encoding, self.hidden, self.weights[None, :], goals, self)[0]
         return self.encoding.joints(self.outputs(goals))
 
     def to_dict(self) -> dict:
-        return {"kind": self.kind, "encoding": self.encoding.to_dict(), "hidden": self.hidden,
-                "weights": self.weights.tolist()}
+        d = {"kind": self.kind, "encoding": self.encoding.to_dict(), "hidden": self.hidden,
+             "weights": self.weights.tolist()}
+        if self.heads > 1:
+            rot, pos, kind, identity, ee_pos = self.chain
+            d.update(heads=self.heads, anchors=self.anchors.tolist(),
+                     chain={"rot": rot.tolist(), "pos": pos.tolist(), "kind": kind.tolist(),
+                            "identity": identity.tolist(), "ee_pos": ee_pos.tolist()})
+        return d
+
+
+def check_chain(chain, nq: int) -> tuple:
+    """The kinematic arrays (rot (k, 3, 3), pos (k, 3), kind (k,), identity (k,), ee_pos (3,)) as the
+    kernels take them, for a chain of nq joints; ValueError naming what is wrong."""
+    if isinstance(chain, dict):
+        chain = tuple(chain[k] for k in ("rot", "pos", "kind", "identity", "ee_pos"))
+    try:
+        rot, pos, kind, identity, ee_pos = chain
+    except (TypeError, ValueError):
+        raise ValueError("chain must be (rot, pos, kind, identity, ee_pos)") from None
+    rot, pos, ee_pos = (np.ascontiguousarray(np.asarray(a, dtype=np.float64)) for a in (rot, pos, ee_pos))
+    kind = np.ascontiguousarray(np.asarray(kind, dtype=np.int64))
+    identity = np.ascontiguousarray(np.asarray(identity, dtype=np.bool_))
+    if not (rot.shape == (nq, 3, 3) and pos.shape == (nq, 3) and kind.shape == identity.shape == (nq,)
+            and ee_pos.shape == (3,)):
+        raise ValueError(f"chain must describe {nq} joints: rot ({nq}, 3, 3), pos ({nq}, 3), kind and identity "
+                         f"({nq},), ee_pos (3,); got {rot.shape}, {pos.shape}, {kind.shape}, {identity.shape}, "
+                         f"{ee_pos.shape}")
+    if not (np.all(np.isfinite(rot)) and np.all(np.isfinite(pos)) and np.all(np.isfinite(ee_pos))):
+        raise ValueError("chain: its rotations and positions must be finite")
+    return rot, pos, kind, identity, ee_pos
+
+
+def mlp_head_outputs(encoding: Encoding, hidden: int, offsets: np.ndarray, W: np.ndarray, goals) -> np.ndarray:
+    """(P, heads, g, nq) outputs in [-1, 1] of the MLPs of weight rows W (P, N), each head's in turn."""
+    goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
+    nq = encoding.n_outputs
+    XT = np.ascontiguousarray(encoding.inputs(goals).T)
+    A = np.empty((len(offsets), len(W) * len(goals)))
+    kernels.mlp_offset_outputs(XT, np.ascontiguousarray(W, dtype=np.float64), hidden,
+                               np.ascontiguousarray(offsets, dtype=np.float64), A)
+    return A.reshape(len(offsets) // nq, nq, len(W), len(goals)).transpose(2, 0, 3, 1)
+
+
+def choose_heads(encoding: Encoding, chain: tuple, Q: np.ndarray, goals) -> np.ndarray:
+    """(..., g) the head of least squared end-effector error, Q (..., heads, g, nq) joint values."""
+    goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
+    lead = Q.shape[:-3]
+    heads, g, nq = Q.shape[-3:]
+    QT = np.ascontiguousarray(np.moveaxis(Q.reshape(-1, nq), -1, 0))  # (nq, N)
+    tiled = np.ascontiguousarray(np.tile(goals.T, (1, QT.shape[1] // g)))
+    E = np.empty(QT.shape[1])
+    kernels.fk_sq_errors(QT, tiled, np.asarray(encoding.task_axes, dtype=np.int64), chain, E)
+    E = np.where(np.isfinite(E), E, np.inf).reshape(*lead, heads, g)
+    return np.argmin(E, axis=-2)
+
+
+def mlp_joints(encoding: Encoding, hidden: int, W: np.ndarray, goals, heads_of=None) -> np.ndarray:
+    """(P, g, nq) joint values of the MLPs of weight rows W (P, N) on goals (g, task dims); heads_of:
+    an MLPController whose heads, anchors and chain they share (None: one head, the paper's MLP)."""
+    goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
+    W = np.ascontiguousarray(W, dtype=np.float64)
+    nq = encoding.n_outputs
+    if heads_of is None or heads_of.heads == 1:
+        XT = np.ascontiguousarray(encoding.inputs(goals).T)
+        A = np.empty((nq, len(W) * len(goals)))
+        kernels.mlp_outputs(XT, W, hidden, A)
+        a = A.reshape(nq, len(W), len(goals)).transpose(1, 2, 0)
+        return encoding.joints(a.reshape(-1, nq)).reshape(len(W), len(goals), -1)
+    Q = encoding.joints(mlp_head_outputs(encoding, hidden, heads_of.offsets, W, goals))  # (P, heads, g, nq)
+    pick = choose_heads(encoding, heads_of.chain, Q, goals)  # (P, g)
+    return np.take_along_axis(Q, pick[:, None, :, None], axis=1)[:, 0]
 
 
 @dataclass(frozen=True, eq=False)
@@ -201,7 +346,10 @@ def controller_from_dict(d: dict) -> Controller:
 def _from_dict(d: dict) -> Controller:
     enc = Encoding.from_dict(d["encoding"])
     if d["kind"] == "mlp":
-        return MLPController(enc, int(d["hidden"]), np.asarray(d["weights"], dtype=np.float64))
+        heads = d.get("heads", 1)
+        anchors = d.get("anchors")  # absent: head_anchors' rule
+        return MLPController(enc, int(d["hidden"]), np.asarray(d["weights"], dtype=np.float64), heads,
+                             None if anchors is None else np.asarray(anchors, dtype=np.float64), d.get("chain"))
     if d["kind"] == "graph":
         nodes = tuple((int(k), float(b), float(r), tuple((int(s), float(w)) for s, w in links))
                       for k, b, r, links in d["nodes"])
@@ -248,12 +396,14 @@ def network_layout(controller: Controller) -> tuple[list[NetNode], list[tuple]]:
     in_labels, n_out = enc.input_names, enc.n_outputs
     if controller.kind == "mlp":
         w_i, w_o = controller.w_i, controller.w_o  # (ni+1, nh), (nh, no); last row of w_i: bias
-        nh = controller.hidden
+        nh, heads = controller.hidden, controller.heads
         nodes = [NetNode(("i", k), 0, in_labels[k], "input") for k in range(enc.n_inputs)]
         nodes += [NetNode(("h", h), 1, "", "hidden") for h in range(nh)]
-        nodes += [NetNode(("o", o), 2, f"q{o + 1}", "output") for o in range(n_out)]
+        # several heads: q1a .. qna, then q1b .., one column
+        nodes += [NetNode(("o", o), 2, f"q{o % n_out + 1}" + ("" if heads == 1 else "abcdefgh"[o // n_out]), "output")
+                  for o in range(n_out * heads)]
         links = [(("i", k), ("h", h), float(w_i[k, h])) for k in range(enc.n_inputs) for h in range(nh)]
-        links += [(("h", h), ("o", o), float(w_o[h, o])) for h in range(nh) for o in range(n_out)]
+        links += [(("h", h), ("o", o), float(w_o[h, o])) for h in range(nh) for o in range(n_out * heads)]
         return nodes, links
     genome = controller.genome
     inputs, outputs = list(controller.input_keys), list(controller.output_keys)

@@ -103,17 +103,24 @@ class Problem:
     def _split(self, test: bool):
         return self._test if test else self._train
 
-    def mlp_mse(self, W: np.ndarray, hidden: int, test: bool = False) -> np.ndarray:
-        """MSE of every MLP weight vector in W (P, D): (P,)."""
+    def mlp_mse(self, W: np.ndarray, hidden: int, test: bool = False, offsets: np.ndarray | None = None) -> np.ndarray:
+        """MSE of every MLP weight vector in W (P, D): (P,). offsets: a multi-hypothesis MLP's output
+        offsets (lab.problem.controllers.MLPController.offsets, heads x nq): each goal then counts
+        the smallest squared error over the heads (None: one head, the paper's MLP)."""
         XT, goalsT = self._split(test)
         W = np.ascontiguousarray(W, dtype=np.float64)
         out = np.empty(len(W))
-        slices = min(self.threads, len(W) * XT.shape[1] // _MIN_SLICE, len(W))
+        if offsets is None or len(offsets) == self.encoding.n_outputs:
+            kernel, extra = kernels.mlp_mse, ()
+        else:
+            kernel, extra = kernels.mlp_heads_mse, (np.ascontiguousarray(offsets, dtype=np.float64),)
+        heads = 1 if not extra else len(offsets) // self.encoding.n_outputs
+        slices = min(self.threads, heads * len(W) * XT.shape[1] // _MIN_SLICE, len(W))
         if slices <= 1:
-            kernels.mlp_mse(XT, goalsT, self._axes, W, int(hidden), self._qmap, self._chain, out)
+            kernel(XT, goalsT, self._axes, W, int(hidden), *extra, self._qmap, self._chain, out)
             return out
         edges = np.linspace(0, len(W), slices + 1).astype(int)
-        jobs = [_pool(slices).submit(kernels.mlp_mse, XT, goalsT, self._axes, W[a:b], int(hidden), self._qmap,
+        jobs = [_pool(slices).submit(kernel, XT, goalsT, self._axes, W[a:b], int(hidden), *extra, self._qmap,
                                      self._chain, out[a:b]) for a, b in zip(edges[:-1], edges[1:])]
         for job in jobs:
             job.result()

@@ -181,6 +181,13 @@ def mlp_outputs(XT, W, nh, A):
     Genome layout: w_i = w[:(ni+1)*nh] as (ni+1, nh), bias the last input row; w_o = w[(ni+1)*nh:]
     as (nh, no). a_o = tanh(tanh([x, 1] w_i) w_o).
     """
+    mlp_offset_outputs(XT, W, nh, np.zeros(A.shape[0]), A)
+
+
+@numba.njit(**_JIT)
+def mlp_offset_outputs(XT, W, nh, offsets, A):
+    """mlp_outputs with a fixed offset added to each output's pre-activation:
+    a_o = tanh(offsets[o] + tanh([x, 1] w_i) w_o) (zero offsets: mlp_outputs, bit for bit)."""
     ni, n = XT.shape
     no = A.shape[0]
     off = (ni + 1) * nh
@@ -202,8 +209,9 @@ def mlp_outputs(XT, W, nh, A):
         w = W[p]
         c0 = p * n
         for o in range(no):
+            start = offsets[o]
             for g in range(n):
-                A[o, c0 + g] = 0.0
+                A[o, c0 + g] = start
             for j in range(nh):
                 wjo = w[off + j * no + o]
                 for g in range(n):
@@ -288,3 +296,32 @@ def joints_mse(QT, goalsT, axes, chain, out):
     for p in range(P):
         Q[:, p * n:(p + 1) * n] = QT[p]
     _joints_side_by_side_mse(Q, goalsT, axes, chain, out)
+
+
+@numba.njit(**_JIT)
+def mlp_heads_mse(XT, goalsT, axes, W, nh, offsets, qmap, chain, out):
+    """MSE of multi-hypothesis MLPs (lab.problem.controllers.MLPController with heads > 1): every
+    row of W (P, D) has len(offsets) / nq output heads of nq joints (outputs h nq .. (h + 1) nq - 1
+    are head h, each with its fixed pre-activation offsets); a goal counts its smallest squared
+    error over the heads: out[p] = mean_g min_h || goal_g - fk(joints(head_h(x_g))) ||^2."""
+    nq = qmap[0].shape[0]
+    heads = offsets.shape[0] // nq
+    n = XT.shape[1]
+    P = W.shape[0]
+    A = np.empty((heads * nq, P * n))
+    mlp_offset_outputs(XT, W, nh, offsets, A)
+    tiled = np.empty((goalsT.shape[0], P * n))
+    for p in range(P):
+        tiled[:, p * n:(p + 1) * n] = goalsT
+    E = np.full(P * n, np.inf)
+    Eh = np.empty(P * n)
+    Q = np.empty((nq, P * n))
+    for h in range(heads):
+        for o in range(nq):
+            Q[o] = A[h * nq + o]
+            _to_joints_row(Q[o], o, qmap)
+        fk_sq_errors(Q, tiled, axes, chain, Eh)
+        for g in range(P * n):
+            if Eh[g] < E[g]:  # NaN never is: a goal no head reaches stays +inf
+                E[g] = Eh[g]
+    _segment_means(E, n, out)

@@ -23,14 +23,15 @@ import robots
 from lab import methods
 from lab.methods import Options
 from lab.problem.checks import flag, real, whole
+from lab.problem.controllers import MAX_HEADS
 from lab.problem.encoding import FEATURES
 
 # upper bounds that keep a run within this machine's memory and time (a population of 10^9 would
 # hang in pycma's or neat's setup; hidden 256 is a CMA-ES search space of about 2,300 weights)
 LIMITS = {"population": 10_000, "goals": 1_000_000, "hidden": 256}
 # the paper's protocol: what a field left at None becomes when the method's defaults say nothing
-PROTOCOL = {"generations": 1000, "population": 50, "targets": 70}
-_PER_METHOD = ("generations", "population", "targets", "features", "margin", "hidden")
+PROTOCOL = {"generations": 1000, "population": 50, "targets": 70, "heads": 1}
+_PER_METHOD = ("generations", "population", "targets", "features", "margin", "hidden", "heads")
 
 
 @dataclass(frozen=True, init=False)
@@ -49,6 +50,7 @@ class TrainConfig:
     features: str | None = None  # network inputs (lab/problem/encoding.py; None: the method's default)
     margin: float | None = None  # output range widening before clipping to the limits (None: the method's default)
     hidden: int | None = None  # MLP hidden units; graph methods: hidden nodes of the first networks
+    heads: int | None = None  # an MLP's output heads (lab.problem.controllers.MLPController; None: the method's default, else 1)
     options: Options | dict | None = None  # the method's own settings (a dict is checked and converted)
     paper: bool = False  # record that this is the paper's literal method (see preset)
     resample: bool = False  # new training goals every generation (the paper: fixed; lab.problem.fitness)
@@ -57,7 +59,7 @@ class TrainConfig:
                  population: int | None = None, targets: int | None = None, seed: int = 0, test_goals: int = 1000,
                  goal_seed: int = 0, features: str | None = None, margin: float | None = None,
                  hidden: int | None = None, options: Options | dict | None = None, paper: bool = False,
-                 resample: bool = False, **option_values):
+                 resample: bool = False, heads: int | None = None, **option_values):
         if option_values:
             base = options.to_dict() if isinstance(options, Options) else dict(options or {})
             options = {**base, **option_values}
@@ -65,7 +67,7 @@ class TrainConfig:
                             ("population", population), ("targets", targets), ("seed", seed),
                             ("test_goals", test_goals), ("goal_seed", goal_seed), ("features", features),
                             ("margin", margin), ("hidden", hidden), ("options", options), ("paper", paper),
-                            ("resample", resample)):
+                            ("resample", resample), ("heads", heads)):
             object.__setattr__(self, name, value)
         self.__post_init__()
 
@@ -96,6 +98,12 @@ class TrainConfig:
             raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
         if self.hidden is not None:
             whole(self, "hidden", method.min_hidden, LIMITS["hidden"])
+        if self.heads is not None:
+            whole(self, "heads", 1, MAX_HEADS)
+            if self.heads > method.max_heads:
+                raise ValueError(f"heads must be 1 for {method.label} (its networks have one head), got {self.heads}"
+                                 if method.max_heads == 1 else
+                                 f"heads must be at most {method.max_heads} for {method.label}, got {self.heads}")
         if self.margin is not None:
             real(self, "margin", 0, 10, "a number in [0, 10)", closed_above=False)
         flag(self, "paper")
@@ -151,4 +159,6 @@ class TrainConfig:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "options"}
         if not self.resample:  # the paper's fixed goals: written as before resampling existed, so
             del d["resample"]  # stored runs, recordings and notebooks made earlier still compare equal
+        if d["heads"] == 1:  # one head: likewise, as before heads existed
+            del d["heads"]
         return {**d, **self.options.to_dict()}
