@@ -325,7 +325,25 @@ def test_a_controller_never_meets_an_arm_it_was_not_made_for(app):
     app.state.live()
 
 
-@pytest.mark.parametrize("robot", ["ur5", "panda"])
+@pytest.mark.parametrize("robot", robots.names())
+def test_every_shipped_controller_fits_its_arm_and_has_the_error_its_file_records(robot):
+    """app/pretrained/<robot>-<method>.json: made for that arm, the arm's default method, and its
+    held-out error (lab.experiments.arms, 2,000 goals) is the one the file records."""
+    from app.startup import load_pretrained, pretrained_path
+    from lab.experiments import arms
+
+    controller, _ = load_pretrained(robot)
+    with open(pretrained_path(robot), encoding="utf-8") as f:
+        doc = json.load(f)
+    arm = robots.load(robot)
+    assert doc["settings"]["robot"] == robot and made_for(controller, arm)
+    if doc.get("held_out"):
+        again = arms.held_out(arm, controller)
+        for key in ("median", "p90", "p99"):
+            assert again[key] == pytest.approx(doc["held_out"][key], rel=1e-9), key
+
+
+@pytest.mark.parametrize("robot", ["ur5", "panda", "so100"])
 def test_a_real_arm_opens_with_its_own_controller_and_a_sensible_pose(robot, tmp_path):
     """python -m app --robot NAME: that arm's shipped controller (never the planar one), and the
     first goal's pose is close: its error is a few % of the arm's reach at most."""
