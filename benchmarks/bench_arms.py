@@ -90,7 +90,7 @@ def parse_setting(text: str) -> tuple:
     return name, {"true": True, "false": False}.get(raw.lower(), raw)
 
 
-def timing(names: list[str], generations: int, seed: int) -> None:
+def timing(names: list[str], generations: int, seed: int, settings: dict | None = None) -> None:
     from lab.problem.fitness import THREADS_VAR, default_threads
 
     many = default_threads()
@@ -101,12 +101,12 @@ def timing(names: list[str], generations: int, seed: int) -> None:
     saved = os.environ.get(THREADS_VAR)
     try:
         for name in names:
-            budget = lab.TrainConfig.preset(robot=name).generations
+            budget = lab.TrainConfig.preset(robot=name, **(settings or {})).generations
             per = {}
             for threads in (1, many, 1, many):  # interleaved: a busy moment hits both
                 os.environ[THREADS_VAR] = str(threads)
                 t = time.perf_counter()
-                lab.evolve(name, generations=generations, seed=seed)
+                lab.evolve(name, seed=seed, **{**(settings or {}), "generations": generations})
                 per.setdefault(threads, []).append((time.perf_counter() - t) / generations)
             one, par = min(per[1]), min(per[many])
             print(f"| {name} | {budget:,} | {1e3 * one:.2f} ms | {1e3 * par:.2f} ms | {budget * one:.0f} s | "
@@ -194,7 +194,7 @@ def main() -> None:
                     help="time N generations of each arm's defaults on 1 and on LAB_THREADS threads; no training")
     args = ap.parse_args()
     if args.timing:
-        timing(args.robots.split(","), args.timing, args.seed)
+        timing(args.robots.split(","), args.timing, args.seed, dict(parse_setting(x) for x in args.set))
         return
     if args.before:
         for name in args.robots.split(","):
