@@ -115,3 +115,13 @@ def test_heads_are_checked_and_one_head_is_written_as_before():
     assert "heads" not in lab.TrainConfig(robot="planar").to_dict()
     d = lab.TrainConfig(robot="so101", heads=3).to_dict()
     assert d["heads"] == 3 and lab.TrainConfig.from_dict(d).heads == 3
+
+
+def test_the_fitness_threads_change_nothing(monkeypatch):
+    """Two heads on 40 x 120 goals split into two slices on two threads: the same run, bit for bit."""
+    runs = []
+    for n in ("1", "2"):
+        monkeypatch.setenv("LAB_THREADS", n)
+        runs.append(lab.evolve("so100", generations=15, population=40, targets=120, heads=2, seed=1))
+    assert np.array_equal(runs[0].history, runs[1].history)
+    assert np.array_equal(runs[0].controller.weights, runs[1].controller.weights)
