@@ -15,6 +15,19 @@ CHROMIUM = shutil.which("chromium")  # Debian's, for the real-browser tests
 NEEDS_CHROMIUM = pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (`make browser` installs it)")
 
 
+def wait_or_kill(proc, timeout: float):
+    """proc.communicate(timeout=...): its (stdout, stderr); a process still running after `timeout` s
+    is killed before the TimeoutExpired is raised, so a slow test never leaves a server behind."""
+    import subprocess
+
+    try:
+        return proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        raise
+
+
 def wait_until(predicate, timeout: float = 30.0, step: float = 0.02) -> bool:
     """Poll predicate() every `step` s until it is true (True) or `timeout` s have passed (False)."""
     deadline = time.monotonic() + timeout

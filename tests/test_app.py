@@ -24,7 +24,7 @@ from app.notebook import Notebook, NotebookError
 from app.probe import Probe
 from app.server import LabApp
 from app.startup import made_for
-from conftest import wait_until
+from conftest import wait_or_kill, wait_until
 
 import lab
 import robots
@@ -292,7 +292,7 @@ def test_python_m_app_prints_the_url_it_really_serves(tmp_path):
             assert r.status == 200
     finally:
         proc.send_signal(signal.SIGINT)
-        proc.wait(20)
+        wait_or_kill(proc, 20)
         taken.close()
 
 
@@ -427,7 +427,7 @@ def test_every_way_of_stopping_the_app_notes_the_run_and_closes_its_recording(tm
     finally:
         proc.send_signal(getattr(signal, sig))
         t0 = time.monotonic()
-        out, _ = proc.communicate(timeout=30)
+        out, _ = wait_or_kill(proc, 30)
     assert proc.returncode == 0 and time.monotonic() - t0 < 30, out[-3000:]  # a hang guard; the time is measured apart
     assert "Traceback" not in out, out[-3000:]
     entries = Notebook(str(nb)).entries()

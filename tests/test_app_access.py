@@ -13,7 +13,7 @@ from viser import _messages
 from app.access import REFUSED, Access, is_loopback
 from app.probe import Probe
 from app.server import LabApp
-from conftest import wait_until
+from conftest import wait_or_kill, wait_until
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 TOKEN = "s3cret-Token_1"
@@ -200,7 +200,7 @@ def test_python_m_app_beyond_loopback_prints_a_presenter_link_that_makes_a_prese
                 probe.close()
     finally:
         proc.send_signal(signal.SIGINT)
-        proc.wait(30)
+        wait_or_kill(proc, 30)
 
 
 def test_a_viewer_replays_a_run_in_its_own_tab_only(app, presenter, viewer):
