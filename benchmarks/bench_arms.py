@@ -118,16 +118,21 @@ def timing(names: list[str], generations: int, seed: int, settings: dict | None 
             os.environ[THREADS_VAR] = saved
 
 
-def shipped_run(name: str, seed: int):
-    """The shipped controller of `name` as a lab Run, when it is the run lab.evolve(name, seed=seed)
-    would make (its recorded settings are that call's; the same seed gives the same run), else None."""
+def shipped_doc(name: str) -> dict:
+    """The app's shipped file of `name` (app/pretrained/), as written by --write-pretrained."""
     import json
 
     from app.startup import pretrained_path
 
+    with open(pretrained_path(name), encoding="utf-8") as f:
+        return json.load(f)
+
+
+def shipped_run(name: str, seed: int):
+    """The shipped controller of `name` as a lab Run, when it is the run lab.evolve(name, seed=seed)
+    would make (its recorded settings are that call's; the same seed gives the same run), else None."""
     try:
-        with open(pretrained_path(name), encoding="utf-8") as f:
-            doc = json.load(f)
+        doc = shipped_doc(name)
     except OSError:
         return None
     config = lab.TrainConfig.preset(robot=name, seed=seed)
@@ -205,12 +210,7 @@ def main() -> None:
     rows = []
     for name in args.robots.split(","):
         if args.from_pretrained:
-            import json
-
-            from app.startup import pretrained_path
-
-            with open(pretrained_path(name), encoding="utf-8") as f:
-                doc = json.load(f)
+            doc = shipped_doc(name)
             controller, settings, seconds = lab.controller_from_dict(doc["controller"]), doc["settings"], doc["seconds"]
         else:
             seeds = [int(x) for x in args.seeds.split(",")] if args.seeds else [args.seed]

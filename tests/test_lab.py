@@ -186,11 +186,11 @@ def test_a_nan_weight_vector_never_becomes_the_cmaes_best():
     real = prob.mlp_mse
     seen = []
 
-    def poisoned(W, hidden, test=False):  # row 0 is evaluated as if its weights were NaN
+    def poisoned(W, hidden, test=False, offsets=None):  # row 0 is evaluated as if its weights were NaN
         W = np.array(W)
         W[0, 0] = np.nan
         seen.append(W[0].copy())
-        return real(W, hidden, test)
+        return real(W, hidden, test, offsets)
 
     prob.mlp_mse = poisoned
     for _ in range(10):
@@ -201,7 +201,7 @@ def test_a_nan_weight_vector_never_becomes_the_cmaes_best():
     assert prob.controller_mse(b.best) == pytest.approx(b.best_mse, rel=0, abs=1e-9)
 
     # all rows NaN: no best at all, and the run goes on
-    prob.mlp_mse = lambda W, hidden, test=False: real(np.full_like(np.asarray(W), np.nan), hidden, test)
+    prob.mlp_mse = lambda W, hidden, test=False, offsets=None: real(np.full_like(np.asarray(W), np.nan), hidden, test, offsets)
     b2 = CMAESBackend(prob, cfg)
     for _ in range(3):
         assert np.all(b2.step().fitness == np.inf)

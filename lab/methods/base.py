@@ -115,7 +115,7 @@ def mlp_shape(problem: Problem, config: TrainConfig):
     s.hidden, weights, s.heads, s.anchors, s.chain))."""
     from lab.problem.controllers import MLPController, mlp_size
 
-    enc, heads = problem.encoding, int(getattr(config, "heads", None) or 1)
+    enc, heads = problem.encoding, config.heads
     return MLPController(enc, config.hidden, np.zeros(mlp_size(enc.n_inputs, config.hidden, enc.n_outputs * heads)),
                          heads, None, problem.arm.chain.arrays if heads > 1 else None)
 

@@ -99,8 +99,7 @@ class CMAESBackend(Backend):
 
     def _step(self) -> StepResult:
         X = np.asarray(self.es.ask())
-        hidden = self.config.hidden
-        f = self.problem.mlp_mse(X, hidden) if self.offsets is None else self.problem.mlp_mse(X, hidden, offsets=self.offsets)
+        f = self.problem.mlp_mse(X, self.config.hidden, offsets=self.offsets)
         finite = np.isfinite(f)
         worst = f[finite].max() if finite.any() else 1.0
         self.es.tell(list(X), np.where(finite, f, 10.0 * worst + 1e6).tolist())

@@ -11,6 +11,7 @@ values (n, nq) within the joint limits; `to_dict()` is complete enough to rebuil
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
@@ -48,11 +49,15 @@ def head_anchors(encoding: Encoding, heads: int) -> np.ndarray:
     mid + c_k h on every joint (h the half range, c = HEAD_CORNERS: 0, -0.7, +0.7, ...), so the
     heads begin at opposite corners of the joint box, on different IK branches (elbow up and down,
     leaning forward and back); head 0 is the single-head network's start, mid-range."""
-    heads = int(heads)
-    if not 1 <= heads <= MAX_HEADS:
-        raise ValueError(f"heads must be an integer in [1, {MAX_HEADS}], got {heads!r}")
+    heads = _check_heads(heads)
     mid, half = 0.5 * (encoding.q_lo + encoding.q_hi), 0.5 * (encoding.q_hi - encoding.q_lo)
     return np.stack([mid + c * half for c in HEAD_CORNERS[:heads]])
+
+
+def _check_heads(heads) -> int:
+    if isinstance(heads, bool) or not isinstance(heads, (int, np.integer)) or not 1 <= heads <= MAX_HEADS:
+        raise ValueError(f"heads must be an integer in [1, {MAX_HEADS}], got {heads!r}")
+    return int(heads)
 
 
 def anchor_offsets(encoding: Encoding, anchors: np.ndarray) -> np.ndarray:
@@ -86,16 +91,13 @@ class MLPController:
     kind: str = "mlp"
 
     def __post_init__(self):
-        if isinstance(self.heads, bool) or not isinstance(self.heads, (int, np.integer)) \
-                or not 1 <= self.heads <= MAX_HEADS:
-            raise ValueError(f"heads must be an integer in [1, {MAX_HEADS}], got {self.heads!r}")
+        object.__setattr__(self, "heads", _check_heads(self.heads))
         n = mlp_size(self.encoding.n_inputs, self.hidden, self.encoding.n_outputs * self.heads)
         w = np.ascontiguousarray(self.weights, dtype=np.float64)
         if w.shape != (n,):
             heads = "" if self.heads == 1 else f" and {self.heads} heads"
             raise ValueError(f"MLP with {self.hidden} hidden units{heads} needs {n} weights, got shape {w.shape}")
         object.__setattr__(self, "weights", w)
-        object.__setattr__(self, "heads", int(self.heads))
         anchors = head_anchors(self.encoding, self.heads) if self.anchors is None else \
             np.asarray(self.anchors, dtype=np.float64)
         if anchors.shape != (self.heads, self.encoding.n_outputs) or not np.all(np.isfinite(anchors)):
@@ -116,9 +118,9 @@ class MLPController:
         """The network's outputs: heads x joints."""
         return self.heads * self.encoding.n_outputs
 
-    @property
+    @functools.cached_property
     def offsets(self) -> np.ndarray:
-        """(heads nq,) the fixed output pre-activation offsets (zeros for one head)."""
+        """(heads nq,) the fixed output pre-activation offsets (zeros for one head); computed once."""
         if self.heads == 1:
             return np.zeros(self.encoding.n_outputs)
         return anchor_offsets(self.encoding, self.anchors)
@@ -136,7 +138,9 @@ class MLPController:
     def outputs(self, goals: np.ndarray) -> np.ndarray:
         """Network outputs a_o in [-1, 1] of the answering head, (n, nq)."""
         if self.heads > 1:
-            return self.head_outputs(goals)[self.choose(goals), np.arange(len(goals))]
+            a = self.head_outputs(goals)
+            pick = choose_heads(self.encoding, self.chain, self.encoding.joints(a), goals)
+            return a[pick, np.arange(len(goals))]
         XT = np.ascontiguousarray(self.encoding.inputs(goals).T)
         out = np.empty((self.encoding.n_outputs, XT.shape[1]))
         kernels.mlp_outputs(XT, self.weights[None, :], self.hidden, out)
