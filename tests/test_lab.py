@@ -126,10 +126,36 @@ def test_reach_features_add_the_slack_of_reach_that_linearizes_the_scara_elbow()
     assert np.array_equal(again.inputs(goals), x) and again.r_max == enc.r_max
 
 
+def test_sphere_features_centre_on_the_shoulder_and_follow_the_elbow_of_an_arm_in_space():
+    arm = robots.load("ur5")
+    enc = Encoding.for_arm(arm, "sphere")
+    assert enc.input_names == ["x", "y", "z", "r", "φ", "s", "ρ", "ψ", "σ"]
+    # the centre is the UR5's shoulder (d1 = 89.159 mm above the base), the radius the farthest goal from it
+    assert enc.z_c == pytest.approx(0.089159, abs=0.003)
+    q = np.random.default_rng(1).uniform(arm.lower, arm.upper, (3000, arm.nq))
+    goals = arm.fk(q)
+    rho = np.linalg.norm(goals - [0.0, 0.0, enc.z_c], axis=1)
+    assert rho.max() <= enc.rho_max * (1 + 1e-3)
+    x = enc.inputs(goals)
+    np.testing.assert_allclose(x[:, :6], Encoding.for_arm(arm, "reach").inputs(goals), atol=1e-12)
+    sigma = np.sqrt(np.clip(1 - rho / enc.rho_max, 0, 1))
+    np.testing.assert_allclose(x[:, 8], 2 * (sigma - enc.in_lo[8]) / (enc.in_hi[8] - enc.in_lo[8]) - 1, atol=1e-12)
+    # the elbow's bend |q3| follows the slack about the shoulder, not the slack about the base axis
+    bend = np.abs(q[:, 2])
+    assert np.corrcoef(bend, sigma)[0, 1] > 0.9 > 0.7 > np.corrcoef(bend, x[:, 5])[0, 1]
+    again = Encoding.from_dict(json.loads(json.dumps(enc.to_dict())))
+    assert np.array_equal(again.inputs(goals), x) and (again.z_c, again.rho_max) == (enc.z_c, enc.rho_max)
+    # an arm in a plane has no sphere; a file without its centre is refused by name
+    with pytest.raises(ValueError, match="sphere features need three task axes"):
+        Encoding.for_arm(robots.load("planar"), "sphere")
+    with pytest.raises(ValueError, match="sphere features need 3 task axes, a finite z_c and a positive rho_max"):
+        Encoding.from_dict({k: v for k, v in enc.to_dict().items() if k != "rho_max"})
+
+
 # ---------------------------------------------------------------- 2. the fitness
 @pytest.mark.parametrize("robot,features,margin", [("planar", "cartesian", 0.0), ("scara", "cartesian", 0.0),
                                                     ("scara", "polar", 0.5), ("planar", "cylindrical", 1.0),
-                                                    ("scara", "reach", 2.0)])
+                                                    ("scara", "reach", 2.0), ("ur5", "sphere", 0.0)])
 def test_mlp_mse_equals_numpy_fitness(robot, features, margin):
     arm = robots.load(robot)
     enc = Encoding.for_arm(arm, features, margin)
