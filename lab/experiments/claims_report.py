@@ -327,8 +327,10 @@ def _what(result) -> list[str]:
             "counting as infinite; in brackets how many reached it).",
             f"- **Cut to fit 10 minutes on this 2-core machine:** {c.runs} seeds instead of the issue's 10; a budget "
             f"of {c.generations} {_label(C.METHODS[0])} generations (E = {c.budget(C.ROBOTS[0]):,} evaluations) "
-            "instead of the paper's 1,000 (50,000), far below the real arms' defaults (CMA-ES 50,000 generations, "
-            "the gradient method 20,000 steps): the real arms' errors are those of short runs.",
+            "instead of the paper's 1,000 (50,000), far below the real arms' defaults ("
+            + ", ".join(f"{_label(m)} {methods.get(m).defaults(robots.load(a)).get('generations', 0):,} steps on {a}"
+                        for m in ("cmaes", "gradient") for a in C.ROBOTS if robots.kind(a) == "real")
+            + "): the real arms' errors are those of short runs.",
             f"- Executed {result.experiment.executed} runs on {result.experiment.executor}; resumed "
             f"{result.experiment.resumed}."]
 
