@@ -21,6 +21,7 @@ from lab.experiments.figures import band, pyplot
 from lab.experiments.report import failure_lines, machine_lines, time_lines
 from lab.experiments.stats import welch
 from lab.experiments.tables import fmt, md_table
+from lab.running.config import TrainConfig
 
 EVOLVED, GRADIENT = C.METHODS[:2], C.METHODS[2]
 SNAKES = tuple(r for r in C.ROBOTS if robots.kind(r) == "snake")  # "highly redundant"
@@ -327,9 +328,9 @@ def _what(result) -> list[str]:
             "counting as infinite; in brackets how many reached it).",
             f"- **Cut to fit 10 minutes on this 2-core machine:** {c.runs} seeds instead of the issue's 10; a budget "
             f"of {c.generations} {_label(C.METHODS[0])} generations (E = {c.budget(C.ROBOTS[0]):,} evaluations) "
-            "instead of the paper's 1,000 (50,000), far below the real arms' defaults ("
-            + ", ".join(f"{_label(m)} {methods.get(m).defaults(robots.load(a)).get('generations', 0):,} steps on {a}"
-                        for m in ("cmaes", "gradient") for a in C.ROBOTS if robots.kind(a) == "real")
+            "instead of the paper's 1,000 (50,000), far below the real arms' defaults (generations or steps: "
+            + ", ".join(f"{_label(m)} {TrainConfig.preset(robot=a, method=m).generations:,} on {a}"
+                        for m in C.METHODS for a in C.ROBOTS if robots.kind(a) == "real")
             + "): the real arms' errors are those of short runs.",
             f"- Executed {result.experiment.executed} runs on {result.experiment.executor}; resumed "
             f"{result.experiment.resumed}."]
