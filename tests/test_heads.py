@@ -62,7 +62,11 @@ def test_each_head_starts_at_its_anchor(so101):
     q = enc.joints(c.head_outputs(so101.sample_goals(4, seed=1)))  # (heads, goals, nq)
     assert np.allclose(q, anchors[:, None, :])
     assert np.allclose(anchors[0], 0.5 * (so101.lower + so101.upper))  # head 0: the single-head start
-    assert np.all((anchors[1] < anchors[0]) & (anchors[0] < anchors[2]))
+    # head 1 leans back on every joint; head 2 is its mirror image in the base joint; head 3 leans forward
+    assert np.all(anchors[1] < anchors[0])
+    assert anchors[2][0] - anchors[0][0] == pytest.approx(anchors[0][0] - anchors[1][0])
+    assert np.array_equal(anchors[2][1:], anchors[1][1:])
+    assert np.all(head_anchors(enc, 4)[3] > anchors[0])
 
 
 def test_the_same_seed_gives_the_same_run(run):

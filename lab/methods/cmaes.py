@@ -24,11 +24,12 @@ from lab.problem.checks import flag, real, whole
 from lab.problem.controllers import MAX_HEADS, MLPController, mlp_size
 
 REAL_ARM_GENERATIONS = 45_000  # 4-5 minutes on the 2-core machine (fitness on both cores) for a 5-7 joint arm
-# arms whose goals lie on two IK branches that no single-head run found: their heads, and a budget that
-# still fits 5 minutes (2 heads: 6.5-7.9 ms a generation on SO100 against 4.8 for one; Z1's 36,000 took
-# 301 s by --timing on 2026-12-02, so 32,000; README "Real arms")
-TWO_BRANCH_ARMS = {"so100": dict(heads=2, generations=32_000), "so101": dict(heads=2, generations=36_000),
-                   "z1": dict(heads=2, generations=32_000)}
+# arms whose goals lie on several IK branches that no single-head run serves: their heads, and a
+# budget that still fits 5 minutes (README "Real arms"; per generation on one thread, --timing side
+# by side: UR5 with two heads 12.4-12.6 ms against 8.0-9.2 for one; SO100 with two 6.5-7.9 ms on two
+# threads against 4.8; Z1's 36,000 took 301 s by --timing on 2026-12-02, so 32,000)
+MULTI_HEAD_ARMS = {"ur5": dict(heads=2, generations=32_000), "so100": dict(heads=2, generations=32_000),
+                   "so101": dict(heads=3, generations=26_000), "z1": dict(heads=2, generations=32_000)}
 STALL = 150  # generations without 1% improvement that end a start (restarts only)
 _STOP_IGNORED = {"maxiter", "maxfevals", "ftarget"}
 
@@ -181,17 +182,22 @@ def defaults(arm) -> dict:
     margin and the budget measured on the planar arm are the closest measured choice; their 10-20
     outputs may want more hidden units (not measured yet).
 
-    SO100, SO101 and Z1 (TWO_BRANCH_ARMS): two heads, the second started leaning back: goals
-    behind their base are reached only with the arm folded back over its shoulder, a branch no
-    single-head run found. Seed 0, "sphere" inputs, one head against two: SO101 median 1.43 ->
-    1.10 % of reach, refined 84.4 -> 87.8 %; Z1 (32,000 generations, so that two heads fit the
-    5 minutes) 0.79 -> 0.83 %, refined 98.7 -> 99.8 %. SO100 ("reach" inputs then): median 1.78 ->
-    1.58 %, refined 85.7 -> 91.3 %. Not on the others: on UR5 ("reach") the median got worse
-    (1.23 -> 1.75 %), and two heads cost 1.3-2x the time of one a generation."""
+    UR5, SO100, SO101 and Z1 (MULTI_HEAD_ARMS): several heads (lab/problem/controllers.py,
+    head_anchors). On the SO arms and Z1 the goals behind the base are reached only with the arm
+    folded back over its shoulder, a branch no single-head run found; the second head starts
+    leaning back, SO101's third is its mirror image in the base joint (the goals behind the base on
+    the other side). Seed 0, "sphere" inputs, held-out median and refined success: SO101 one head
+    1.43 % of reach, 84.4 %; two 1.10 %, 87.8 %; three (26,000 generations) 1.45 %, 92.3 %. Z1 (32,000
+    generations, so that two heads fit the 5 minutes) 0.79 -> 0.83 %, 98.7 -> 99.8 %. UR5 (32,000)
+    0.85 -> 0.61 %, 98.6 -> 99.1 %, p99 10.5 -> 2.6 %: a single network must cut its workspace between
+    elbow branches, and its worst seeds lay along the cut ("reach" inputs, before: the median got
+    worse, 1.23 -> 1.75 %). SO100 ("reach" inputs then): one head to two 1.78 -> 1.58 %, 85.7 -> 91.3 %;
+    three heads (24,000) 1.55 %, 90.6 %, worse than two. Two heads cost 1.3-2x the time of one a
+    generation, three about 1.4x two."""
     if robots.kind(arm.name) in ("paper", "snake"):
         return dict(features="reach", margin=2.0, hidden=5)
     return {**dict(features="sphere", margin=0.0, hidden=32, targets=300, population=50,
-                   generations=REAL_ARM_GENERATIONS, sigma0=0.05, separable=True), **TWO_BRANCH_ARMS.get(arm.name, {})}
+                   generations=REAL_ARM_GENERATIONS, sigma0=0.05, separable=True), **MULTI_HEAD_ARMS.get(arm.name, {})}
 
 
 METHOD = register(Method(

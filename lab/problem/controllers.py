@@ -40,18 +40,26 @@ def mlp_size(n_inputs: int, hidden: int, n_outputs: int) -> int:
     return (n_inputs + 1) * hidden + hidden * n_outputs
 
 
-HEAD_CORNERS = (0.0, -0.7, 0.7, -0.35, 0.35, -0.85, 0.85, -0.5)  # head k's anchor: mid + c_k h (MAX_HEADS of them)
+# head k's anchor: mid + c h, with c = (first joint's, the other joints') corner of HEAD_CORNERS[k]
+# (MAX_HEADS of them): the centre, then the four corners of that square, then nearer and farther ones
+HEAD_CORNERS = ((0.0, 0.0), (-0.7, -0.7), (0.7, -0.7), (0.7, 0.7), (-0.7, 0.7), (-0.35, -0.35), (0.35, 0.35),
+                (-0.85, -0.85))
 MAX_HEADS = len(HEAD_CORNERS)
 
 
 def head_anchors(encoding: Encoding, heads: int) -> np.ndarray:
     """(heads, nq) the joint values each head of a multi-hypothesis MLP starts from: head k at
-    mid + c_k h on every joint (h the half range, c = HEAD_CORNERS: 0, -0.7, +0.7, ...), so the
-    heads begin at opposite corners of the joint box, on different IK branches (elbow up and down,
-    leaning forward and back); head 0 is the single-head network's start, mid-range."""
+    mid + c h (h the half range), c the first joint's corner of HEAD_CORNERS[k] on the first joint
+    (the base's turn on every arm of the lab) and the other corner on every other joint. So the
+    heads begin on different IK branches: head 1 leaning back (-0.7 on every joint: on SO100,
+    SO101 and Z1, folded back over the shoulder for the goals behind the base), head 2 its mirror
+    image in the base joint (+0.7 on the base, still leaning back: the goals behind the base on
+    the other side), head 3 leaning forward, ...; head 0 is the single-head network's start,
+    mid-range."""
     heads = _check_heads(heads)
     mid, half = 0.5 * (encoding.q_lo + encoding.q_hi), 0.5 * (encoding.q_hi - encoding.q_lo)
-    return np.stack([mid + c * half for c in HEAD_CORNERS[:heads]])
+    first = np.arange(len(mid)) == 0
+    return np.stack([mid + np.where(first, base, rest) * half for base, rest in HEAD_CORNERS[:heads]])
 
 
 def _check_heads(heads) -> int:
