@@ -195,13 +195,18 @@ def _raw_features(goals: np.ndarray, features: str, k: int, r_max: float = 0.0, 
     phi = np.arctan2(goals[:, 1], goals[:, 0])
     if features == "cylindrical":
         return np.column_stack([r, phi, goals[:, 2:]])
-    if features == "reach":
-        return np.column_stack([goals, r, phi, np.sqrt(np.clip(1.0 - r / r_max, 0.0, 1.0))])
-    if features == "sphere":
-        if k != 3:
+    if features in ("reach", "sphere"):
+        if features == "sphere" and k != 3:
             raise ValueError("sphere features need three task axes")
+        reach = np.column_stack([goals, r, phi, _slack(r, r_max)])
+        if features == "reach":
+            return reach
         h = goals[:, 2] - z_c
         rho = np.hypot(r, h)
-        return np.column_stack([goals, r, phi, np.sqrt(np.clip(1.0 - r / r_max, 0.0, 1.0)), rho, np.arctan2(h, r),
-                                np.sqrt(np.clip(1.0 - rho / rho_max, 0.0, 1.0))])
+        return np.column_stack([reach, rho, np.arctan2(h, r), _slack(rho, rho_max)])
     return np.column_stack([goals, r, phi])
+
+
+def _slack(d: np.ndarray, d_max: float) -> np.ndarray:
+    """sqrt(1 - d / d_max), 0 at the outer shell d = d_max (clipped to [0, 1])."""
+    return np.sqrt(np.clip(1.0 - d / d_max, 0.0, 1.0))
