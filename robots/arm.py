@@ -160,6 +160,22 @@ class Arm:
         q = np.concatenate([self.sample_q(20_000, seed=1), self.rest[None]])
         return float(np.linalg.norm(self.fk(q), axis=-1).max())
 
+    @functools.cached_property
+    def base_axis(self) -> tuple[np.ndarray, np.ndarray]:
+        """(point, direction) of the first joint's axis in the world frame: its unit direction and its
+        point nearest the world origin (from the joint's column of Pinocchio's world-frame Jacobian,
+        v = p x w), rounded to 1e-9 (a URDF's rounding leaves an axis through the origin there). The
+        SO arms' pan axis stands 4-5 cm beside the origin of their URDF."""
+        model = self.model
+        data = model.createData()
+        pin.computeJointJacobians(model, data, self.to_pinocchio(self.rest))
+        joint = int(self.chain.joint_ids[0])
+        column = pin.getJointJacobian(model, data, joint, pin.WORLD)[:, model.joints[joint].idx_v]
+        v, w = column[:3], column[3:]
+        if np.dot(w, w) < 1e-12:  # a prismatic first joint: its direction, through the origin
+            return np.zeros(3), v / np.linalg.norm(v)
+        return np.round(np.cross(w, v) / np.dot(w, w), 9) + 0.0, w / np.linalg.norm(w)
+
     # ---------------------------------------------------------------- geometry
     def visual_model(self) -> pin.GeometryModel:
         """Visual geometry of the chain (meshes loaded on first call; may take ~1 s)."""

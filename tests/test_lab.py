@@ -152,6 +152,28 @@ def test_sphere_features_centre_on_the_shoulder_and_follow_the_elbow_of_an_arm_i
         Encoding.from_dict({k: v for k, v in enc.to_dict().items() if k != "rho_max"})
 
 
+@pytest.mark.parametrize("name", ["so100", "so101"])
+def test_r_and_phi_are_about_the_base_axis_so_the_base_joint_turns_phi_alone(name):
+    """An arm whose base axis stands beside its URDF's origin (the SO arms, 4-5 cm): turning the base
+    joint changes the input phi by just that turn, and r and the slacks not at all."""
+    arm = robots.load(name)
+    enc = Encoding.for_arm(arm, "sphere")
+    assert np.allclose(enc.axis_xy, arm.base_axis[0][:2]) and np.linalg.norm(enc.axis_xy) > 0.03
+    q = arm.sample_q(50, seed=3)
+    q2 = q.copy()
+    q2[:, 0] = np.clip(q[:, 0] + 0.3, arm.lower[0], arm.upper[0])
+    turn = (q2[:, 0] - q[:, 0]) * np.sign(arm.base_axis[1][2])
+    lo = enc.in_lo
+    raw = [lo + (enc.inputs(arm.fk(a)) + 1) / 2 * (enc.in_hi - enc.in_lo) for a in (q, q2)]
+    names = enc.input_names
+    dphi = np.angle(np.exp(1j * (raw[1][:, names.index("φ")] - raw[0][:, names.index("φ")])))
+    np.testing.assert_allclose(dphi, turn, atol=1e-4)  # SO101's pan axis leans 1e-4 off the vertical
+    for k in ("r", "s", "ρ", "ψ", "σ", "z"):
+        np.testing.assert_allclose(raw[1][:, names.index(k)], raw[0][:, names.index(k)], atol=1e-4)
+    again = Encoding.from_dict(json.loads(json.dumps(enc.to_dict())))
+    assert np.array_equal(again.axis_xy, enc.axis_xy)
+
+
 # ---------------------------------------------------------------- 2. the fitness
 @pytest.mark.parametrize("robot,features,margin", [("planar", "cartesian", 0.0), ("scara", "cartesian", 0.0),
                                                     ("scara", "polar", 0.5), ("planar", "cylindrical", 1.0),

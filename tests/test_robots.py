@@ -203,6 +203,21 @@ def eq4_scara(q):
     return p, R
 
 
+@pytest.mark.parametrize("name", ["so100", "so101", "ur5", "planar"])
+def test_the_base_axis_is_what_the_first_joint_turns_the_end_effector_about(name):
+    """Turning only the first joint moves the end effector on a circle about arm.base_axis: its
+    distance to that line stays the same (the SO arms' axis stands 4-5 cm beside the URDF's origin)."""
+    arm = robots.load(name)
+    point, direction = arm.base_axis
+    assert np.linalg.norm(direction) == pytest.approx(1.0)
+    q = np.repeat(arm.sample_q(5, seed=7), 9, axis=0)
+    q[:, 0] = np.tile(np.linspace(arm.lower[0], arm.upper[0], 9), 5)
+    p = arm.fk(q) - point
+    d = np.linalg.norm(p - np.outer(p @ direction, direction), axis=1).reshape(5, 9)
+    np.testing.assert_allclose(d - d[:, :1], 0.0, atol=1e-9)
+    assert (np.linalg.norm(point[:2]) > 0.03) == name.startswith("so")
+
+
 def test_planar_equals_eq3():
     arm = robots.load("planar")
     q = np.concatenate([arm.sample_q(500, seed=0), np.random.default_rng(1).uniform(-7, 7, (200, 3))])

@@ -3,8 +3,11 @@
 Inputs (features):
     "cartesian"  the goal's task coordinates, each scaled to [-1, 1] by the workspace bounds
                  (the paper's encoding);
-    "polar"      the same, plus the goal's distance from the base axis r = hypot(x, y) and its
-                 bearing phi = atan2(y, x), both scaled to [-1, 1] by their ranges over the workspace;
+    "polar"      the same, plus the goal's distance from the base axis r = hypot(x - x_a, y - y_a) and
+                 its bearing phi = atan2(y - y_a, x - x_a), both scaled to [-1, 1] by their ranges over
+                 the workspace; (x_a, y_a) = axis_xy, where the arm's first joint axis (upright)
+                 crosses the x-y plane (arm.base_axis): the origin on most arms, 4-5 cm beside it on
+                 the SO arms, whose base joint then turns phi alone;
     "cylindrical"  r and phi in place of x and y (then z, for 3D goals): as many inputs as
                  "cartesian", in the coordinates of an arm whose first joint turns about z;
     "reach"      "polar" plus the slack of reach s = sqrt(1 - r / r_max) (0 beyond r_max), r_max the
@@ -58,12 +61,17 @@ class Encoding:
     wrap: np.ndarray | None = None  # (nq,) True for a continuous joint: two turns, wrapped (None: none)
     z_c: float = 0.0  # "sphere": the height of the centre of the workspace's smallest sphere about the base axis
     rho_max: float = 0.0  # "sphere": that sphere's radius
+    axis_xy: np.ndarray | None = None  # (2,) where the arm's base axis crosses the x-y plane: r and phi are about it
 
     def __post_init__(self):
         wrap = np.zeros(len(self.q_lo), bool) if self.wrap is None else np.asarray(self.wrap, bool).reshape(-1)
         if wrap.shape != (len(self.q_lo),):
             raise ValueError(f"wrap must hold one flag per joint ({len(self.q_lo)}), got {len(wrap)}")
         object.__setattr__(self, "wrap", wrap)
+        axis_xy = np.zeros(2) if self.axis_xy is None else np.asarray(self.axis_xy, dtype=np.float64).reshape(-1)
+        if axis_xy.shape != (2,) or not np.all(np.isfinite(axis_xy)):
+            raise ValueError(f"axis_xy must be 2 finite coordinates, got {self.axis_xy!r}")
+        object.__setattr__(self, "axis_xy", axis_xy)
         if self.features not in FEATURES:
             raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
         if not 0 <= self.margin < 10:
@@ -86,14 +94,17 @@ class Encoding:
     @classmethod
     def for_arm(cls, arm: robots.Arm, features: str = "cartesian", margin: float = 0.0) -> "Encoding":
         goals = arm.sample_goals(20_000, seed=12345)
-        r_max = float(np.hypot(goals[:, 0], goals[:, 1]).max()) if features in ("reach", "sphere") else 0.0
-        z_c, rho_max = _enclosing_sphere(goals) if features == "sphere" and goals.shape[1] == 3 else (0.0, 0.0)
-        raw = _raw_features(goals, features, len(arm.task_axes), r_max, z_c, rho_max)
+        point, direction = arm.base_axis  # r and phi about the base axis where it stands upright
+        axis_xy = point[:2] if abs(direction[2]) > 1.0 - 1e-9 and len(arm.task_axes) >= 2 else np.zeros(2)
+        about = np.column_stack([goals[:, :2] - axis_xy, goals[:, 2:]]) if goals.shape[1] >= 2 else goals
+        r_max = float(np.hypot(about[:, 0], about[:, 1]).max()) if features in ("reach", "sphere") else 0.0
+        z_c, rho_max = _enclosing_sphere(about) if features == "sphere" and goals.shape[1] == 3 else (0.0, 0.0)
+        raw = _raw_features(goals, features, len(arm.task_axes), r_max, z_c, rho_max, axis_xy)
         lo, hi = raw.min(axis=0), raw.max(axis=0)
         flat = hi - lo < 1e-9
         lo, hi = np.where(flat, lo - 0.5, lo), np.where(flat, hi + 0.5, hi)
         return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy(), float(margin), r_max,
-                   np.asarray(arm.chain.continuous, bool).copy(), z_c, rho_max)
+                   np.asarray(arm.chain.continuous, bool).copy(), z_c, rho_max, axis_xy.copy())
 
     @property
     def n_inputs(self) -> int:
@@ -115,7 +126,8 @@ class Encoding:
         goals = np.asarray(goals, dtype=np.float64)
         if goals.ndim != 2 or goals.shape[1] != len(self.task_axes):
             raise ValueError(f"goals must have shape (n, {len(self.task_axes)}), got {goals.shape}")
-        raw = _raw_features(goals, self.features, len(self.task_axes), self.r_max, self.z_c, self.rho_max)
+        raw = _raw_features(goals, self.features, len(self.task_axes), self.r_max, self.z_c, self.rho_max,
+                            self.axis_xy)
         return 2.0 * (raw - self.in_lo) / (self.in_hi - self.in_lo) - 1.0
 
     @property
@@ -155,6 +167,7 @@ class Encoding:
             **({"r_max": self.r_max} if self.features in ("reach", "sphere") else {}),
             **({"z_c": self.z_c, "rho_max": self.rho_max} if self.features == "sphere" else {}),
             **({"wrap": self.wrap.tolist()} if self.wrap.any() else {}),
+            **({"axis_xy": self.axis_xy.tolist()} if self.axis_xy.any() else {}),
         }
 
     @classmethod
@@ -162,7 +175,7 @@ class Encoding:
         return cls(d["features"], tuple(d["task_axes"]),
                    *(np.atleast_1d(np.asarray(d[k], float)) for k in ("in_lo", "in_hi", "q_lo", "q_hi")),
                    float(d.get("margin", 0.0)), float(d.get("r_max", 0.0)), d.get("wrap"),
-                   float(d.get("z_c", 0.0)), float(d.get("rho_max", 0.0)))
+                   float(d.get("z_c", 0.0)), float(d.get("rho_max", 0.0)), d.get("axis_xy"))
 
 
 def _enclosing_sphere(goals: np.ndarray) -> tuple[float, float]:
@@ -186,13 +199,14 @@ def _enclosing_sphere(goals: np.ndarray) -> tuple[float, float]:
 
 
 def _raw_features(goals: np.ndarray, features: str, k: int, r_max: float = 0.0, z_c: float = 0.0,
-                  rho_max: float = 0.0) -> np.ndarray:
+                  rho_max: float = 0.0, axis_xy=(0.0, 0.0)) -> np.ndarray:
     if features == "cartesian":
         return goals
     if k < 2:
         raise ValueError("polar features need at least two task axes")
-    r = np.hypot(goals[:, 0], goals[:, 1])
-    phi = np.arctan2(goals[:, 1], goals[:, 0])
+    x, y = goals[:, 0] - axis_xy[0], goals[:, 1] - axis_xy[1]  # about the base axis
+    r = np.hypot(x, y)
+    phi = np.arctan2(y, x)
     if features == "cylindrical":
         return np.column_stack([r, phi, goals[:, 2:]])
     if features in ("reach", "sphere"):
