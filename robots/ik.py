@@ -21,6 +21,7 @@ improved for 10 iterations (a goal out of reach), or after max_iter, and returns
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 import weakref
@@ -160,10 +161,55 @@ def _held_step(J, e, q, lower, upper, free_limits, lam2_eye) -> np.ndarray:
     return dq
 
 
-def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, damping: float = 1e-3,
-           halvings: int = 4) -> RefineResult:
-    """A learned seed made exact: at most `steps` damped Gauss-Newton steps from q0 toward each goal.
+def _bearing(arm: Arm) -> tuple[np.ndarray, np.ndarray] | None:
+    """The first joint's axis (point, unit direction) in task coordinates, when a turn of that joint
+    can be solved for in closed form: a revolute first joint, and 3 task axes (or the x-y plane of
+    an arm whose first joint turns about z). None otherwise."""
+    if arm.is_prismatic[0]:
+        return None
+    c, w = arm.base_axis
+    axes = list(arm.task_axes)
+    if len(axes) == 3:
+        return c, w
+    if axes == [0, 1] and abs(abs(w[2]) - 1.0) < 1e-9:
+        return c[:2], None
+    return None
 
+
+def _turned(q, p, goal, bearing, lower, upper, continuous) -> np.ndarray:
+    """q with its first joint turned so that the end effector p's bearing about the first joint's
+    axis is the goal's: turning that joint alone moves p on a circle about the axis, and the point
+    of the circle nearest the goal lies at the goal's bearing (when that bearing is beyond the
+    joint's limits: the turn within them nearest to it). Scalar math: it runs once per goal."""
+    c, w = bearing
+    u, v = p - c, goal - c
+    if w is None:  # the x-y plane, turned about z
+        turn = math.atan2(u[0] * v[1] - u[1] * v[0], u[0] * v[0] + u[1] * v[1])
+    else:
+        u, v = u - float(u @ w) * w, v - float(v @ w) * w
+        x = u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]
+        turn = math.atan2(x[0] * w[0] + x[1] * w[1] + x[2] * w[2], float(u @ v))
+    q = q.copy()
+    q0, lo, hi = float(q[0]), float(lower[0]), float(upper[0])
+    if continuous:  # whole turns into its range
+        q[0] = lo + (q0 + turn - lo) % (2 * math.pi)
+        return q
+    # |p' - g|^2 = const - 2 |u| |v| cos(turn still to go): the larger that cosine, the nearer
+    best, score = q0, math.cos(turn)
+    for cand in (q0 + turn - 2 * math.pi, q0 + turn, q0 + turn + 2 * math.pi, lo, hi):
+        cos = math.cos(turn - (cand - q0))
+        if lo - 1e-12 <= cand <= hi + 1e-12 and cos > score + 1e-15:
+            best, score = min(max(cand, lo), hi), cos
+    q[0] = best
+    return q
+
+
+def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, damping: float = 1e-3,
+           halvings: int = 4, turn: bool = True) -> RefineResult:
+    """A learned seed made exact: at most `steps` damped Gauss-Newton steps from q0 toward each goal,
+    after one closed-form turn of the first joint (turn=True).
+
+        q_0 = q0 with its first joint turned to the goal's bearing about that joint's axis (_turned)
         dq_k = J^T (J J^T + lambda^2 I)^-1 (g - p(q_k))       with joints at a limit held (an active set)
         q_{k+1} = q_k + a_k dq_k,  a_k the first of 1, 1/2, 1/4, ... (halvings) that lowers the error
 
@@ -176,7 +222,15 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     is halved while the full step does not lower the error (each halving costs one forward
     kinematics, not a Jacobian). A goal stops once its error is below tol (default 1e-4 x
     workspace_size); each goal keeps its best iterate. goals (n, len(task_axes)), q0 (n, nq)
-    (a network's output)."""
+    (a network's output).
+
+    The turn first (one forward kinematics, no Jacobian): the first joint alone moves the end
+    effector on a circle about its axis (Arm.base_axis), whose point nearest the goal lies at the
+    goal's bearing, so that joint's best value is known in closed form (the nearest one within its
+    limits when the bearing is out of them); it is kept when it lowers the error. Near the base
+    axis a seed a few millimetres off can be tens of degrees off in that joint, where a
+    Gauss-Newton step, linear in the angle, overshoots (SO100: 95.5 -> 96.6 % of held-out goals
+    within tolerance in 3 steps; README, "Real arms"). turn=False: Gauss-Newton steps only."""
     t0 = time.perf_counter()
     goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
     q = arm.within_limits(np.atleast_2d(np.asarray(q0, dtype=np.float64)))
@@ -198,10 +252,17 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
         e = goal - data.oMf[fid].translation[axes]
         return e, float(np.sqrt(e @ e))
 
+    bearing = _bearing(arm) if turn else None
+    continuous0 = bool(arm.chain.continuous[0])
     out_q, out_err, taken = q.copy(), np.zeros(len(goals)), np.zeros(len(goals), np.int64)
     for i, goal in enumerate(goals):
         qi = q[i]
         e, err = error(qi, goal)
+        if bearing is not None and err >= tol:
+            q_try = _turned(qi, goal - e, goal, bearing, lower, upper, continuous0)
+            e_try, err_try = error(q_try, goal)
+            if err_try < err:
+                qi, e, err = q_try, e_try, err_try
         k = 0
         while err >= tol and k < steps:
             J = pin.computeFrameJacobian(model, data, qi if direct else arm.to_pinocchio(qi), fid,

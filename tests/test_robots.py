@@ -547,6 +547,44 @@ def test_refine_holds_a_joint_at_its_limit_instead_of_clipping_the_step(name):
     assert np.allclose(np.linalg.norm(arm.reach(r.q) - goals, axis=1), r.error)
 
 
+@pytest.mark.parametrize("name", ["so100", "so101", "ur5", "kinova", "planar"])
+def test_refine_turns_the_first_joint_to_the_goals_bearing_in_closed_form(name):
+    """A seed wrong in the first joint alone (by up to 1.5 rad) is made exact by the turn, before any
+    Gauss-Newton step (steps=0): about the SO arms' offset axis, a continuous joint (Kinova, turning
+    about -z) and the planar arm's x-y plane alike. turn=False leaves it as it was."""
+    from robots.ik import refine
+
+    arm = robots.load(name)
+    q_true = arm.sample_q(300, seed=3)
+    goals = arm.reach(q_true)
+    seeds = q_true.copy()
+    seeds[:, 0] += np.random.default_rng(2).uniform(-1.5, 1.5, len(seeds))
+    inside = (seeds[:, 0] >= arm.lower[0]) & (seeds[:, 0] <= arm.upper[0]) | bool(arm.chain.continuous[0])
+    seeds, goals = arm.within_limits(seeds[inside]), goals[inside]
+    start = np.linalg.norm(arm.reach(seeds) - goals, axis=1)
+    r = refine(arm, goals, seeds, steps=0, tol=1e-12 * arm.reach_radius)
+    assert len(goals) > 150 and np.max(r.error) < 1e-8 * arm.reach_radius  # the axis is rounded to 1e-9
+    assert np.allclose(r.q[:, 1:], seeds[:, 1:]) and np.all(r.steps == 0)
+    assert np.allclose(refine(arm, goals, seeds, steps=0, turn=False).error, start, rtol=1e-9, atol=0)
+
+
+def test_refine_turns_the_first_joint_no_further_than_its_limit():
+    """Goals whose bearing lies beyond the first joint's range (SO100's pan: [-2, 2] rad; the goals of
+    a pan angle of 2.5): the turn stops at the limit nearer in angle to go (+2, not -2), and the
+    error never grows."""
+    from robots.ik import refine
+
+    arm = robots.load("so100")
+    q = arm.sample_q(200, seed=4)
+    q[:, 0] = 2.5  # reach() computes the pose beyond the limit
+    goals = arm.reach(q)
+    seeds = q.copy()
+    seeds[:, 0] = 0.0  # the goals' bearing: 2.5 rad ahead (0.5 past +2) or 3.78 behind (1.78 past -2)
+    start = np.linalg.norm(arm.reach(seeds) - goals, axis=1)
+    r = refine(arm, goals, seeds, steps=0, tol=1e-12)
+    assert np.all(r.error <= start) and np.all(r.q[:, 0] == arm.upper[0])
+
+
 def test_refine_refuses_mismatched_shapes():
     from robots.ik import refine
 
