@@ -3,8 +3,8 @@
 Each goal is a transform gizmo constrained to the task axes (the plane z = 0 for the planar
 arm), an arm drawn at q = controller(goal) (the first solid, the others translucent) and a
 label with the end-effector error ||goal - reach(q)||. The first goal also has two ghost arms:
-the network's answer refined by at most 3 Gauss-Newton steps (robots.ik.refine: the practical
-use of a learned IK), and damped least squares from the rest pose (robots.ik.dls_ik), each with
+the network's answer refined by one closed-form turn of the base joint and at most 3 Gauss-Newton
+steps (robots.ik.refine: the practical use of a learned IK), and damped least squares from the rest pose (robots.ik.dls_ik), each with
 its error and time.
 
 A marker update moves its arm at once, in the callback (in viser's event loop: one network
@@ -168,7 +168,8 @@ class TabSession(TabExtras):
             self.add_button = gui.add_button("Add goal")  # no icons: viser reads each from a zip file
             self.remove_button = gui.add_button("Remove goal")
             self.show_ik = gui.add_checkbox("IK ghosts (refined network, DLS)", True,
-                                            hint="orange: the network's answer + at most 3 Gauss-Newton steps; "
+                                            hint="orange: the network's answer, its base turned to the goal, + at most 3 "
+                                                 "Gauss-Newton steps; "
                                                  "blue: damped least squares from the rest pose")
             self.show_population = gui.add_checkbox(
                 "Population", True, hint="every candidate of the current generation at its reach for each goal")

@@ -4,8 +4,9 @@ For each arm: `lab.evolve(robot)` with no other argument (the method's defaults 
 budget included), timed; the position error ||goal - fk(net(goal))|| on 2,000 held-out goals from
 uniformly random joint vectors: median, 90th and 99th percentile in mm and in % of the arm's
 reach (the farthest end-effector position from the base over 20,000 joint samples). Then the
-practical use of a learned IK: the network's output refined by at most 3 damped Gauss-Newton
-steps on Pinocchio's frame Jacobian (robots.ik.refine), success = error < 0.1 mm, time per goal
+practical use of a learned IK: the network's output refined by one closed-form turn of the base
+joint to the goal's bearing and at most 3 damped Gauss-Newton steps on Pinocchio's frame Jacobian
+(robots.ik.refine), success = error < 0.1 mm, time per goal
 (one batched forward pass + the steps, per goal), beside damped least squares from the rest pose
 to the same tolerance (robots.ik.dls_ik, at most 500 iterations). Published for comparison:
 TRAC-IK, 99.2 % success on the UR5 at 0.37 ms per solve (full 6-D pose, Beeson and Ames 2015).

@@ -174,10 +174,36 @@ def test_r_and_phi_are_about_the_base_axis_so_the_base_joint_turns_phi_alone(nam
     assert np.array_equal(again.axis_xy, enc.axis_xy)
 
 
+@pytest.mark.parametrize("name", ["so100", "so101"])
+def test_bearings_put_phis_seam_behind_the_arm_and_phi_primes_in_front(name):
+    """"bearings": "sphere" with phi measured from the bearing the arm faces (its goals' circular
+    mean bearing: SO100 faces -y, SO101 +x) and phi' from the opposite one. phi's seam (+-pi) then lies
+    among the fewest goals, behind the arm, and phi' has its seam in front, among the most."""
+    arm = robots.load(name)
+    enc, sphere = Encoding.for_arm(arm, "bearings"), Encoding.for_arm(arm, "sphere")
+    assert enc.input_names == sphere.input_names + ["φ′"]
+    assert np.degrees(enc.facing) == pytest.approx({"so100": -90.0, "so101": 0.0}[name], abs=3.0)
+    goals = arm.sample_goals(4000, seed=8)
+    raw = enc.in_lo + (enc.inputs(goals) + 1) / 2 * (enc.in_hi - enc.in_lo)
+    raw_sphere = sphere.in_lo + (sphere.inputs(goals) + 1) / 2 * (sphere.in_hi - sphere.in_lo)
+    phi = raw_sphere[:, 4]
+    np.testing.assert_allclose(np.delete(raw[:, :9], 4, axis=1), np.delete(raw_sphere, 4, axis=1), atol=1e-9)
+    np.testing.assert_allclose(np.exp(1j * raw[:, 4]), np.exp(1j * (phi - enc.facing)), atol=1e-9)
+    np.testing.assert_allclose(np.exp(1j * raw[:, 9]), -np.exp(1j * raw[:, 4]), atol=1e-9)
+    behind = np.sum(np.abs(raw[:, 4]) > np.radians(150))  # within 30 degrees of phi's seam
+    in_front = np.sum(np.abs(raw[:, 9]) > np.radians(150))  # of phi''s seam
+    assert behind < 0.5 * in_front, (behind, in_front)
+    again = Encoding.from_dict(json.loads(json.dumps(enc.to_dict())))
+    assert again.facing == enc.facing and np.array_equal(again.inputs(goals), enc.inputs(goals))
+    with pytest.raises(ValueError, match="facing must be a bearing"):
+        Encoding.from_dict({**enc.to_dict(), "facing": 7.0})
+
+
 # ---------------------------------------------------------------- 2. the fitness
 @pytest.mark.parametrize("robot,features,margin", [("planar", "cartesian", 0.0), ("scara", "cartesian", 0.0),
                                                     ("scara", "polar", 0.5), ("planar", "cylindrical", 1.0),
-                                                    ("scara", "reach", 2.0), ("ur5", "sphere", 0.0)])
+                                                    ("scara", "reach", 2.0), ("ur5", "sphere", 0.0),
+                                                    ("so101", "bearings", 0.0)])
 def test_mlp_mse_equals_numpy_fitness(robot, features, margin):
     arm = robots.load(robot)
     enc = Encoding.for_arm(arm, features, margin)

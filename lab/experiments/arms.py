@@ -52,9 +52,9 @@ def held_out(arm: robots.Arm, controller, n: int = HELD_OUT) -> dict:
 
 
 def refined(arm: robots.Arm, controller, goals: np.ndarray, steps: int = 3, most: int = 8) -> dict:
-    """The network's output refined by at most `steps` Gauss-Newton steps (robots.ik.refine), timed
-    together (one batched forward pass + the steps): success = error below tolerance(arm).
-    by_steps[k - 1]: the success rate with at most k steps, k = 1 .. most (untimed: a goal's first
+    """The network's output refined by a turn of the base joint and at most `steps` Gauss-Newton steps
+    (robots.ik.refine), timed together (one batched forward pass + the turn and the steps):
+    success = error below tolerance(arm). by_steps[k - 1]: the success rate with at most k steps, k = 1 .. most (untimed: a goal's first
     k steps are the same whatever the limit, so one run of `most` steps gives them all)."""
     t0 = time.perf_counter()
     q0 = controller(goals)
