@@ -230,7 +230,8 @@ def main() -> None:
         print(f"{name}: {settings['method']} hidden {settings['hidden']}, {settings['targets']} goals, "
               f"{settings['generations']} x {settings['population']}, {seconds:.0f} s; median {stats['median']:.1f} "
               f"{stats['unit']} ({stats['median_pct']:.2f} %), p90 {stats['p90_pct']:.2f} %, p99 {stats['p99_pct']:.2f} %; "
-              f"refined (<= 3 steps) {100 * ref['success']:.1f} % in {ref['us_per_goal']:.0f} us/goal, "
+              f"refined (<= 3 steps) {100 * ref['success']:.1f} % in {ref['us_per_goal']:.0f} us/goal "
+              f"({100 * ref['success_without_turn']:.2f} % without the turn), "
               f"99 % with {need or '> 8'} steps; DLS {100 * dls['success']:.1f} % in {dls['us_per_goal']:.0f} us/goal",
               flush=True)
     print()

@@ -176,6 +176,11 @@ class Arm:
             return np.zeros(3), v / np.linalg.norm(v)
         return np.round(np.cross(w, v) / np.dot(w, w), 9) + 0.0, w / np.linalg.norm(w)
 
+    @property
+    def base_upright(self) -> bool:
+        """True when the first joint's axis (base_axis) is vertical, +z or -z (within 1e-9)."""
+        return abs(self.base_axis[1][2]) > 1.0 - 1e-9
+
     # ---------------------------------------------------------------- geometry
     def visual_model(self) -> pin.GeometryModel:
         """Visual geometry of the chain (meshes loaded on first call; may take ~1 s)."""

@@ -171,7 +171,7 @@ def _bearing(arm: Arm) -> tuple[np.ndarray, np.ndarray] | None:
     axes = list(arm.task_axes)
     if len(axes) == 3:
         return c, w
-    if axes == [0, 1] and abs(abs(w[2]) - 1.0) < 1e-9:
+    if axes == [0, 1] and arm.base_upright:
         return c[:2], None
     return None
 

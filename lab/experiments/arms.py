@@ -54,7 +54,8 @@ def held_out(arm: robots.Arm, controller, n: int = HELD_OUT) -> dict:
 def refined(arm: robots.Arm, controller, goals: np.ndarray, steps: int = 3, most: int = 8) -> dict:
     """The network's output refined by a turn of the base joint and at most `steps` Gauss-Newton steps
     (robots.ik.refine), timed together (one batched forward pass + the turn and the steps):
-    success = error below tolerance(arm). by_steps[k - 1]: the success rate with at most k steps, k = 1 .. most (untimed: a goal's first
+    success = error below tolerance(arm); success_without_turn: the same steps without the turn
+    (untimed). by_steps[k - 1]: the success rate with at most k steps, k = 1 .. most (untimed: a goal's first
     k steps are the same whatever the limit, so one run of `most` steps gives them all)."""
     t0 = time.perf_counter()
     q0 = controller(goals)
@@ -64,7 +65,9 @@ def refined(arm: robots.Arm, controller, goals: np.ndarray, steps: int = 3, most
     longer = refine(arm, goals, q0, steps=most, tol=tolerance(arm))
     done = longer.error < tolerance(arm)
     by_steps = [float(np.mean(done & (longer.steps <= k))) for k in range(1, most + 1)]
+    steps_alone = refine(arm, goals, q0, steps=steps, tol=tolerance(arm), turn=False).error < tolerance(arm)
     return {"success": float(ok.mean()), "us_per_goal": 1e6 * seconds / len(goals), "by_steps": by_steps,
+            "success_without_turn": float(steps_alone.mean()),
             "mean_steps": float(r.steps[ok].mean()) if ok.any() else float("nan"), "errors": r.error}
 
 

@@ -107,8 +107,8 @@ class Encoding:
     @classmethod
     def for_arm(cls, arm: robots.Arm, features: str = "cartesian", margin: float = 0.0) -> "Encoding":
         goals = arm.sample_goals(20_000, seed=12345)
-        point, direction = arm.base_axis  # r and phi about the base axis where it stands upright
-        axis_xy = point[:2] if abs(direction[2]) > 1.0 - 1e-9 and len(arm.task_axes) >= 2 else np.zeros(2)
+        # r and phi about the base axis where it stands upright
+        axis_xy = arm.base_axis[0][:2] if arm.base_upright and len(arm.task_axes) >= 2 else np.zeros(2)
         about = np.column_stack([goals[:, :2] - axis_xy, goals[:, 2:]]) if goals.shape[1] >= 2 else goals
         r_max = float(np.hypot(about[:, 0], about[:, 1]).max()) if features in _REACH else 0.0
         z_c, rho_max = _enclosing_sphere(about) if features in _SPHERE and goals.shape[1] == 3 else (0.0, 0.0)
