@@ -174,6 +174,30 @@ def test_r_and_phi_are_about_the_base_axis_so_the_base_joint_turns_phi_alone(nam
     assert np.array_equal(again.axis_xy, enc.axis_xy)
 
 
+@pytest.mark.parametrize("name", [n for n in robots.names() if robots.kind(n) == "real"])
+def test_a_real_arm_whose_limits_bind_reaches_them_without_saturating_its_outputs(name):
+    """CMA-ES's real-arm margin (lab.methods.cmaes.margin_of): an arm whose every limited joint turns
+    less than a turn (SO100, SO101, Z1, Panda, Kinova) gets one, so that its outputs reach each limit
+    at |a| <= 0.8, in tanh's working range (atanh 1.1), not only at a saturated +-1; an arm with
+    joints of +-2 pi keeps 0, whose limits lie two turns apart (UR5, UR10, xArm7)."""
+    from lab.methods.cmaes import LIMITED_MARGIN, defaults
+
+    arm = robots.load(name)
+    margin = defaults(arm)["margin"]
+    limited = ~np.asarray(arm.chain.continuous, bool)
+    binds = bool(np.all((arm.upper - arm.lower)[limited] < 2 * np.pi))
+    assert margin == (LIMITED_MARGIN if binds else 0.0)
+    assert binds == (name in ("so100", "so101", "z1", "panda", "kinova"))
+    enc = Encoding.for_arm(arm, defaults(arm)["features"], margin)
+    a = (np.stack([arm.lower, arm.upper]) - enc.q_offset) / enc.q_scale - 1.0  # the outputs that land on the limits
+    if binds:
+        assert np.all(np.abs(a[:, limited]) <= 0.8)
+        np.testing.assert_allclose(enc.joints(np.clip(a, -1, 1))[:, limited], np.stack([arm.lower, arm.upper])[:, limited], atol=1e-12)
+        assert np.all(enc.joints(np.full((1, arm.nq), 1.0))[0] <= arm.upper)  # beyond: clipped to the limits
+    else:
+        np.testing.assert_allclose(np.abs(a[:, limited]), 1.0)
+
+
 @pytest.mark.parametrize("name", ["so100", "so101"])
 def test_bearings_put_phis_seam_behind_the_arm_and_phi_primes_in_front(name):
     """"bearings": "sphere" with phi measured from the bearing the arm faces (its goals' circular
