@@ -277,6 +277,24 @@ def test_nan_and_overflowing_weights_get_inf_and_never_crash():
     assert errs[0] == np.inf and np.all(np.isfinite(errs[1:]))
 
 
+def test_resampled_goals_with_sep_cmaes_on_a_real_arm_are_warned_of(caplog):
+    """sep-CMA-ES above pycma's TPA_dimension weights (a real arm's defaults) collapses its step size on
+    resampled goals (README, 'resample'): such a run says so; fixed goals, or the paper's arms, do not."""
+    import logging
+
+    def warned(**settings):
+        caplog.clear()
+        cfg = lab.TrainConfig(**{"generations": 1, "population": 4, "targets": 10, "test_goals": 10, **settings})
+        with caplog.at_level(logging.WARNING, logger="lab.methods.cmaes"):
+            CMAESBackend(build_problem(cfg), cfg)
+        return [r.getMessage() for r in caplog.records if "two-point" in r.getMessage()]
+
+    assert warned(robot="so100", resample=True) and "collapses" in warned(robot="so100", resample=True)[0]
+    assert not warned(robot="so100")
+    assert not warned(robot="planar", resample=True)
+    assert not warned(robot="so100", resample=True, separable=False, hidden=4)
+
+
 def test_a_nan_weight_vector_never_becomes_the_cmaes_best():
     cfg = lab.TrainConfig(population=10, generations=10, targets=20, test_goals=20)
     prob = build_problem(cfg)
