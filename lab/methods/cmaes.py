@@ -39,8 +39,8 @@ BEARINGS_ARMS = {"so101"}
 # the output margin of an arm whose every limited joint turns less than a full turn (SO100, SO101, Z1,
 # Panda, Kinova; README "Real arms"): there the limits bind, and uniformly drawn goals often need a
 # joint near one, where a margin of 0 asks the output tanh to saturate. Seed 0, margin 0 -> 0.3:
-# median SO100 0.83 -> 0.72 %, SO101 1.17 -> 1.04 % (lower on seeds 0-3 too), Z1 0.83 -> 0.67 %, Panda 0.51 -> 0.45 %, Kinova 0.48
-# -> 0.33 % of reach.
+# median SO100 0.83 -> 0.72 %, SO101 1.17 -> 1.04 % (lower on seeds 0-3 too), Z1 0.83 -> 0.67 %,
+# Panda 0.51 -> 0.45 %, Kinova 0.48 -> 0.33 % of reach.
 # The arms with joints of +-2 pi (UR5, UR10, xArm7) keep 0: their limits lie two turns apart
 LIMITED_MARGIN = 0.3
 log = logging.getLogger(__name__)
