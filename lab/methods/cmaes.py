@@ -88,12 +88,12 @@ class CMAESBackend(Backend):
         self.rng = np.random.default_rng(config.seed)
         self.restarts = 0
         self._start()
-        if problem.resampling and self.options.separable and self.dim >= _cma().evolution_strategy.TPA_dimension:
+        tpa = _cma().evolution_strategy.TPA_dimension  # pycma's step-size rule is TPA from this dimension on
+        if problem.resampling and self.options.separable and self.dim >= tpa:
             log.warning("resampled goals with sep-CMA-ES on %d weights: pycma adapts the step size by two-point "
                         "adaptation above %d weights, and with new goals every generation it collapses (SO100: "
                         "sigma 1.8e-5 against 7.5e-4 with fixed goals after 3,000 generations; README, "
-                        "'resample'); fixed goals train better here", self.dim,
-                        _cma().evolution_strategy.TPA_dimension)
+                        "'resample'); fixed goals train better here", self.dim, tpa)
 
     def _start(self) -> None:
         x0 = self.rng.normal(0.0, 0.1, self.dim)
@@ -231,8 +231,9 @@ def defaults(arm) -> dict:
     93.4 / 92.5 / 93.4 %."""
     if robots.kind(arm.name) in ("paper", "snake"):
         return dict(features="reach", margin=2.0, hidden=5)
-    return {**dict(features="bearings" if arm.name in BEARINGS_ARMS else "sphere", margin=margin_of(arm), hidden=32,
-                   targets=300, population=50, generations=REAL_ARM_GENERATIONS, sigma0=0.05, separable=True),
+    return {**dict(features="bearings" if arm.name in BEARINGS_ARMS else "sphere", margin=margin_of(arm),
+                   hidden=32, targets=300, population=50, generations=REAL_ARM_GENERATIONS, sigma0=0.05,
+                   separable=True),
             **MULTI_HEAD_ARMS.get(arm.name, {})}
 
 
