@@ -26,6 +26,7 @@ from collections import deque
 import numpy as np
 
 import robots
+from lab.problem.controllers import proposals
 from robots.ik import dls_ik, refine
 
 from app.ikworker import IK_WORKER
@@ -272,7 +273,7 @@ class TabSession(TabExtras):
         seeded = None
         if controller is not None:  # the network's answer, made exact (timed with its forward pass)
             t0 = time.perf_counter()
-            seeded = refine(arm, target[None], controller(target[None]), steps=REFINE_STEPS)
+            seeded = refine(arm, target[None], proposals(controller, target[None]), steps=REFINE_STEPS)
             seeded = dataclasses.replace(seeded, seconds=time.perf_counter() - t0)
         with self.lock:
             if self.goals and self.goals[0] is goal and not self.closed:

@@ -11,7 +11,7 @@ import pytest
 import lab
 import robots
 from lab.problem import Problem, kernels
-from lab.problem.controllers import MLPController, choose_heads, head_anchors, mlp_size
+from lab.problem.controllers import MLPController, choose_heads, head_anchors, mlp_size, proposals
 from lab.problem.encoding import Encoding
 from lab.problem.fitness import goal_errors
 
@@ -62,11 +62,13 @@ def test_each_head_starts_at_its_anchor(so101):
     q = enc.joints(c.head_outputs(so101.sample_goals(4, seed=1)))  # (heads, goals, nq)
     assert np.allclose(q, anchors[:, None, :])
     assert np.allclose(anchors[0], 0.5 * (so101.lower + so101.upper))  # head 0: the single-head start
-    # head 1 leans back on every joint; head 2 is its mirror image in the base joint; head 3 leans forward
+    # head 1 leans back on every joint; head 2 leans forward with the base mid-range; head 3 is
+    # head 1's mirror image in the base joint
     assert np.all(anchors[1] < anchors[0])
-    assert anchors[2][0] - anchors[0][0] == pytest.approx(anchors[0][0] - anchors[1][0])
-    assert np.array_equal(anchors[2][1:], anchors[1][1:])
-    assert np.all(head_anchors(enc, 4)[3] > anchors[0])
+    assert anchors[2][0] == anchors[0][0] and np.all(anchors[2][1:] > anchors[0][1:])
+    fourth = head_anchors(enc, 4)[3]
+    assert fourth[0] - anchors[0][0] == pytest.approx(anchors[0][0] - anchors[1][0])
+    assert np.array_equal(fourth[1:], anchors[1][1:])
 
 
 def test_the_same_seed_gives_the_same_run(run):
@@ -113,7 +115,7 @@ def test_methods_with_single_head_networks_refuse_heads(method):
 
 def test_heads_are_checked_and_one_head_is_written_as_before():
     with pytest.raises(ValueError, match="heads"):
-        lab.TrainConfig(robot="so101", heads=9)
+        lab.TrainConfig(robot="so101", heads=10)
     with pytest.raises(ValueError, match="heads"):
         lab.TrainConfig(robot="so101", heads=0)
     assert "heads" not in lab.TrainConfig(robot="planar").to_dict()
@@ -129,3 +131,22 @@ def test_the_fitness_threads_change_nothing(monkeypatch):
         runs.append(lab.evolve("so100", generations=15, population=40, targets=120, heads=2, seed=1))
     assert np.array_equal(runs[0].history, runs[1].history)
     assert np.array_equal(runs[0].controller.weights, runs[1].controller.weights)
+
+
+def test_a_multi_head_controller_proposes_every_head_the_nearest_first(so101):
+    """lab.problem.controllers.proposals: a multi-head MLP's heads, ordered by their seed error per
+    goal (the first is the controller's own answer); a one-head controller's one answer."""
+    arm = so101
+    enc = Encoding.for_arm(arm, "reach")
+    w = np.random.default_rng(4).normal(0, 0.3, mlp_size(enc.n_inputs, 6, 3 * enc.n_outputs))
+    c = MLPController(enc, 6, w, 3, head_anchors(enc, 3), arm.chain.arrays)
+    goals = arm.sample_goals(50, seed=5)
+    P = proposals(c, goals)
+    assert P.shape == (3, 50, arm.nq) and np.allclose(P[0], c(goals))
+    err = np.linalg.norm(arm.reach(P.reshape(-1, arm.nq)).reshape(3, 50, 3) - goals, axis=2)
+    assert np.all(np.diff(err, axis=0) >= -1e-12)
+    heads = enc.joints(c.head_outputs(goals))
+    assert np.allclose(np.sort(P, axis=0), np.sort(heads, axis=0))
+    single = lab.evolve("planar", generations=2, population=6, seed=0).controller
+    g = robots.load("planar").sample_goals(5, seed=1)
+    assert np.array_equal(proposals(single, g), single(g)[None])

@@ -843,7 +843,7 @@ def test_a_malformed_controller_dict_is_a_value_error_naming_the_problem():
              ({**c, "hidden": "five"}, ".*'five'"),
              ([c], "expected a dict, got list"),
              ({**c, "heads": 2}, "MLP with 2 hidden units and 2 heads needs 18 weights, got shape \\(12,\\)"),
-             ({**c, "heads": 0}, "heads must be an integer in \\[1, 8\\], got 0")]
+             ({**c, "heads": 0}, "heads must be an integer in \\[1, 9\\], got 0")]
     arm = robots.load("so101")
     two = MLPController(Encoding.for_arm(arm), 2, np.zeros(mlp_size(3, 2, 10)), 2, None, arm.chain.arrays).to_dict()
     cases += [({k: v for k, v in two.items() if k != "chain"}, "an MLP with several heads needs the arm's kinematic chain to pick a head"),

@@ -585,12 +585,44 @@ def test_refine_turns_the_first_joint_no_further_than_its_limit():
     assert np.all(r.error <= start) and np.all(r.q[:, 0] == arm.upper[0])
 
 
+def test_refine_with_several_proposals_keeps_the_one_on_the_right_branch():
+    """q0 (k, n, nq): k proposals per goal (a multi-head network's). Each takes the turn and one
+    step, the nearest goes on: with one proposal 2 cm off and the others on far branches (another
+    goal's joints), every goal ends where the close one alone takes it, whatever the proposals'
+    order, and never after more than `steps` steps. One proposal as (1, n, nq) is the (n, nq) call."""
+    from robots.ik import refine
+
+    arm = robots.load("so101")
+    n, rng = 120, np.random.default_rng(3)
+    q_true = arm.sample_q(n, seed=21)
+    goals = arm.reach(q_true)
+    close = arm.within_limits(q_true + rng.normal(0, 0.02, q_true.shape))
+    far = arm.sample_q(2 * n, seed=22).reshape(2, n, arm.nq)
+    alone = refine(arm, goals, close, steps=3, tol=1e-4)
+    assert np.mean(alone.error < 1e-4) >= 0.95 and alone.choice is None
+    where = rng.integers(0, 3, n)  # the close proposal's place among the three
+    P = np.empty((3, n, arm.nq))
+    P[where, np.arange(n)] = close
+    others = np.array([[j for j in range(3) if j != w] for w in where]).T
+    P[others[0], np.arange(n)], P[others[1], np.arange(n)] = far[0], far[1]
+    r = refine(arm, goals, P, steps=3, tol=1e-4)
+    assert np.all(r.steps <= 3)
+    assert np.allclose(np.linalg.norm(arm.reach(r.q) - goals, axis=1), r.error)
+    ok = alone.error < 1e-4
+    assert np.mean(r.error[ok] < 1e-4) >= 0.97  # a far proposal wins only where it refines as well
+    assert np.mean(r.choice[ok] == where[ok]) >= 0.9
+    one = refine(arm, goals, close[None], steps=3, tol=1e-4)
+    assert np.array_equal(one.q, alone.q) and np.array_equal(one.steps, alone.steps)
+
+
 def test_refine_refuses_mismatched_shapes():
     from robots.ik import refine
 
     arm = robots.load("ur5")
     with pytest.raises(ValueError, match="goals must be"):
         refine(arm, np.zeros((2, 2)), np.zeros((2, 6)))
+    with pytest.raises(ValueError, match="goals must be"):
+        refine(arm, np.zeros((2, 3)), np.zeros((4, 3, 6)))  # proposals for 3 goals, not 2
 
 
 def test_joint_poses_place_the_visual_geometry_where_pinocchio_does():

@@ -17,6 +17,7 @@ import time
 import numpy as np
 
 import robots
+from lab.problem.controllers import proposals
 from lab.problem.fitness import TEST_SEED_OFFSET
 from robots.ik import dls_ik, refine, workspace_size
 
@@ -53,12 +54,13 @@ def held_out(arm: robots.Arm, controller, n: int = HELD_OUT) -> dict:
 
 def refined(arm: robots.Arm, controller, goals: np.ndarray, steps: int = 3, most: int = 8) -> dict:
     """The network's output refined by a turn of the base joint and at most `steps` Gauss-Newton steps
-    (robots.ik.refine), timed together (one batched forward pass + the turn and the steps):
+    (robots.ik.refine; a multi-head network proposes every head's answer, and the one nearest its
+    goal after the first step goes on), timed together (one batched forward pass + the turn and the steps):
     success = error below tolerance(arm); success_without_turn: the same steps without the turn
     (untimed). by_steps[k - 1]: the success rate with at most k steps, k = 1 .. most (untimed: a goal's first
     k steps are the same whatever the limit, so one run of `most` steps gives them all)."""
     t0 = time.perf_counter()
-    q0 = controller(goals)
+    q0 = proposals(controller, goals)
     r = refine(arm, goals, q0, steps=steps, tol=tolerance(arm))
     seconds = time.perf_counter() - t0
     ok = r.error < tolerance(arm)

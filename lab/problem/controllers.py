@@ -41,9 +41,11 @@ def mlp_size(n_inputs: int, hidden: int, n_outputs: int) -> int:
 
 
 # head k's anchor: mid + c h, with c = (first joint's, the other joints') corner of HEAD_CORNERS[k]
-# (MAX_HEADS of them): the centre, then the four corners of that square, then nearer and farther ones
-HEAD_CORNERS = ((0.0, 0.0), (-0.7, -0.7), (0.7, -0.7), (0.7, 0.7), (-0.7, 0.7), (-0.35, -0.35), (0.35, 0.35),
-                (-0.85, -0.85))
+# (MAX_HEADS of them): the centre, the base mid-range and the arm leaning back, then leaning forward
+# (on the SO arms: curled over the base axis), then the other corners of that square, then nearer
+# and farther ones
+HEAD_CORNERS = ((0.0, 0.0), (-0.7, -0.7), (0.0, 0.7), (0.7, -0.7), (0.7, 0.7), (-0.7, 0.7), (-0.35, -0.35),
+                (0.35, 0.35), (-0.85, -0.85))
 MAX_HEADS = len(HEAD_CORNERS)
 
 
@@ -52,10 +54,11 @@ def head_anchors(encoding: Encoding, heads: int) -> np.ndarray:
     mid + c h (h the half range), c the first joint's corner of HEAD_CORNERS[k] on the first joint
     (the base's turn on every arm of the lab) and the other corner on every other joint. So the
     heads begin on different IK branches: head 1 leaning back (-0.7 on every joint: on SO100,
-    SO101 and Z1, folded back over the shoulder for the goals behind the base), head 2 its mirror
-    image in the base joint (+0.7 on the base, still leaning back: the goals behind the base on
-    the other side), head 3 leaning forward, ...; head 0 is the single-head network's start,
-    mid-range."""
+    SO101 and Z1, folded back over the shoulder for the goals behind the base), head 2 leaning
+    forward with the base mid-range (+0.7 on every other joint: on the SO arms curled over the
+    base axis, the tip beyond it, for the goals behind the base near that axis), head 3 the mirror
+    image of head 1 in the base joint (+0.7 on the base, still leaning back: the goals behind the
+    base on the other side), ...; head 0 is the single-head network's start, mid-range."""
     heads = _check_heads(heads)
     mid, half = 0.5 * (encoding.q_lo + encoding.q_hi), 0.5 * (encoding.q_hi - encoding.q_lo)
     first = np.arange(len(mid)) == 0
@@ -211,8 +214,8 @@ def mlp_head_outputs(encoding: Encoding, hidden: int, offsets: np.ndarray, W: np
     return A.reshape(len(offsets) // nq, nq, len(W), len(goals)).transpose(2, 0, 3, 1)
 
 
-def choose_heads(encoding: Encoding, chain: tuple, Q: np.ndarray, goals) -> np.ndarray:
-    """(..., g) the head of least squared end-effector error, Q (..., heads, g, nq) joint values."""
+def head_errors(encoding: Encoding, chain: tuple, Q: np.ndarray, goals) -> np.ndarray:
+    """(..., heads, g) squared end-effector errors (inf where not finite), Q (..., heads, g, nq)."""
     goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
     lead = Q.shape[:-3]
     heads, g, nq = Q.shape[-3:]
@@ -220,8 +223,24 @@ def choose_heads(encoding: Encoding, chain: tuple, Q: np.ndarray, goals) -> np.n
     tiled = np.ascontiguousarray(np.tile(goals.T, (1, QT.shape[1] // g)))
     E = np.empty(QT.shape[1])
     kernels.fk_sq_errors(QT, tiled, np.asarray(encoding.task_axes, dtype=np.int64), chain, E)
-    E = np.where(np.isfinite(E), E, np.inf).reshape(*lead, heads, g)
-    return np.argmin(E, axis=-2)
+    return np.where(np.isfinite(E), E, np.inf).reshape(*lead, heads, g)
+
+
+def choose_heads(encoding: Encoding, chain: tuple, Q: np.ndarray, goals) -> np.ndarray:
+    """(..., g) the head of least squared end-effector error, Q (..., heads, g, nq) joint values."""
+    return np.argmin(head_errors(encoding, chain, Q, goals), axis=-2)
+
+
+def proposals(controller, goals) -> np.ndarray:
+    """(k, n, nq): the joint values a controller proposes for each goal, as robots.ik.refine takes
+    them: every head's of a multi-head MLP, the nearest its goal first (k = heads; the first is
+    the controller's own answer), or any other controller's one answer (k = 1)."""
+    goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
+    if getattr(controller, "heads", 1) == 1:
+        return np.asarray(controller(goals), dtype=np.float64)[None]
+    Q = controller.encoding.joints(controller.head_outputs(goals))  # (heads, n, nq)
+    order = np.argsort(head_errors(controller.encoding, controller.chain, Q, goals), axis=0, kind="stable")
+    return np.take_along_axis(Q, order[:, :, None], axis=0)
 
 
 def mlp_joints(encoding: Encoding, hidden: int, W: np.ndarray, goals, heads_of=None) -> np.ndarray:
