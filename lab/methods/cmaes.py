@@ -228,8 +228,8 @@ def defaults(arm) -> dict:
     0.85 -> 0.61 %, 98.6 -> 99.1 %, p99 10.5 -> 2.6 %: a single network must cut its workspace between
     elbow branches, and its worst seeds lay along the cut ("reach" inputs, before: the median got
     worse, 1.23 -> 1.75 %). SO100 ("reach" inputs then): one head to two 1.78 -> 1.58 %, 85.7 -> 91.3 %;
-    three heads (24,000) 1.55 %, 90.6 %, worse than two. Two heads cost 1.3-2x the time of one a
-    generation, three about 1.4x two.
+    three heads (24,000; the third then the mirrored folded head, not the curled one) 1.55 %, 90.6 %,
+    worse than two. Two heads cost 1.3-2x the time of one a generation, three about 1.4x two.
 
     SO101 (BEARINGS_ARMS): "bearings" inputs, the bearing measured from the front and from behind.
     Its base turns +-110 degrees, so the goals behind it are reached folded back, and the bearing
