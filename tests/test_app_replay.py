@@ -12,8 +12,8 @@ import pytest
 pytest.importorskip("lab.recording.replay", reason="lab/replay.py (the Rerun issue) is not there")
 from lab.recording.replay import load_controller  # noqa: E402
 
-from app.notebook import label  # noqa: E402
 from app.server import LabApp  # noqa: E402
+from app.training.notebook import label  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 

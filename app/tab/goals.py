@@ -29,9 +29,9 @@ import robots
 from lab.problem.controllers import proposals
 from robots.ik import dls_ik, refine
 
-from app.ikworker import IK_WORKER
-from app.tab_extras import GoalExtras, TabExtras
-from app.scene import ArmView, frame_workspace, to_world
+from app.tab.extras import GoalExtras, TabExtras
+from app.tab.ikworker import IK_WORKER
+from app.tab.scene import ArmView, frame_workspace, to_world
 from app.viser_private import set_pose
 
 MAX_GOALS = 8
@@ -187,7 +187,7 @@ class TabSession(TabExtras):
         self.remove_button.on_click(lambda e: self.remove_goal())
         self.show_ik.on_update(lambda e: self._toggle_ik())
         self.version = -1
-        self.own = None  # the tab's own replay (app.state.Shown), if any
+        self.own = None  # the tab's own replay (app.training.state.Shown), if any
         self.table_dirty = False
         self.last_ik = self.last_draw = self.last_population = 0.0
         # redraws caused by training, at most every `period` s: the render loop lengthens it for a hall
@@ -200,7 +200,7 @@ class TabSession(TabExtras):
 
     @property
     def shown(self):
-        """What this tab's arms show: the tab's own replay (app/tabreplay.py) while it has one for the
+        """What this tab's arms show: the tab's own replay (app/tab/replay.py) while it has one for the
         shared arm, else the shared state's."""
         own = self.own
         if own is not None and own.arm is self.state.arm:
@@ -257,7 +257,7 @@ class TabSession(TabExtras):
         return None
 
     def request_ik(self) -> None:
-        """Solve IK for the first goal in the IK thread (app/ikworker.py)."""
+        """Solve IK for the first goal in the IK thread (app/tab/ikworker.py)."""
         if not self.closed and self.show_ik.value:
             IK_WORKER.request(self)
 
