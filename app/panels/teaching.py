@@ -1,6 +1,6 @@
-"""The Train tab's views for a class (issue 16): the population's legend with the method's
-statistics, the live plots each method declares (lab.methods.LivePlot), and a race partner's
-settings. Read generically from the runs' RunTracks (app/training/live.py); nothing here names a method.
+"""The Train tab's views for a class: the population's legend with the method's statistics, the
+live plots each method declares (lab.methods.LivePlot), and a race partner's settings. Read
+generically from the runs' RunTracks (app/training/live.py); nothing here names a method.
 """
 
 from __future__ import annotations

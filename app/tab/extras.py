@@ -1,5 +1,5 @@
-"""What a tab shows for a class (issue 16), beside its goals (app/tab/goals.py): the population cloud
-at each goal marker, a race partner's arm at goal 1, and the lesson link.
+"""What a tab shows for a class, beside its goals (app/tab/goals.py): the population cloud at each
+goal marker, a race partner's arm at goal 1, and the lesson link.
 
 GoalExtras and TabExtras are mixed into GoalView and TabSession: they use their arm, scene, lock
 and goals. The render loop calls TabSession.refresh, which calls refresh_population: the cloud

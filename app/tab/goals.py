@@ -79,9 +79,9 @@ class GoalView(GoalExtras):
         return np.asarray(self.marker.position, float)[list(self.tab.arm.task_axes)]
 
     async def _on_update(self, _event) -> None:
-        """Runs in viser's event loop, which saves the hop to its thread pool (about 1 ms when
-        training keeps the cores busy); when a redraw holds the tab's lock, the update goes to
-        the thread pool rather than block the loop."""
+        """Runs in viser's event loop, which saves the hop to its thread pool (slow while training
+        keeps the cores busy: docs/results/app-speed.md); when a redraw holds the tab's lock, the
+        update goes to the thread pool rather than block the loop."""
         t0 = time.perf_counter()
         if self.tab.lock.acquire(blocking=False):
             try:
