@@ -6,7 +6,7 @@
     python -m app --host 0.0.0.0 --open   # every tab may change the run (on purpose)
 
 Beyond loopback only presenter tabs (opened with the printed presenter link) change the run and the
-shared settings; every other tab is a viewer (app/access.py).
+shared settings; every other tab is a viewer (app/classroom/access.py).
 """
 
 from __future__ import annotations
@@ -76,8 +76,8 @@ def main(argv=None) -> int:
     if not args.no_record and (blocker := not_a_folder(args.recordings)) is not None:
         print(f"error: --recordings must be a folder, but {blocker} is a file", file=sys.stderr)
         return 2
-    from app.access import Access
-    from app.notebook import Notebook, NotebookError
+    from app.classroom.access import Access
+    from app.training.notebook import Notebook, NotebookError
     from app.server import LabApp
 
     if args.open and args.presenter_token is not None:
@@ -88,7 +88,7 @@ def main(argv=None) -> int:
     except ValueError as e:
         print(f"error: --presenter-token: {e}", file=sys.stderr)
         return 2
-    from app.limits import parse_limit
+    from app.classroom.limits import parse_limit
 
     try:
         limits = dict(parse_limit(text) for text in args.limit)

@@ -29,17 +29,17 @@ import viser
 
 import lab.running.worker as lab_worker
 
-from app.access import Access, is_loopback
-from app.limits import limits_for
-from app.goals import REDRAW_PERIOD, TabSession, fmt_len
-from app.lesson import apply_lesson, lesson_link, lesson_params
-from app.notebook import DEFAULT_PATH, Notebook
-from app.panels import TrainingPanel, notify
-from app.runs import RunsPanel
-from app.scene import frame_workspace
-from app.tabreplay import TabReplay
-from app.state import LabState
-from app.views import error_map, map_grid, network_svg
+from app.classroom.access import Access, is_loopback
+from app.classroom.lesson import apply_lesson, lesson_link, lesson_params
+from app.classroom.limits import limits_for
+from app.panels.runs import RunsPanel
+from app.panels.train import TrainingPanel, notify
+from app.panels.views import error_map, map_grid, network_svg
+from app.tab.goals import REDRAW_PERIOD, TabSession, fmt_len
+from app.tab.replay import TabReplay
+from app.tab.scene import frame_workspace
+from app.training.notebook import DEFAULT_PATH, Notebook
+from app.training.state import LabState
 from app.viser_private import client_host, client_query, install_loop_safe_wakeups
 
 log = logging.getLogger(__name__)
@@ -112,10 +112,10 @@ class LabApp:
                  record: bool = True, presenter_token: str | None = None, open_access: bool = False,
                  limits: dict[str, int] | None = None):
         """notebook: a Notebook or its path (NotebookError, before anything starts, if the path holds
-        something else). presenter_token, open_access: who may change shared state (app/access.py:
+        something else). presenter_token, open_access: who may change shared state (app/classroom/access.py:
         beyond loopback only tabs opened with `presenter_url`; on loopback every tab unless a token
         is given; open_access: every tab, on purpose). limits: bounds raised (or set) at start,
-        app/limits.py: beyond loopback the classroom's bounds apply, with these in their place.
+        app/classroom/limits.py: beyond loopback the classroom's bounds apply, with these in their place.
         startup: True (each arm's shipped controller, else a quickly trained one),
         a controller (shown on the arm it was made for), or None. Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
         notebook = notebook if isinstance(notebook, Notebook) else Notebook(notebook)
@@ -187,7 +187,7 @@ class LabApp:
     # ------------------------------------------------------------------ tabs
     def _connect(self, client: viser.ClientHandle) -> None:
         presenter = self.access.connected(client)  # a viewer: its line, its shared controls shown disabled
-        try:  # a lesson link's settings (app/lesson.py), and the address the tab reached us at
+        try:  # a lesson link's settings (app/classroom/lesson.py), and the address the tab reached us at
             query, host = client_query(client), client_host(client)
         except Exception:  # noqa: BLE001 - a tab without them is an ordinary tab
             log.exception("cannot read the query of tab %s", client.client_id)

@@ -3,8 +3,8 @@
 The app ships app/pretrained/<robot>-<method>.json for every arm in robots.names(), each trained
 with that arm's default method and settings (`lab.evolve(robot)`): the file holds the settings,
 the training and held-out MSE, the held-out position error (lab.experiments.arms) and the
-controller. When an arm's file is missing or no longer loads, a quick run is trained instead
-(about 1-3 s). Regenerate them all (about 40 minutes: the real arms train about 4 minutes each) with
+controller. When an arm's file is missing or no longer loads, a quick run (QUICK) is trained
+instead. Regenerate them all (the real arms take minutes each; times in docs/app.md) with
 
     python -m app.startup                     # every arm
     python -m app.startup --robots planar,ur5 # some of them

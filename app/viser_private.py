@@ -1,4 +1,4 @@
-"""Every reach into viser's private API, in one place (tests/test_app.py checks each is still there).
+"""Every reach into viser's private API, in one place (tests/test_app_views.py checks each is still there).
 
 viser 1.1 has no public way to do these; each has a measured reason, and a fallback to the
 public API where one exists. When viser changes, `check()` names what is gone.
@@ -20,12 +20,12 @@ except ImportError:  # pragma: no cover - another viser: set_pose falls back to 
 
 
 def set_pose(handle, position: np.ndarray, wxyz: np.ndarray) -> None:
-    """handle.position, handle.wxyz = position, wxyz, about 7x faster.
+    """handle.position, handle.wxyz = position, wxyz, without the setters' cost.
 
-    Why: viser 1.1's pose setters cost about 0.3 ms per pose (casts, np.allclose, property
-    machinery), which made arm updates the server's main cost while dragging. This queues the
-    same two messages through the scene's own (private) queue and keeps the handle's state
-    (`handle._impl`) in step; if that API is not there (another viser), it falls back to the setters."""
+    Why: viser 1.1's pose setters (casts, np.allclose, property machinery) made arm updates the
+    server's main cost while dragging (docs/results/app-speed.md). This queues the same two
+    messages through the scene's own (private) queue and keeps the handle's state (`handle._impl`)
+    in step; if that API is not there (another viser), it falls back to the setters."""
     impl = getattr(handle, "_impl", None)
     queue = getattr(getattr(impl, "api", None), "_queue_scene_message", None)
     if queue is None or SetPositionMessage is None or not hasattr(impl, "removed"):

@@ -19,11 +19,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from app.goals import fmt_len
-from app.notebook import Notebook, NotebookError
 from app.probe import Probe
 from app.server import LabApp
 from app.startup import made_for
+from app.tab.goals import fmt_len
+from app.training.notebook import Notebook, NotebookError
 from conftest import wait_or_kill, wait_until
 
 import lab
@@ -233,7 +233,7 @@ def test_two_apps_sharing_a_notebook_lose_no_entry(tmp_path):
     import sys
 
     path = tmp_path / "notebook.db"
-    code = ("import sys; from app.notebook import Notebook\n"
+    code = ("import sys; from app.training.notebook import Notebook\n"
             "nb = Notebook(sys.argv[1])\n"
             "for k in range(40): nb.add({'run_id': f'{sys.argv[2]}{k}', 'robot': 'planar', 'method': 'cmaes'})\n")
     procs = [subprocess.Popen([sys.executable, "-c", code, str(path), who], stderr=subprocess.PIPE, text=True)

@@ -1,4 +1,4 @@
-"""Presenter and viewers (app/access.py), tried as a hostile student would: with headless tabs
+"""Presenter and viewers (app/classroom/access.py), tried as a hostile student would: with headless tabs
 (app/probe.py) on a server restricted by a presenter token, a viewer's Start, Stop, settings,
 robot and uploads change nothing; the presenter's do. Real browser tabs: tests/test_app_browser.py."""
 
@@ -10,7 +10,7 @@ import time
 import pytest
 from viser import _messages
 
-from app.access import REFUSED, Access, is_loopback
+from app.classroom.access import REFUSED, Access, is_loopback
 from app.probe import Probe
 from app.server import LabApp
 from conftest import wait_or_kill, wait_until
@@ -206,7 +206,7 @@ def test_python_m_app_beyond_loopback_prints_a_presenter_link_that_makes_a_prese
 def test_a_viewer_replays_a_run_in_its_own_tab_only(app, presenter, viewer):
     import numpy as np
 
-    from app.notebook import label
+    from app.training.notebook import label
     from lab.recording.replay import load_controller
 
     if not any(e.get("recording") for e in app.state.notebook.entries()):  # a run with a recording

@@ -35,7 +35,7 @@ def test_a_bounded_history_keeps_at_most_its_limit_spread_over_the_run_and_the_l
 
 
 def test_the_apps_state_keeps_a_bounded_history_of_a_long_run():
-    from app.state import HISTORY_POINTS, LabState
+    from app.training.state import HISTORY_POINTS, LabState
 
     state = LabState("planar")
 
@@ -66,10 +66,10 @@ def test_a_process_runner_with_a_bounded_history_bounds_its_worker_s_too():
 
 
 def test_a_run_track_keeps_bounded_series_and_a_race_compares_at_one_generation():
-    """A race's tracks (app/live.py RunTrack: best/median and the method's live-plot series, NEAT's
+    """A race's tracks (app/training/live.py RunTrack: best/median and the method's live-plot series, NEAT's
     species dicts included) are bounded like the app's history; the lead line compares both runs'
     best so far at the generation both have reached, read from the thinned step curves."""
-    from app.live import TRACK_POINTS, RunTrack, lead_line, sample
+    from app.training.live import TRACK_POINTS, RunTrack, lead_line, sample
 
     tracks = []
     for method, n, scale in (("neat", 20_000, 1.0), ("cmaes", 9_000, 0.5)):
@@ -104,7 +104,7 @@ class _Tab:
     """A tab for the render loop's scheduler: redraws when its period has passed (frames of 1/FPS s)."""
 
     def __init__(self, presenter: bool, clock: list):
-        from app.goals import REDRAW_PERIOD
+        from app.tab.goals import REDRAW_PERIOD
 
         self.presenter, self.clock, self.period, self.last, self.draws = presenter, clock, REDRAW_PERIOD, -1e9, []
 
@@ -118,7 +118,7 @@ class _Tab:
 
 @pytest.mark.parametrize("viewers", [5, 100, 400])
 def test_a_hall_of_viewer_tabs_redraws_within_its_budget_each_tab_in_turn_and_presenters_at_full_rate(viewers):
-    from app.goals import REDRAW_PERIOD
+    from app.tab.goals import REDRAW_PERIOD
     from app.server import FPS, HALL_REDRAWS, LabApp
 
     from types import SimpleNamespace
@@ -144,7 +144,7 @@ def test_a_hall_of_viewer_tabs_redraws_within_its_budget_each_tab_in_turn_and_pr
 def test_the_ik_thread_solves_a_hall_of_dragging_tabs_within_its_rate():
     import time
 
-    from app.ikworker import IK_PERIOD, IK_RATE, IKWorker
+    from app.tab.ikworker import IK_PERIOD, IK_RATE, IKWorker
 
     class Tab:
         def __init__(self):

@@ -1,4 +1,4 @@
-"""Settings a shared server accepts (app/limits.py): bounded by what one machine can serve a class
+"""Settings a shared server accepts (app/classroom/limits.py): bounded by what one machine can serve a class
 with; every arm's and method's defaults fit; `--limit NAME=N` raises one at start."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import pytest
 
 import lab
 import robots
-from app.limits import CLASSROOM, limits_for, parse_limit, refusal
+from app.classroom.limits import CLASSROOM, limits_for, parse_limit, refusal
 from app.server import LabApp
 
 

@@ -9,11 +9,10 @@ import time
 import numpy as np
 import pytest
 
-pytest.importorskip("lab.recording.replay", reason="lab/replay.py (the Rerun issue) is not there")
-from lab.recording.replay import load_controller  # noqa: E402
+from lab.recording.replay import load_controller
 
-from app.notebook import label  # noqa: E402
-from app.server import LabApp  # noqa: E402
+from app.server import LabApp
+from app.training.notebook import label
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 

@@ -152,7 +152,7 @@ def test_a_race_runs_two_processes_on_the_same_goals_and_both_enter_the_notebook
 
 
 def test_a_lesson_link_opens_a_tab_with_its_settings(app, tab):
-    from app.lesson import lesson_params
+    from app.classroom.lesson import lesson_params
 
     panel = app.panel
     session = session_of(app, tab)

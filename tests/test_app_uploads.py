@@ -15,7 +15,7 @@ from viser import _messages
 from app import viser_private
 from app.probe import Probe
 from conftest import wait_until
-from app.uploads import UploadGuard, safe_name, save_upload
+from app.classroom.uploads import UploadGuard, safe_name, save_upload
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 MiB = 2**20

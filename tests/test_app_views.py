@@ -7,7 +7,7 @@ import pytest
 
 import lab
 import robots
-from app.views import error_map, map_grid, network_svg
+from app.panels.views import error_map, map_grid, network_svg
 from lab.problem.controllers import network_layout
 from robots.ik import dls_ik, workspace_size
 

@@ -24,10 +24,10 @@ from lab.running.history import History
 from lab.running.runner import speed_period
 from lab.running.worker import ProcessRunner
 
-from app.limits import refusal as limits_refusal
-from app.live import RunTrack
-from app.notebook import Notebook, entry_from_summary
+from app.classroom.limits import refusal as limits_refusal
 from app.startup import made_for
+from app.training.live import RunTrack
+from app.training.notebook import Notebook, entry_from_summary
 
 SPEEDS = {"1 generation/s": 1.0, "5 generations/s": 5.0, "20 generations/s": 20.0, "unlimited": None}
 
@@ -91,14 +91,14 @@ class LabState:
         note), the controller an arm opens with (app.startup.startup_controller), called once per arm;
         recorder: callable(runner) -> object with .path that records the run
         (lab.recording.RerunLogger), or None for no recordings. limits: the bounds this server puts
-        on settings (app/limits.py; None: the lab's own)."""
+        on settings (app/classroom/limits.py; None: the lab's own)."""
         self.limits = limits
         self._lock = threading.RLock()
         self.notebook = notebook or Notebook()
         self.recorder = recorder
         self.runner: ProcessRunner | None = None
         self.recording: str | None = None
-        self.track: RunTrack | None = None  # the run's live numbers and population (app/live.py)
+        self.track: RunTrack | None = None  # the run's live numbers and population (app/training/live.py)
         self.partner: Partner | None = None  # a race's second run
         self.speed: float | None = None  # generations per second (None: no cap), for every run
         self.replaying = False  # the arms show a replayed controller, not the run's best

@@ -29,7 +29,7 @@ class IKWorker:
         self._thread = None
 
     def request(self, tab) -> None:
-        """Solve for `tab` (an app.goals.TabSession) when its turn comes; one pending query per tab."""
+        """Solve for `tab` (an app.tab.goals.TabSession) when its turn comes; one pending query per tab."""
         with self._cond:
             if tab not in self._due:
                 now = time.monotonic()

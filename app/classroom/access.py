@@ -8,7 +8,7 @@ connection_query). A tab that connected with it is a presenter; every other tab 
 The one gate: every element of the shared GUI (server.gui: the training panel, its Start,
 Pause, Resume, Stop, Reset, the robot, method and settings, the runs list and replay, uploads, and
 any control added there later) is a shared control. A viewer's change of one is dropped before viser
-applies it (viser_private.guard_shared_gui; uploads are refused as they start, app/uploads.py);
+applies it (viser_private.guard_shared_gui; uploads are refused as they start, app/classroom/uploads.py);
 programmatic calls on the server are not affected. Viewers see the shared controls disabled
 (`sync_viewers`, per tab) and a line saying the presenter controls the run; their own goal markers
 and IK ghosts (client.gui, per tab) stay theirs. A new shared control needs nothing more than being

@@ -20,10 +20,10 @@ import lab
 import robots
 from lab import methods
 
-from app.limits import refusal as limits_refusal
-from app.live import decimate, lead_line, sample
-from app.state import SPEEDS, run_label
-from app.teaching import RaceFields, Watching
+from app.classroom.limits import refusal as limits_refusal
+from app.panels.teaching import RaceFields, Watching
+from app.training.live import decimate, lead_line, sample
+from app.training.state import SPEEDS, run_label
 
 SHARED = ("population", "generations", "hidden", "seed")  # the TrainConfig fields shown
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
@@ -267,10 +267,10 @@ class TrainingPanel:
         self.progress_bar.value = 100.0 * n / p["total"] if p["total"] else 0.0
         self._build_curves(racing=partner is not None)
         self.watching.build_live()
-        # the app keeps a bounded, thinned history per run (app/state.py, app/live.py): every series is
-        # sampled at one set of generations; a race is drawn up to the generation both runs have reached
-        # (uPlot has no gaps for NaN in a log scale: a shorter series padded with NaN dropped to the
-        # axis); the status says each run's count
+        # the app keeps a bounded, thinned history per run (app/training/state.py, app/training/live.py):
+        # every series is sampled at one set of generations; a race is drawn up to the generation both
+        # runs have reached (uPlot has no gaps for NaN in a log scale: a shorter series padded with NaN
+        # dropped to the axis); the status says each run's count
         runs = [(p["generations"] - 1, p["best"], p["median"])] + ([partner.track.curves()] if partner else [])
         m = min((int(g[-1]) + 1 if len(g) else 0) for g, _, _ in runs)
         at = decimate(m)

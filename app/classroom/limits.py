@@ -1,8 +1,8 @@
 """What a shared server accepts: settings bounded by what one machine can serve a class with.
 
 The lab's own bounds (lab.running.config.LIMITS: population 10,000, hidden 256, 10^9 generations)
-keep one run within one machine; a run at those took 1.9-2.9 GiB and a whole core, about 2.4 s a
-generation. A server reachable beyond loopback (`--host 0.0.0.0`) accepts at most CLASSROOM
+keep one run within one machine, not a class's server beside it (what a run at those bounds costs:
+docs/classroom.md). A server reachable beyond loopback (`--host 0.0.0.0`) accepts at most CLASSROOM
 instead, which every arm's and method's defaults fit (the real arms: 32 hidden units, 300 goals,
 40,000 generations); `python -m app --limit population=1000` raises one at start.
 """

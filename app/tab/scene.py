@@ -6,8 +6,7 @@ data.oMi[j], and under it one node per visual geometry at its placement in that 
 loader; boxes, cylinders and spheres as viser primitives). Moving the arm to q sends nq
 poses, whatever the number of meshes.
 
-`frame_workspace` gives the camera, floor grid and marker limits of an arm; `colormap`
-maps errors to colours for the error map.
+`frame_workspace` gives the camera, floor grid and marker limits of an arm.
 """
 
 from __future__ import annotations
@@ -86,14 +85,3 @@ def frame_workspace(arm: robots.Arm) -> dict:
         center=center, size=size, limits=limits, floor_z=floor_z, label_offset=np.array([0.03, 0.03, 0.0]) * size,
         camera=center + size * np.array([-0.15, -0.75, 0.65]), cell=10 ** np.floor(np.log10(size / 4)),
     )
-
-
-_VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
-
-
-def colormap(t: np.ndarray) -> np.ndarray:
-    """Values in [0, 1] -> (n, 3) uint8 colours along a viridis-like ramp."""
-    t = np.clip(np.nan_to_num(np.asarray(t, float), nan=1.0), 0, 1) * (len(_VIRIDIS) - 1)
-    i = np.minimum(t.astype(int), len(_VIRIDIS) - 2)
-    f = (t - i)[:, None]
-    return ((1 - f) * _VIRIDIS[i] + f * _VIRIDIS[i + 1]).astype(np.uint8)

@@ -1,5 +1,5 @@
-"""What a tab shows for a class (issue 16), beside its goals (app/goals.py): the population cloud
-at each goal marker, a race partner's arm at goal 1, and the lesson link.
+"""What a tab shows for a class, beside its goals (app/tab/goals.py): the population cloud at each
+goal marker, a race partner's arm at goal 1, and the lesson link.
 
 GoalExtras and TabExtras are mixed into GoalView and TabSession: they use their arm, scene, lock
 and goals. The render loop calls TabSession.refresh, which calls refresh_population: the cloud
@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.live import candidate_colors
-from app.scene import ArmView
 from app.startup import made_for
+from app.tab.scene import ArmView
+from app.training.live import candidate_colors
 
 POPULATION_PERIOD = 0.2  # s: a tab's population cloud is redrawn at most 5 times a second
 PARTNER = (160, 90, 220)  # a race's second run: its arm at the same marker

@@ -19,9 +19,9 @@ import lab
 import robots
 
 from app import viser_private
-from app.notebook import label
-from app.panels import notify
-from app.uploads import MAX_UPLOAD, UploadGuard, save_upload
+from app.classroom.uploads import MAX_UPLOAD, UploadGuard, save_upload
+from app.panels.train import notify
+from app.training.notebook import label
 
 
 class RunsPanel:

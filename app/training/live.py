@@ -20,9 +20,8 @@ import threading
 
 import numpy as np
 
+from lab.recording.population import SPECIES, mse_colors, mse_scale, ramp, species_colors
 from lab.running.history import History, Thinned
-from app.scene import colormap
-from lab.recording.population import SPECIES, mse_colors, mse_scale, species_colors  # noqa: F401 (one scale)
 
 PLOT_POINTS = 400  # the convergence and live plots are decimated to this many generations
 TRACK_POINTS = 4096  # generations a RunTrack keeps of each series (then thinned)
@@ -64,8 +63,8 @@ def population_legend(population, by_species: bool, fmt, label: str = "", head: 
         items = "".join(swatch(species_colors([i])[0], f"{i} ({c})") for i, c in zip(ids, counts))
         return f"<small>{head}{'Colour' if head else 'Or, on the tab toggle, colour'}: species (id and size):{items}</small>"
     lo, hi = mse_scale(population.mse)
-    ramp = "".join(swatch(c, "") for c in colormap(np.linspace(0, 1, 5)))
-    return (f"<small>{head}Colour: training MSE on a log scale, {ramp} from {fmt(lo)} (best of the generation) "
+    steps = "".join(swatch(c, "") for c in ramp(np.linspace(0, 1, 5)))
+    return (f"<small>{head}Colour: training MSE on a log scale, {steps} from {fmt(lo)} (best of the generation) "
             f"to {fmt(hi)} (worst).</small>")
 
 

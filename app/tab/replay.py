@@ -1,6 +1,6 @@
 """A viewer's own in-app replay: its tab's arms show a run of the runs list, the other tabs do not.
 
-The shared Runs tab replays for every tab and only a presenter may use it (app/access.py). A viewer
+The shared Runs tab replays for every tab and only a presenter may use it (app/classroom/access.py). A viewer
 gets "Replay (this tab)" in its own GUI (client.gui): the same list, Open, a generation slider and
 Back to live; what it opens changes only its own arms (TabSession.own). A run made on another arm
 than the one the presenter shows is refused (the scene is shared). Recordings read for tabs are
@@ -16,8 +16,8 @@ from collections import OrderedDict
 
 import lab
 
-from app.state import Shown
 from app.startup import made_for
+from app.training.state import Shown
 
 _versions = itertools.count(-2, -1)  # a tab's own versions: negative, never a shared one
 CACHE = 4  # recordings kept read

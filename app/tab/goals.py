@@ -29,9 +29,9 @@ import robots
 from lab.problem.controllers import proposals
 from robots.ik import dls_ik, refine
 
-from app.ikworker import IK_WORKER
-from app.tab_extras import GoalExtras, TabExtras
-from app.scene import ArmView, frame_workspace, to_world
+from app.tab.extras import GoalExtras, TabExtras
+from app.tab.ikworker import IK_WORKER
+from app.tab.scene import ArmView, frame_workspace, to_world
 from app.viser_private import set_pose
 
 MAX_GOALS = 8
@@ -79,9 +79,9 @@ class GoalView(GoalExtras):
         return np.asarray(self.marker.position, float)[list(self.tab.arm.task_axes)]
 
     async def _on_update(self, _event) -> None:
-        """Runs in viser's event loop, which saves the hop to its thread pool (about 1 ms when
-        training keeps the cores busy); when a redraw holds the tab's lock, the update goes to
-        the thread pool rather than block the loop."""
+        """Runs in viser's event loop, which saves the hop to its thread pool (slow while training
+        keeps the cores busy: docs/results/app-speed.md); when a redraw holds the tab's lock, the
+        update goes to the thread pool rather than block the loop."""
         t0 = time.perf_counter()
         if self.tab.lock.acquire(blocking=False):
             try:
@@ -187,7 +187,7 @@ class TabSession(TabExtras):
         self.remove_button.on_click(lambda e: self.remove_goal())
         self.show_ik.on_update(lambda e: self._toggle_ik())
         self.version = -1
-        self.own = None  # the tab's own replay (app.state.Shown), if any
+        self.own = None  # the tab's own replay (app.training.state.Shown), if any
         self.table_dirty = False
         self.last_ik = self.last_draw = self.last_population = 0.0
         # redraws caused by training, at most every `period` s: the render loop lengthens it for a hall
@@ -200,7 +200,7 @@ class TabSession(TabExtras):
 
     @property
     def shown(self):
-        """What this tab's arms show: the tab's own replay (app/tabreplay.py) while it has one for the
+        """What this tab's arms show: the tab's own replay (app/tab/replay.py) while it has one for the
         shared arm, else the shared state's."""
         own = self.own
         if own is not None and own.arm is self.state.arm:
@@ -257,7 +257,7 @@ class TabSession(TabExtras):
         return None
 
     def request_ik(self) -> None:
-        """Solve IK for the first goal in the IK thread (app/ikworker.py)."""
+        """Solve IK for the first goal in the IK thread (app/tab/ikworker.py)."""
         if not self.closed and self.show_ik.value:
             IK_WORKER.request(self)
 

@@ -1,6 +1,6 @@
-"""The Train tab's views for a class (issue 16): the population's legend with the method's
-statistics, the live plots each method declares (lab.methods.LivePlot), and a race partner's
-settings. Read generically from the runs' RunTracks (app/live.py); nothing here names a method.
+"""The Train tab's views for a class: the population's legend with the method's statistics, the
+live plots each method declares (lab.methods.LivePlot), and a race partner's settings. Read
+generically from the runs' RunTracks (app/training/live.py); nothing here names a method.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import viser.uplot
 import lab
 from lab import methods
 
-from app.live import line_data, population_legend, stacked_svg
-from app.state import run_label
+from app.training.live import line_data, population_legend, stacked_svg
+from app.training.state import run_label
 
 LIVE_PERIOD = 1.0  # s: the legend, statistics and live plots change at most once a second (to every tab)
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points

@@ -21,9 +21,8 @@ import numpy as np
 
 import robots
 from lab.problem.controllers import network_layout
+from lab.recording.population import ramp
 from robots.ik import workspace_size
-
-from app.scene import colormap
 
 GRID = 64
 GRID_3D = 40
@@ -78,7 +77,7 @@ def error_map(arm: robots.Arm, controller) -> tuple[np.ndarray, np.ndarray, floa
         err, rgb = np.full(len(grid.goals), np.nan), np.full((len(grid.goals), 3), 160, np.uint8)
     else:
         err = np.linalg.norm(arm.reach(controller(grid.goals)) - grid.goals, axis=1)
-        rgb = colormap(err / scale)
+        rgb = ramp(err / scale)
     i, j = grid.cells[:, 0], grid.cells[:, 1]
     image[j, i, :3] = rgb
     image[j, i, 3] = 235 if len(arm.task_axes) == 2 else 140  # a slice lets the arm show through

@@ -1,0 +1,1 @@
+"""The panels every tab shares (server.gui): Train (settings, run controls, live plots), Views and Runs."""

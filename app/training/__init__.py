@@ -1,0 +1,1 @@
+"""The training run every tab shares, without viser: its state, its live numbers and the notebook of runs."""
