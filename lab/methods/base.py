@@ -77,7 +77,7 @@ class Population:
         and the pipe carry them only at a bounded rate, lab.running.runner.POPULATION_PERIOD);
     species: (n,) each candidate's species id, or None for a method without species;
     points: (n, 3) each candidate's end-effector point at the recording's display goal
-        (lab.recording.population.display_goal), filled in by the runner, or None.
+        (lab.running.decimation.display_goal), filled in by the runner, or None.
     """
 
     generation: int

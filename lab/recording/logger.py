@@ -18,7 +18,7 @@ Contract of the file (lab/replay.py reads it back):
 - decimated: /world/{arm,reached,errors} (the best controller's pose for every training goal, on
   improvement, at most every max(pose_every, generation / 5) generations, and at the end) and, for
   NEAT, /network (GraphNodes and GraphEdges of the best genome, inputs left, outputs right);
-- populations (lab.recording.population.population_logged: every generation up to 100, then every
+- populations (lab.running.decimation.population_logged: every generation up to 100, then every
   10th): /world/population (each candidate's point at the display goal, coloured by training MSE;
   /world/population_species by species) and /population (AnyValues mse, species);
 - static: /protocol (JSON: robot, limits, goals, seed, hyperparameters, config, versions),

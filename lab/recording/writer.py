@@ -32,8 +32,8 @@ import rerun as rr
 import robots
 
 from lab.recording import views
-from lab.recording.decimation import long_run
-from lab.recording.population import display_goal, mse_colors, population_logged, species_colors
+from lab.recording.population import mse_colors, species_colors
+from lab.running.decimation import display_goal, long_run, population_logged
 from lab.running.pipes import EventDecoder, claim_stdout, messages
 from lab.recording.logger import APPLICATION_ID, FORMAT_VERSION, compact
 
@@ -87,7 +87,7 @@ class Writer:
     def write(self, events: list) -> None:
         """Controllers first, then /mse: a file cut anywhere holds the controller of every generation
         whose /mse row it holds. The display-only series follow every DISPLAY_INTERVAL (fewer chunks:
-        each costs ~0.3 ms of CPU). Generations are logged by the rule lab.recording.decimation.long_run
+        each costs ~0.3 ms of CPU). Generations are logged by the rule lab.running.decimation.long_run
         (every one below 10,000; beyond, fewer per tenfold), the run's last one always (end())."""
         if not events:
             return

@@ -4,6 +4,7 @@
 - runner.py: Runner, a run in a background thread (start, pause, resume, stop, one event per
   generation to any subscriber); RunBase, what every runner shares; the RunSummary;
 - worker.py: ProcessRunner, the same run in a worker process (`python -m lab.running.worker`);
+- decimation.py: which generations (and populations) a run hands on, and the display goal;
 - pipes.py: the messages between lab's processes;
 - evolve.py: lab.evolve, a blocking run; warmup.py: compiles the kernels once.
 """
