@@ -30,7 +30,7 @@ from urllib.parse import quote
 import numpy as np
 
 from lab.problem.controllers import Controller, controller_from_dict
-from lab.recording.logger import rerun_binary
+from lab.recording.rerun_tool import rerun_binary
 
 MAGIC = b"RRF"  # the first bytes of every .rrd file
 

@@ -35,7 +35,8 @@ from lab.recording import views
 from lab.recording.population import mse_colors, species_colors
 from lab.running.decimation import display_goal, long_run, population_logged
 from lab.running.pipes import EventDecoder, claim_stdout, messages
-from lab.recording.logger import APPLICATION_ID, FORMAT_VERSION, compact
+from lab.recording.logger import APPLICATION_ID, FORMAT_VERSION
+from lab.recording.rerun_tool import compact
 
 WRITE_INTERVAL = 0.02  # seconds: at most this often a write and flush of what the pipe holds (each costs
 # ~0.3 ms of CPU whatever it holds; the pipe keeps what waits, even if the training process is killed)
