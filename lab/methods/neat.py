@@ -441,8 +441,8 @@ def reference_loop(config, problem, generations: int) -> float:
     return time.perf_counter() - t
 
 
-# measured in benchmarks/bench_quality.py: NEAT loses with the slack-of-reach input and a wide
-# margin (SCARA held-out 7.3 with these, 12 with "reach", 240 with "reach" and margin 2)
+# NEAT's defaults (benchmarks/bench_quality.py; docs/results/paper-budget.md, the figures in docs/log.md):
+# "polar" inputs and a small margin; it loses with the slack-of-reach input and a wide margin
 METHOD = register(Method(
     name="neat", label="NEAT", color=(214, 39, 40),
     summary="NEAT (neat-python): topology and weights evolved together",
