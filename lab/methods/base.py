@@ -25,7 +25,7 @@ from lab.problem.controllers import Controller, mlp_joints  # noqa: F401 (mlp_jo
 
 
 def option(default, help: str):
-    """A field of an Options dataclass: its default and a one-line help (CLI, app, README)."""
+    """A field of an Options dataclass: its default and a one-line help (CLI, app, docs)."""
     return field(default=default, metadata={"help": help})
 
 

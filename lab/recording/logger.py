@@ -5,7 +5,7 @@
     runner.subscribe(logger)                  # logger(event) per generation; on_end closes the file
     runner.run(); print(logger.path)
 
-Contract of the file (lab/replay.py reads it back):
+Contract of the file (lab/recording/replay.py reads it back; docs/recordings.md):
 - timelines: `generation` (sequence), `run_time` (duration: optimizer time, pauses excluded) and
   `wall_time` (timestamp: when the generation ended in the training process, pauses included);
   rows logged one by one (poses, network) also get Rerun's `log_time` (when the writer logged them);
@@ -26,7 +26,7 @@ Contract of the file (lab/replay.py reads it back):
 
 Cost and durability: __call__ pickles the generation's numbers (and the best controller when it
 changed) and writes them into a pipe, ~20 us in the optimizer's thread; the writer process
-(lab/recording_writer.py) does all of Rerun's work on the other core and writes and flushes
+(lab/recording/writer.py) does all of Rerun's work on the other core and writes and flushes
 what the pipe holds every 20 ms. Once __call__ has returned, the generation is in the kernel's
 pipe buffer: a training process killed with SIGKILL loses at most the generation in flight,
 and the writer then closes the file with its footer. The pipe holds about a thousand

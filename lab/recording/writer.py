@@ -12,7 +12,7 @@ over is still written, and the file is closed with its footer (end of input with
 It writes "C" to stdout once the file is closed and complete (the training process's close()
 waits for that), then compacts the file after a clean close, then exits. It ignores SIGINT
 (Ctrl-C in a terminal reaches the whole process group; the training process then closes the
-recording itself). The file's contents are described in lab/recording.py.
+recording itself). The file's contents are described in lab/recording/logger.py.
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ class NearlyFull(Exception):
 
 
 class Writer:
-    """The recording of one run (see lab/recording.py for what goes where)."""
+    """The recording of one run (see lab/recording/logger.py for what goes where)."""
 
     def __init__(self, header: dict):
         config = self.config = header["config"]  # TrainConfig.to_dict()
