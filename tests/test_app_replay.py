@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-pytest.importorskip("lab.recording.replay", reason="lab/replay.py (the Rerun issue) is not there")
+pytest.importorskip("lab.recording.replay", reason="lab.recording.replay (Rerun) is not there")
 from lab.recording.replay import load_controller  # noqa: E402
 
 from app.notebook import label  # noqa: E402
