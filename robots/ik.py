@@ -219,7 +219,7 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     solution a Gauss-Newton step converges quadratically, the damping only guards singular
     poses). Two safeguards make a step count from a seed tens of millimetres off: a joint the
     step would push past its limit stops there and the others take up the rest of the error
-    (clipping it instead undoes the step: docs/log.md), and the step length
+    (clipping it instead left many more goals unsolved: docs/log.md), and the step length
     is halved while the full step does not lower the error (each halving costs one forward
     kinematics, not a Jacobian). A goal stops once its error is below tol (default 1e-4 x
     workspace_size); each goal keeps its best iterate. goals (n, len(task_axes)), q0 (n, nq)
