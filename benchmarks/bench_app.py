@@ -1,4 +1,4 @@
-"""Responsiveness of the app while it trains (docs/results/speed.md).
+"""Responsiveness of the app while it trains (the results: docs/results/app-speed.md).
 
     python benchmarks/bench_app.py                  # 10 tabs, one dragging; 4 rounds of 6 s each
     python benchmarks/bench_app.py --clients 10 --dragging 10 --hz 10   # every tab drags
