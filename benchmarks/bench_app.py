@@ -1,4 +1,4 @@
-"""Responsiveness of the app while it trains (issue 6, point 9).
+"""Responsiveness of the app while it trains (the results: docs/results/app-speed.md).
 
     python benchmarks/bench_app.py                  # 10 tabs, one dragging; 4 rounds of 6 s each
     python benchmarks/bench_app.py --clients 10 --dragging 10 --hz 10   # every tab drags
@@ -19,7 +19,7 @@ Two numbers, measured side by side in rounds (headless then app, app then headle
    (lab.running.worker.ProcessRunner), started from the panel's code path (app.state.start).
    Target: >= 80 %.
 
-Every tab shows the population view (issue 16: each candidate's end-effector point at its goal,
+Every tab shows the population view (each candidate's end-effector point at its goal,
 redrawn at most 5 times a second per tab as the run sends populations, at most 10 a second) unless
 --no-population; the headless run computes the same populations (lab.Runner sends them to its
 subscribers) so both sides pay for them.

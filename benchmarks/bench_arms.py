@@ -1,4 +1,5 @@
-"""Real arms: evolved IK by default settings, its held-out error, and a learned seed refined.
+"""Real arms: evolved IK by default settings, its held-out error, and a learned seed refined
+(the results: docs/results/real-arms.md).
 
 For each arm: `lab.evolve(robot)` with no other argument (the method's defaults for that arm,
 budget included), timed; the position error ||goal - fk(net(goal))|| on 2,000 held-out goals from
@@ -23,9 +24,8 @@ TRAC-IK, 99.2 % success on the UR5 at 0.37 ms per solve (full 6-D pose, Beeson a
 error) is best on 2,000 *validation* goals (goal seed VALIDATION: other random joint vectors than the
 held-out goals, which only measure the kept run); each candidate's validation figures are printed, and
 --write-pretrained records the selection in the shipped file. A network's tail, and so the refinement,
-depends on where training happened to cut the workspace between IK branches: on the Kinova with the
-former "reach" inputs seed 0 refined 87.1 % of held-out goals within 3 steps, seed 1 99.45 % (with
-today's "sphere" inputs seed 0 refines 99.9 %).
+depends on where training happened to cut the workspace between IK branches, so seeds can differ
+widely there (examples in docs/log.md).
 
 --timing N runs N generations of each arm's defaults with the fitness on one thread and on
 LAB_THREADS (default: the cores, at most 4), interleaved, and prints seconds per generation and the

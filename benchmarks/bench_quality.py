@@ -1,4 +1,5 @@
-"""Quality at the paper's budget: held-out MSE of each design choice over many seeds.
+"""Quality at the paper's budget: held-out MSE of each design choice over many seeds (the results:
+docs/results/paper-budget.md).
 
 Every variant is trained at the paper's budget (population 50, 1000 generations, 70 fixed
 training goals) on each arm for --seeds seeds; the table gives the median and worst training

@@ -1,4 +1,5 @@
-"""Cost of a training run against the optimizer's own loop with a trivial fitness.
+"""Cost of a training run against the optimizer's own loop with a trivial fitness (the results:
+docs/results/speed.md).
 
 CMA-ES: `lab`'s backend for G generations (50 MLPs x 70 goals evaluated per generation:
 network + forward kinematics) against pycma's own ask/tell loop at the same dimension and

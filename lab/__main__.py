@@ -55,7 +55,7 @@ def _train_parser(sub) -> None:
     p.add_argument("--targets", type=int, default=None,
                    help="number of fixed training goals (default: the method's for the arm; the paper: 70)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--paper", action="store_true", help="the paper's method literally (lab.running.config.PAPER_PRESET)")
+    p.add_argument("--paper", action="store_true", help="the paper's method literally (the method's `paper` settings: TrainConfig.preset(paper=True))")
     p.add_argument("--hidden", type=int, default=None, help="MLP hidden units; graph methods: initial hidden nodes")
     p.add_argument("--heads", type=int, default=None,
                    help="MLP output heads, each a joint-value proposal; the one closest to the goal answers "

@@ -219,7 +219,7 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     solution a Gauss-Newton step converges quadratically, the damping only guards singular
     poses). Two safeguards make a step count from a seed tens of millimetres off: a joint the
     step would push past its limit stops there and the others take up the rest of the error
-    (clipping it instead undid most failing steps on SO100, Z1 and Kinova), and the step length
+    (clipping it instead left many more goals unsolved: docs/log.md), and the step length
     is halved while the full step does not lower the error (each halving costs one forward
     kinematics, not a Jacobian). A goal stops once its error is below tol (default 1e-4 x
     workspace_size); each goal keeps its best iterate. goals (n, len(task_axes)), q0 (n, nq)
@@ -228,19 +228,18 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     tolerance; otherwise the one nearest its goal after them takes the rest (RefineResult.choice):
     the answer kept has had at most `steps` steps, and the proposals cost at most k - 1 steps more
     than one seed. Picking the proposal after its first step rather than by its seed error matters
-    where a seed a few millimetres off sits on a branch that no step leaves (a four-head SO101
-    network: 96.6 -> 98.9 % of held-out goals within tolerance in 3 steps; README, "Real arms").
+    where a seed a few millimetres off sits on a branch that no step leaves (a multi-head SO
+    network: docs/results/real-arms.md).
 
     The turn first (one forward kinematics, no Jacobian): the first joint alone moves the end
     effector on a circle about its axis (Arm.base_axis), whose point nearest the goal lies at the
     goal's bearing, so that joint's best value is known in closed form (the nearest one within its
     limits when the bearing is out of them); it is kept when it lowers the error. Near the base
     axis a seed a few millimetres off can be tens of degrees off in that joint, where a
-    Gauss-Newton step, linear in the angle, overshoots (SO100: 95.5 -> 96.6 % of held-out goals
-    within tolerance in 3 steps; README, "Real arms"). The turn again after every step: a step
-    that moves the end effector toward or away from the axis leaves its bearing off again (a
-    further 0.05-0.35 % of the goals within tolerance, never fewer, on the shipped controllers, at
-    about 10 % more time). turn=False: Gauss-Newton steps only."""
+    Gauss-Newton step, linear in the angle, overshoots. The turn again after every step: a step
+    that moves the end effector toward or away from the axis leaves its bearing off again (more
+    goals within tolerance for a little more time; the figures: docs/results/real-arms.md,
+    docs/log.md). turn=False: Gauss-Newton steps only."""
     t0 = time.perf_counter()
     goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
     q = np.asarray(q0, dtype=np.float64)

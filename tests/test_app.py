@@ -345,7 +345,7 @@ def test_every_shipped_controller_fits_its_arm_and_has_the_error_its_file_record
 
 @pytest.mark.parametrize("robot", [n for n in robots.names() if robots.kind(n) == "real"])
 def test_every_shipped_real_arm_controller_seeds_a_refinement_to_a_tenth_of_a_millimetre(robot):
-    """The practical use of a learned IK (issue "real arms", item 3): the shipped network's answer
+    """The practical use of a learned IK (docs/results/real-arms.md): the shipped network's answer
     (every head's proposal) and at most 3 damped Gauss-Newton steps reach 0.1 mm on at least 99 %
     of the 2,000 held-out goals."""
     from app.startup import load_pretrained

@@ -63,7 +63,7 @@ def settled(count, quiet=0.6, timeout=15.0) -> int:
 
 
 def test_browser_steps_one_generation_sets_the_speed_and_races_two_runs(tmp_path):
-    """Issue 16 in a real browser: one click on Step = one generation more on the server; the Speed
+    """The app for a class in a real browser: one click on Step = one generation more on the server; the Speed
     menu caps the rate; a race draws two curves (APP_SCREENSHOT_DIR keeps the screenshots)."""
     from app.server import LabApp
 

@@ -1,4 +1,4 @@
-"""The app for a class (issue 16): Step, the speed control, the population view and a race, driven
+"""The app for a class: Step, the speed control, the population view and a race, driven
 as a browser drives them (app/probe.py sends the GUI's messages) and checked on the server."""
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ from lab.running.runner import Runner, TimeLimit, build_problem
 
 @pytest.fixture(scope="module")
 def smoke(tmp_path_factory):
-    """The smoke size the issue names: --runs 2 --generations 50 (under a minute on 2 cores)."""
+    """The smoke size: --runs 2 --generations 50 (under a minute on 2 cores)."""
     out = tmp_path_factory.mktemp("claims")
     assert lab_main(["claims", "--runs", "2", "--generations", "50", "--out", str(out), "--quiet"]) == 0
     return out

@@ -279,7 +279,7 @@ def test_nan_and_overflowing_weights_get_inf_and_never_crash():
 
 def test_resampled_goals_with_sep_cmaes_on_a_real_arm_are_warned_of(caplog):
     """sep-CMA-ES above pycma's TPA_dimension weights (a real arm's defaults) collapses its step size on
-    resampled goals (README, 'resample'): such a run says so; fixed goals, or the paper's arms, do not."""
+    resampled goals (docs/log.md): such a run says so; fixed goals, or the paper's arms, do not."""
     import logging
 
     def warned(**settings):

@@ -120,8 +120,8 @@ def test_the_custom_method_example_trains_records_and_reloads(tmp_path):
 
 # ---------------------------------------------------------------- nobody asks which method runs
 PAPER_PLACE = ROOT / "lab" / "experiments" / "paper.py"
-# the claims experiment declares the methods it compares in one tuple there (claims.METHODS)
-CLAIMS_PLACE = ROOT / "lab" / "experiments" / "claims.py"
+# the claims experiment declares the methods it compares in one tuple there (claims_design.METHODS)
+CLAIMS_PLACE = ROOT / "lab" / "experiments" / "claims_design.py"
 
 
 def _method_literals(path: Path) -> list[str]:
@@ -136,7 +136,7 @@ def _method_literals(path: Path) -> list[str]:
 
 def test_no_code_outside_the_methods_package_names_a_method():
     """Outside lab/methods only the experiments name methods, each in one place: the paper's two
-    in lab/experiments/paper.py, the claims experiment's in lab/experiments/claims.py (one tuple);
+    in lab/experiments/paper.py, the claims experiment's in lab/experiments/claims_design.py (one tuple);
     the rest reads the registry."""
     files = [p for d in ("lab", "app", "robots", "benchmarks", "examples") for p in (ROOT / d).rglob("*.py")
              if "methods" not in p.relative_to(ROOT).parts[:2]]

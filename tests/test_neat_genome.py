@@ -1,5 +1,5 @@
-"""FastGenome (lab/backends/neat_genome.py) is neat-python's DefaultGenome and FastSpeciesSet
-(lab/backends/neat_species.py) its DefaultSpeciesSet, bit for bit: the same genomes, species,
+"""FastGenome (lab/methods/neat_genome.py) is neat-python's DefaultGenome and FastSpeciesSet
+(lab/methods/neat_species.py) its DefaultSpeciesSet, bit for bit: the same genomes, species,
 distances and random state, generation after generation."""
 
 import copy

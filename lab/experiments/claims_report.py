@@ -1,4 +1,5 @@
-"""claims.md and its figures, from the stored runs of the claims experiment (claims.py).
+"""claims.md and its figures, from the stored runs of the claims experiment (claims.py; its
+design in claims_design.py).
 
 Per arm and method, in each setting (equal evaluations, equal time): the held-out error (median
 and worst run), the runs stuck in a poor optimum, the evaluations and seconds to reach a target
@@ -16,7 +17,7 @@ import numpy as np
 
 import robots
 from lab import methods
-from lab.experiments import claims as C
+from lab.experiments import claims_design as C
 from lab.experiments.figures import band, pyplot
 from lab.experiments.report import failure_lines, machine_lines, time_lines
 from lab.experiments.stats import welch

@@ -53,7 +53,7 @@ def add_claims_parser(sub) -> None:
                                    f"machine: {C.DEFAULT_RUNS} seeds instead of 10, a budget of "
                                    f"{C.DEFAULT_GENERATIONS} generations instead of 1000.")
     p.add_argument("--runs", type=int, default=C.DEFAULT_RUNS,
-                   help=f"seeds per arm, method and setting (default {C.DEFAULT_RUNS}; the issue asks 10)")
+                   help=f"seeds per arm, method and setting (default {C.DEFAULT_RUNS}; the full test is 10)")
     p.add_argument("--generations", type=int, default=C.DEFAULT_GENERATIONS,
                    help=f"the budget, in generations of {methods.get(C.METHODS[0]).label} at its population "
                         f"(default {C.DEFAULT_GENERATIONS}; the paper's 1000); the equal-time limit scales with it")

@@ -5,7 +5,8 @@
     backend = methods.make_backend(problem, config)   # the Backend of config.method
     backend.step()                                    # one generation
 
-- base.py: Options (a method's settings), Backend (one step = one generation), StepResult;
+- base.py: Options (a method's settings), RunSettings (what it reads of a run's settings),
+  Backend (one step = one generation), StepResult;
 - registry.py: Method (what the lab knows of a method), register, get, names;
 - cmaes.py: CMA-ES on the paper's MLP (pycma);
 - gradient.py: Adam on the same MLP, gradient by backpropagation through the arm's Jacobian;
@@ -17,11 +18,11 @@ from __future__ import annotations
 
 import os
 
-from lab.methods.base import Backend, Options, Population, StepResult, option
+from lab.methods.base import Backend, Options, Population, RunSettings, StepResult, option
 from lab.methods.registry import DEFAULT_METHOD, LivePlot, Method, all_methods, get, load_plugins, names, register, unregister
 
 
-def make_backend(problem, config) -> Backend:
+def make_backend(problem, config: RunSettings) -> Backend:
     """The backend of config.method on problem."""
     return get(config.method).backend(problem, config)
 
@@ -30,5 +31,5 @@ from lab.methods import cmaes, gradient, neat  # noqa: E402,F401  (each register
 
 load_plugins(os.environ.get("LAB_METHODS"))
 
-__all__ = ["Backend", "DEFAULT_METHOD", "LivePlot", "Method", "Population", "Options", "StepResult", "all_methods", "get", "load_plugins",
-           "make_backend", "names", "option", "register", "unregister"]
+__all__ = ["Backend", "DEFAULT_METHOD", "LivePlot", "Method", "Population", "Options", "RunSettings", "StepResult",
+           "all_methods", "get", "load_plugins", "make_backend", "names", "option", "register", "unregister"]

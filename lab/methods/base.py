@@ -16,19 +16,16 @@ from __future__ import annotations
 import dataclasses
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from lab.problem import Problem
 from lab.problem.controllers import Controller, mlp_joints  # noqa: F401 (mlp_joints: methods import it from here)
 
-if TYPE_CHECKING:
-    from lab.running.config import TrainConfig
-
 
 def option(default, help: str):
-    """A field of an Options dataclass: its default and a one-line help (CLI, app, README)."""
+    """A field of an Options dataclass: its default and a one-line help (CLI, app, docs)."""
     return field(default=default, metadata={"help": help})
 
 
@@ -57,6 +54,20 @@ class Options:
         return {f.name: (f.default, type(f.default), f.metadata.get("help", "")) for f in dataclasses.fields(cls)}
 
 
+class RunSettings(Protocol):
+    """What a method reads of a run's settings: the fields every method shares, with the arm's and
+    method's defaults filled in, and the method's own Options. lab.running.TrainConfig is one; a
+    method never needs to know that class (running/ drives methods/, never the reverse)."""
+
+    method: str  # the method's registered name
+    seed: int  # the run's random seed
+    generations: int  # the steps the run will take (a schedule may span them)
+    population: int  # candidates per generation
+    hidden: int  # MLP hidden units; graph methods: hidden nodes of the first networks
+    heads: int  # an MLP's output heads (1: single-head networks)
+    options: Options  # the method's own settings
+
+
 @dataclass(frozen=True, eq=False)
 class Population:
     """The candidates one generation evaluated (Backend.candidates()).
@@ -66,7 +77,7 @@ class Population:
         and the pipe carry them only at a bounded rate, lab.running.runner.POPULATION_PERIOD);
     species: (n,) each candidate's species id, or None for a method without species;
     points: (n, 3) each candidate's end-effector point at the recording's display goal
-        (lab.recording.population.display_goal), filled in by the runner, or None.
+        (lab.running.decimation.display_goal), filled in by the runner, or None.
     """
 
     generation: int
@@ -109,7 +120,7 @@ def population_joints(controllers, goals: np.ndarray) -> np.ndarray:
     return enc.joints(a.reshape(-1, enc.n_outputs)).reshape(len(controllers), len(goals), -1)
 
 
-def mlp_shape(problem: Problem, config: TrainConfig):
+def mlp_shape(problem: Problem, config: RunSettings):
     """A zero-weight MLPController of the run's shape (config.hidden, config.heads; several heads carry
     the arm's kinematic chain): what a method's networks are built like (MLPController(s.encoding,
     s.hidden, weights, s.heads, s.anchors, s.chain))."""
@@ -142,7 +153,7 @@ class Backend(ABC):
     config.options holds the method's Options; self.best / self.best_mse the best controller so
     far and its training MSE (kept by `_offer`)."""
 
-    def __init__(self, problem: Problem, config: TrainConfig):
+    def __init__(self, problem: Problem, config: RunSettings):
         self.problem = problem
         self.config = config
         self.options = config.options
@@ -208,7 +219,7 @@ class Backend(ABC):
         return None
 
     @classmethod
-    def settings(cls, problem: Problem, config: TrainConfig) -> dict:
+    def settings(cls, problem: Problem, config: RunSettings) -> dict:
         """The hyperparameters a backend of this class runs with on (problem, config); logged
         with the recording. A function of its arguments alone, so no backend has to be built."""
         return config.options.to_dict()

@@ -24,24 +24,21 @@ from lab.methods.registry import LivePlot, Method, SpeedReference, register
 from lab.problem.checks import flag, real, whole
 from lab.problem.controllers import MAX_HEADS, MLPController, mlp_size
 
-REAL_ARM_GENERATIONS = 45_000  # 4-5 minutes on the 2-core machine (fitness on both cores) for a 5-7 joint arm
-# arms whose goals lie on several IK branches that no single-head run serves: their heads, and a
-# budget that still fits 5 minutes (README "Real arms"; per generation on one thread, --timing side
-# by side: UR5 with two heads 12.4-12.6 ms against 8.0-9.2 for one; SO100 with two 6.5-7.9 ms on two
-# threads against 4.8; Z1's 36,000 took 301 s by --timing on 2026-12-02, so 32,000)
+REAL_ARM_GENERATIONS = 45_000  # a real arm's budget: about 4-5 minutes on two cores for 5-7 joints
+# arms whose goals lie on several IK branches that no single-head run serves: their heads, and fewer
+# generations, so that the dearer generations of several heads still fit about 5 minutes
+# (docs/results/real-arms.md; the timings in docs/log.md)
 MULTI_HEAD_ARMS = {"ur5": dict(heads=2, generations=32_000), "so100": dict(heads=3, generations=26_000),
                    "so101": dict(heads=4, generations=20_000), "z1": dict(heads=2, generations=32_000)}
 # arms whose base turns less than a turn, so that the goals behind them lie across the bearing's seam:
 # the bearing twice, from the front and from behind (lab/problem/encoding.py, "bearings"). Not SO100:
-# seeds 0-2, "sphere" -> "bearings", median 0.83 / 0.83 / 0.80 -> 0.97 / 0.93 / 1.02 % of reach,
-# refined 96.6 / 96.0 / 98.2 -> 98.8 / 96.1 / 91.2 % (README "Real arms")
+# there it raised the median error (docs/log.md)
 BEARINGS_ARMS = {"so101"}
 # the output margin of an arm whose every limited joint turns less than a full turn (SO100, SO101, Z1,
-# Panda, Kinova; README "Real arms"): there the limits bind, and uniformly drawn goals often need a
-# joint near one, where a margin of 0 asks the output tanh to saturate. Seed 0, margin 0 -> 0.3:
-# median SO100 0.83 -> 0.72 %, SO101 1.17 -> 1.04 % (lower on seeds 0-3 too), Z1 0.83 -> 0.67 %,
-# Panda 0.51 -> 0.45 %, Kinova 0.48 -> 0.33 % of reach.
-# The arms with joints of +-2 pi (UR5, UR10, xArm7) keep 0: their limits lie two turns apart
+# Panda, Kinova): there the limits bind, and uniformly drawn goals often need a joint near one, where
+# a margin of 0 asks the output tanh to saturate; 0.3 lowers each such arm's median error
+# (docs/results/real-arms.md, docs/log.md). The arms with joints of +-2 pi (UR5, UR10, xArm7) keep 0:
+# their limits lie two turns apart
 LIMITED_MARGIN = 0.3
 log = logging.getLogger(__name__)
 STALL = 150  # generations without 1% improvement that end a start (restarts only)
@@ -91,9 +88,8 @@ class CMAESBackend(Backend):
         tpa = _cma().evolution_strategy.TPA_dimension  # pycma's step-size rule is TPA from this dimension on
         if problem.resampling and self.options.separable and self.dim >= tpa:
             log.warning("resampled goals with sep-CMA-ES on %d weights: pycma adapts the step size by two-point "
-                        "adaptation above %d weights, and with new goals every generation it collapses (SO100: "
-                        "sigma 1.8e-5 against 7.5e-4 with fixed goals after 3,000 generations; README, "
-                        "'resample'); fixed goals train better here", self.dim, tpa)
+                        "adaptation above %d weights, and with new goals every generation the step size collapses "
+                        "(docs/log.md); fixed goals train better here", self.dim, tpa)
 
     def _start(self) -> None:
         x0 = self.rng.normal(0.0, 0.1, self.dim)
@@ -190,53 +186,35 @@ def margin_of(arm) -> float:
 
 
 def defaults(arm) -> dict:
-    """The settings CMA-ES runs with on an arm when none are given.
+    """The settings CMA-ES runs with on an arm when none are given, each chosen by a measured
+    comparison (benchmarks/bench_quality.py for the paper's arms: docs/results/paper-budget.md;
+    benchmarks/bench_arms.py for the real ones: docs/results/real-arms.md; the before and after
+    of each choice, and what was tried and not kept: docs/log.md).
 
-    The paper's arms (measured in benchmarks/bench_quality.py, README "Quality"): the slack-of-reach
-    input and a wide output margin. Real arms (benchmarks/bench_arms.py, README "Real arms"): 6-7
-    joints, some of range 4 pi, want no margin there (a wide range throws outputs onto the limits)
-    and a small one (0.3, margin_of) where every limited joint turns less than a turn, a
-    larger network (32 hidden units, about 400 weights), more goals (300), a small first step
-    (0.05: a larger net starts saturated) and sep-CMA-ES, whose cost is linear in the weights, for
-    a budget of about four minutes on the two cores (the fitness in two threads, pycma on one).
-    Their inputs are "sphere" (lab/problem/encoding.py): the slack of reach about the shoulder
-    as well as about the base axis, so that the elbow's fold near full reach, where most
-    refinement failures were, is nearly linear in an input (seed 0, held-out goals, "reach" ->
-    "sphere": UR10 median 1.87 -> 0.59 % of reach and refined 97.3 -> 99.8 %, Panda 1.04 -> 0.48 %
-    and 99.2 -> 99.8 %, Kinova 1.39 -> 0.46 % and 87.1 -> 99.9 %; README, "Real arms").
+    The paper's arms: "reach" inputs (the slack of reach), a wide output margin (2.0), 5 hidden
+    units. The snakes (planar-10, planar-20) take the same: they are planar, in the paper's units,
+    with the planar arm's reach and ranges of pi, so the planar arm's settings are the closest
+    measured choice (their 10-20 outputs may want more hidden units: not measured yet).
 
-    The snakes (planar-10, planar-20) get the paper's-arm settings for now: they are planar, in
-    the paper's units, with the planar arm's reach and ranges of pi, so the input scaling, the
-    margin and the budget measured on the planar arm are the closest measured choice; their 10-20
-    outputs may want more hidden units (not measured yet).
-
-    UR5, SO100, SO101 and Z1 (MULTI_HEAD_ARMS): several heads (lab/problem/controllers.py,
-    head_anchors). On the SO arms and Z1 the goals behind the base are reached only with the arm
-    folded back over its shoulder, a branch no single-head run found; the second head starts
-    leaning back. On the SO arms the goals behind the base near its axis need a third branch, the
-    arm curled forward over the axis (the tip beyond it), which the front head answered with the
-    base at its limit, 15-40 mm off (127 of SO101's 132 failures): the third head starts there,
-    SO101's fourth is the second's mirror image in the base joint. Seeds 0-2, every head's answer
-    refined (robots.ik.refine's proposals), success within 3 steps: SO100 two heads (32,000
-    generations) -> three (26,000) 97.45 / 97.55 / 97.75 -> 99.5 / 98.9 / 96.5 %, at a median of
-    0.72 / 0.67 / 0.67 -> 0.70 / 0.87 / 1.06 % of reach; SO101 three (26,000) -> four (20,000)
-    94.45 / 94.25 / 94.25 -> 99.2 / 99.4 / 99.5 %, median 1.04 / 0.90 / 0.94 -> 0.91 / 0.93 / 0.90 %
-    (README "Real arms"). Before them, seed 0, "sphere" inputs, held-out median and refined
-    success: SO101 one head
-    1.43 % of reach, 84.4 %; two 1.10 %, 87.8 %; three (26,000 generations) 1.45 %, 92.3 %. Z1 (32,000
-    generations, so that two heads fit the 5 minutes) 0.79 -> 0.83 %, 98.7 -> 99.8 %. UR5 (32,000)
-    0.85 -> 0.61 %, 98.6 -> 99.1 %, p99 10.5 -> 2.6 %: a single network must cut its workspace between
-    elbow branches, and its worst seeds lay along the cut ("reach" inputs, before: the median got
-    worse, 1.23 -> 1.75 %). SO100 ("reach" inputs then): one head to two 1.78 -> 1.58 %, 85.7 -> 91.3 %;
-    three heads (24,000; the third then the mirrored folded head, not the curled one) 1.55 %, 90.6 %,
-    worse than two. Two heads cost 1.3-2x the time of one a generation, three about 1.4x two.
-
-    SO101 (BEARINGS_ARMS): "bearings" inputs, the bearing measured from the front and from behind.
-    Its base turns +-110 degrees, so the goals behind it are reached folded back, and the bearing
-    measured as before had its seam right among them, where its refinement failures were (110 of
-    138 more than 120 degrees from its front). Seeds 0-3, "sphere" -> "bearings": median 1.25 / 1.48 /
-    1.36 / 1.39 -> 1.17 / 1.18 / 1.15 / 1.28 % of reach, refined 93.1 / 93.5 / 92.3 / 92.1 -> 93.4 /
-    93.4 / 92.5 / 93.4 %."""
+    Real arms (5-7 joints, some of range 4 pi), for a budget of about four minutes on two cores
+    (the fitness in two threads, pycma on one):
+    - features "sphere" (lab/problem/encoding.py): the slack of reach about the shoulder as well
+      as about the base axis, so that the elbow's fold near full reach, where most refinement
+      failures were, is nearly linear in an input. SO101 (BEARINGS_ARMS): "bearings", the bearing
+      from the front and from behind: its base turns +-110 degrees, so the goals behind it are
+      reached folded back, and a bearing from the front alone has its seam among them;
+    - margin margin_of(arm): none where joints turn 4 pi (a wide range throws outputs onto the
+      limits), LIMITED_MARGIN where every limited joint turns less than a turn;
+    - hidden 32 (about 400 weights), targets 300, population 50, sigma0 0.05 (a larger net starts
+      saturated with a larger first step), separable (sep-CMA-ES: cost linear in the weights),
+      REAL_ARM_GENERATIONS generations;
+    - heads (MULTI_HEAD_ARMS; lab/problem/controllers.py, head_anchors), with fewer generations so
+      that the time stays about the same: UR5 two, since a single network must cut its workspace
+      between elbow branches and its worst goals lie along the cut; Z1 and the SO arms two or more,
+      since the goals behind the base are reached only folded back over the shoulder, a branch no
+      single-head run finds (the second head starts leaning back). On the SO arms the goals behind
+      the base near its axis need the arm curled forward over the axis, the tip beyond it (the
+      third head starts there); SO101's fourth is the second's mirror image in the base joint."""
     if robots.kind(arm.name) in ("paper", "snake"):
         return dict(features="reach", margin=2.0, hidden=5)
     return {**dict(features="bearings" if arm.name in BEARINGS_ARMS else "sphere", margin=margin_of(arm),

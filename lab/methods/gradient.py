@@ -103,19 +103,16 @@ class GradientBackend(Backend):
 
 
 def defaults(arm) -> dict:
-    """The settings the gradient method runs with on an arm when none are given.
+    """The settings the gradient method runs with on an arm when none are given (the comparisons
+    behind them: docs/results/paper-budget.md, docs/results/real-arms.md; their figures:
+    docs/log.md).
 
     The paper's arms and the snakes: CMA-ES's inputs ("reach"), hidden size and output margin 2.
-    A margin clips outputs beyond a limit and passes them no gradient, yet on the planar arm it
-    wins by far (3 seeds, 1000 steps: training MSE 0.02-0.04 with margin 2, 0.25-0.29 with 0.5,
-    0.88 with 0 at seed 0; 3000 steps: 0.003-0.008 with margin 2 and learning rate 0.03, 0.04-0.10
-    with margin 0.5): as for CMA-ES, a goal at a joint limit then asks no saturated tanh.
-    Learning rate 0.03 (3000 steps: 0.003-0.008 against 0.01-0.04 at 0.003 and 0.014 at 0.01),
-    3000 steps (about 1.3 s on planar). Real arms: CMA-ES's real-arm network and goals, the
-    default learning rate and 20,000 steps (ur5: 1500 steps reach a training MSE of 0.0027 m^2
-    in 2 s); not tuned yet. Their inputs are CMA-ES's "sphere" too (seeds 0 and 1, 20,000 steps,
-    about 20 s, held-out median error against "reach": UR5 0.55 and 0.30 % of reach against 1.63
-    and 1.08 %, Panda 0.29 and 0.27 % against 0.54 and 0.62 %)."""
+    A margin clips outputs beyond a limit and passes them no gradient, yet it wins by far on the
+    planar arm: as for CMA-ES, a goal at a joint limit then asks no saturated tanh. Learning rate
+    0.03 (the best of 0.003, 0.01 and 0.03 at 3000 steps), 3000 steps (about a second on planar).
+    Real arms: CMA-ES's real-arm network, goals and "sphere" inputs (they beat "reach" there too),
+    the default learning rate and 20,000 steps (about 20 s); not tuned yet."""
     if robots.kind(arm.name) in ("paper", "snake"):
         return dict(features="reach", margin=2.0, hidden=5, population=1, generations=3000, learning_rate=0.03)
     return dict(features="sphere", margin=0.0, hidden=32, targets=300, population=1, generations=20_000)

@@ -11,7 +11,7 @@ The paper's parameters map onto neat-python as follows:
                                          redrawn with p = 0.5, and comes back True half the time
     activation tanh                      "tanh_": the textbook tanh (neat's own "tanh" is tanh(2.5 z))
 
-neat-python 2.0 traps handled here (shared/notes/dependencies.md): a fresh Config per run (its
+neat-python 2.0 traps handled here (docs/methods.md, "Backends"): a fresh Config per run (its
 innovation tracker keeps state); single_structural_mutation set explicitly (an omitted value
 is the truthy string 'false'); fitness_criterion = max with fitness = -MSE (min is broken
 before 2.1). neat-python draws from the global `random` module: each backend keeps its own
@@ -441,8 +441,8 @@ def reference_loop(config, problem, generations: int) -> float:
     return time.perf_counter() - t
 
 
-# measured in benchmarks/bench_quality.py: NEAT loses with the slack-of-reach input and a wide
-# margin (SCARA held-out 7.3 with these, 12 with "reach", 240 with "reach" and margin 2)
+# NEAT's defaults (benchmarks/bench_quality.py; docs/results/paper-budget.md, the figures in docs/log.md):
+# "polar" inputs and a small margin; it loses with the slack-of-reach input and a wide margin
 METHOD = register(Method(
     name="neat", label="NEAT", color=(214, 39, 40),
     summary="NEAT (neat-python): topology and weights evolved together",

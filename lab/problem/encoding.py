@@ -19,16 +19,16 @@ Inputs (features):
                  rho = |g - c|, the distance from the centre c = (0, 0, z_c) of the smallest sphere
                  about the base axis that holds the workspace (near the shoulder of a yaw-pitch arm:
                  its elbow angle goes as acos of rho), its slack sqrt(1 - rho / rho_max), and the
-                 elevation atan2(z - z_c, r). The outer shell of a UR5's workspace, where the
-                 cylinder's slack s says nothing, held 24 of its 28 refinement failures ("reach").
+                 elevation atan2(z - z_c, r). The outer shell of a 3D arm's workspace, where the
+                 cylinder's slack s says nothing, held most of a UR5's refinement failures with
+                 "reach" inputs (docs/log.md).
     "bearings"   "sphere" with the bearing twice: phi measured from the bearing the arm faces most
                  (`facing`: the circular mean bearing of the workspace's goals, 0 where it faces +x),
                  so that its seam at +-pi lies behind the arm, and phi' measured from the opposite
                  bearing, its seam in front. An arm whose base turns less than a full turn (the SO
                  arms: +-110-115 degrees) reaches the goals behind it folded back over its shoulder,
                  its base turned to phi -+ pi, and phi's seam runs through those goals; phi' has none
-                 there. SO101, seeds 0-3: median 1.37 -> 1.20 % of reach on average, lower on each
-                 seed (README, "Real arms").
+                 there (SO101's default: docs/results/real-arms.md).
 Outputs: a network output a in [-1, 1] maps linearly onto the joint range widened by a
 margin m on each side, then clipped to the limits (a continuous joint: see below):
     q = clip(lower - m h + (a + 1) (1 + m) h, lower, upper),   h = (upper - lower) / 2.
@@ -37,9 +37,8 @@ limit at a finite pre-activation: the paper's goals are drawn uniformly in joint
 sit at a limit, where m = 0 asks the output tanh to saturate.
 A continuous joint (no limit: an angle in [-pi, pi] here) maps onto two turns, [c - 2 pi, c + 2 pi]
 (c its range's middle), and is turned by whole turns into its range instead of clipped: the network
-can then reach every angle from either side, with no seam where -pi meets pi (the Kinova, three
-continuous joints: held-out median error 3.3 % of reach with its range mapped as the paper does,
-2.1 % with two turns at a fifth of that budget; README, "Real arms").
+can then reach every angle from either side, with no seam where -pi meets pi (the Kinova has
+three continuous joints; what this mapping gained there: docs/log.md).
 """
 
 from __future__ import annotations

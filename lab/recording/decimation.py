@@ -1,48 +1,6 @@
-"""Which generations a recording logs: each rule is one named function of the generation index.
+"""Which generations a recording logs: the rules live in lab.running.decimation (the runner
+applies them too); named here as well for the recording's readers."""
 
-- `long_run(g)`: the per-generation numbers (best, median and worst MSE, their log10, the search
-  state) and the controller in force: every generation below 10,000, then every 10th below 100,000,
-  every 100th below 10^6, ... (a tenth of the rate per tenfold of generations: at most 9,000 more
-  logged generations per decade). A run's last generation is always logged. At about 460 bytes
-  a logged generation, 10^9 generations make about 25 MB instead of 460 GB.
-
-- `population_logged(g)`: a generation's whole population (each candidate's MSE, species and point):
-  every generation below 100, then every 10th, and only generations long_run logs (so beyond
-  100,000 it thins as long_run does); 50,000 generations of a real arm keep 5,090 populations.
-
-A rule is a pure function (same answer for the same index, in any process), so the app, the
-recording's writer and the tests agree on what a file holds.
-"""
-
-from __future__ import annotations
-
-EVERY_UNTIL = 10_000  # every generation below this one is logged
-POPULATION_EVERY_FIRST = 100  # generations 0 .. 99: each one's population
-POPULATION_THEN_EVERY = 10  # beyond: every 10th
-
-
-def long_run(generation: int) -> bool:
-    """Whether a recording logs generation `generation` (0-based) of a long run."""
-    if generation < EVERY_UNTIL:
-        return True
-    step, bound = 10, EVERY_UNTIL * 10
-    while generation >= bound:
-        step, bound = step * 10, bound * 10
-    return generation % step == 0
-
-
-def long_run_count(generations: int) -> int:
-    """How many of generations 0..generations-1 long_run logs (the last one aside)."""
-    n, lo, step = min(generations, EVERY_UNTIL), EVERY_UNTIL, 10
-    while generations > lo:
-        hi = min(generations, lo * 10)
-        n += (hi - 1) // step - (lo - 1) // step
-        lo, step = lo * 10, step * 10
-    return n
-
-
-def population_logged(generation: int) -> bool:
-    """Whether generation (from 0) has its population logged (the live views' and the recording's rule)."""
-    if generation < POPULATION_EVERY_FIRST:
-        return True
-    return generation % POPULATION_THEN_EVERY == 0 and long_run(generation)
+from lab.running.decimation import (  # noqa: F401
+    EVERY_UNTIL, POPULATION_EVERY_FIRST, POPULATION_THEN_EVERY, long_run, long_run_count, population_logged,
+)

@@ -5,7 +5,7 @@
     runner.subscribe(logger)                  # logger(event) per generation; on_end closes the file
     runner.run(); print(logger.path)
 
-Contract of the file (lab/replay.py reads it back):
+Contract of the file (lab/recording/replay.py reads it back; docs/recordings.md):
 - timelines: `generation` (sequence), `run_time` (duration: optimizer time, pauses excluded) and
   `wall_time` (timestamp: when the generation ended in the training process, pauses included);
   rows logged one by one (poses, network) also get Rerun's `log_time` (when the writer logged them);
@@ -18,7 +18,7 @@ Contract of the file (lab/replay.py reads it back):
 - decimated: /world/{arm,reached,errors} (the best controller's pose for every training goal, on
   improvement, at most every max(pose_every, generation / 5) generations, and at the end) and, for
   NEAT, /network (GraphNodes and GraphEdges of the best genome, inputs left, outputs right);
-- populations (lab.recording.population.population_logged: every generation up to 100, then every
+- populations (lab.running.decimation.population_logged: every generation up to 100, then every
   10th): /world/population (each candidate's point at the display goal, coloured by training MSE;
   /world/population_species by species) and /population (AnyValues mse, species);
 - static: /protocol (JSON: robot, limits, goals, seed, hyperparameters, config, versions),
@@ -26,7 +26,7 @@ Contract of the file (lab/replay.py reads it back):
 
 Cost and durability: __call__ pickles the generation's numbers (and the best controller when it
 changed) and writes them into a pipe, ~20 us in the optimizer's thread; the writer process
-(lab/recording_writer.py) does all of Rerun's work on the other core and writes and flushes
+(lab/recording/writer.py) does all of Rerun's work on the other core and writes and flushes
 what the pipe holds every 20 ms. Once __call__ has returned, the generation is in the kernel's
 pipe buffer: a training process killed with SIGKILL loses at most the generation in flight,
 and the writer then closes the file with its footer. The pipe holds about a thousand
@@ -277,33 +277,6 @@ class RerunLogger:
             except OSError as e:  # BrokenPipeError: the writer is gone
                 self._error = f"the Rerun writer of {self.path} stopped ({e.strerror or e}; any error it printed is on stderr)"
                 raise RuntimeError(self._error) from e
-
-
-def rerun_binary() -> str:
-    """The real `rerun` executable (the venv's bin/rerun is a Python wrapper around it)."""
-    if os.environ.get("RERUN_CLI_PATH"):
-        return os.environ["RERUN_CLI_PATH"]
-    import rerun_cli
-
-    return str(Path(rerun_cli.__file__).with_name("rerun"))
-
-
-def compact(path: str | os.PathLike, timeout: float = 60.0) -> bool:
-    """Merge a closed recording's many small chunks (`rerun rrd optimize`), in place: about ten
-    times smaller, same data. Leaves the file as it was (and returns False) if that fails."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.compacting.rrd")
-    try:
-        done = subprocess.run([rerun_binary(), "rrd", "optimize", str(path), "-o", str(tmp)],
-                              capture_output=True, text=True, timeout=timeout)
-        if done.returncode == 0 and tmp.is_file() and tmp.stat().st_size > 0:
-            os.replace(tmp, path)
-            return True
-        log.warning("could not compact %s: %s", path, done.stderr.strip()[-500:])
-    except (OSError, subprocess.SubprocessError) as e:
-        log.warning("could not compact %s: %s", path, e)
-    tmp.unlink(missing_ok=True)
-    return False
 
 
 def _resolve_source(source, problem):

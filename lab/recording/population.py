@@ -1,24 +1,18 @@
-"""Which generations' populations are kept, and where their cloud is drawn (shared by the runner,
-the recording and the app).
+"""How a population is drawn, in the recordings and the app: its colours.
 
-    population_logged(g)     # every generation up to 100, then every 10th (lab/recording/decimation.py)
-    display_goal(arm)        # the goal the recording draws each candidate's reach for
+    mse_colors(mse), species_colors(species)   # (n, 3) uint8, one colour per candidate
+    population_logged(g), display_goal(arm)    # the rules of which populations are kept and where
+                                               # their cloud is drawn (lab/running/decimation.py)
 
 A population is every candidate of a generation (lab.methods.Population): its training MSE, its
-species where the method has them, and its end-effector point at the display goal. A long run
-logs about a tenth of its generations: 50,000 generations of a real arm keep 5,090 populations.
-The display goal is the app's first goal marker's starting place, so a replayed cloud is the one
-a tab showed before its marker was moved.
+species where the method has them, and its end-effector point at the display goal.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from lab.recording.decimation import population_logged  # noqa: F401 - the rule lives with the others
-
-DISPLAY_SEED = 7  # app/goals.py's markers start at arm.sample_goals(k + 1, seed=7)[k]
-
+from lab.running.decimation import DISPLAY_SEED, display_goal, population_logged  # noqa: F401 - named here too
 
 _RAMP = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
 SPECIES = np.array([[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189],
@@ -55,8 +49,3 @@ def mse_colors(mse: np.ndarray) -> np.ndarray:
 def species_colors(species: np.ndarray) -> np.ndarray:
     """(n, 3) uint8: one colour per species id (a palette of 10, by id)."""
     return SPECIES[np.asarray(species, np.int64) % len(SPECIES)]
-
-
-def display_goal(arm) -> np.ndarray:
-    """(len(task_axes),) the goal the recording draws the population's reach for."""
-    return np.asarray(arm.sample_goals(1, seed=DISPLAY_SEED)[0], dtype=np.float64)

@@ -5,7 +5,7 @@
     rec = read_recording(path)  # protocol, per-generation best/median MSE, every logged controller
     replay(path)                # the viewer (or, with no display, the web viewer on localhost)
 
-Only the file is needed (lab/recording.py describes its contents). A file without its footer
+Only the file is needed (lab/recording/logger.py describes its contents; docs/recordings.md). A file without its footer
 (a killed writer) reads through RrdReader.stream(); a file cut inside a frame is salvaged with
 `rerun rrd merge --continue-on-error` into a temporary copy and read from there (`salvaged`).
 """
@@ -30,7 +30,7 @@ from urllib.parse import quote
 import numpy as np
 
 from lab.problem.controllers import Controller, controller_from_dict
-from lab.recording.logger import rerun_binary
+from lab.recording.rerun_tool import rerun_binary
 
 MAGIC = b"RRF"  # the first bytes of every .rrd file
 

@@ -12,7 +12,7 @@ over is still written, and the file is closed with its footer (end of input with
 It writes "C" to stdout once the file is closed and complete (the training process's close()
 waits for that), then compacts the file after a clean close, then exits. It ignores SIGINT
 (Ctrl-C in a terminal reaches the whole process group; the training process then closes the
-recording itself). The file's contents are described in lab/recording.py.
+recording itself). The file's contents are described in lab/recording/logger.py.
 """
 
 from __future__ import annotations
@@ -32,10 +32,11 @@ import rerun as rr
 import robots
 
 from lab.recording import views
-from lab.recording.decimation import long_run
-from lab.recording.population import display_goal, mse_colors, population_logged, species_colors
+from lab.recording.population import mse_colors, species_colors
+from lab.running.decimation import display_goal, long_run, population_logged
 from lab.running.pipes import EventDecoder, claim_stdout, messages
-from lab.recording.logger import APPLICATION_ID, FORMAT_VERSION, compact
+from lab.recording.logger import APPLICATION_ID, FORMAT_VERSION
+from lab.recording.rerun_tool import compact
 
 WRITE_INTERVAL = 0.02  # seconds: at most this often a write and flush of what the pipe holds (each costs
 # ~0.3 ms of CPU whatever it holds; the pipe keeps what waits, even if the training process is killed)
@@ -62,7 +63,7 @@ class NearlyFull(Exception):
 
 
 class Writer:
-    """The recording of one run (see lab/recording.py for what goes where)."""
+    """The recording of one run (see lab/recording/logger.py for what goes where)."""
 
     def __init__(self, header: dict):
         config = self.config = header["config"]  # TrainConfig.to_dict()
@@ -87,7 +88,7 @@ class Writer:
     def write(self, events: list) -> None:
         """Controllers first, then /mse: a file cut anywhere holds the controller of every generation
         whose /mse row it holds. The display-only series follow every DISPLAY_INTERVAL (fewer chunks:
-        each costs ~0.3 ms of CPU). Generations are logged by the rule lab.recording.decimation.long_run
+        each costs ~0.3 ms of CPU). Generations are logged by the rule lab.running.decimation.long_run
         (every one below 10,000; beyond, fewer per tenfold), the run's last one always (end())."""
         if not events:
             return

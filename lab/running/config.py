@@ -11,7 +11,8 @@ dataclass (lab.methods), in `options`. to_dict() writes them flat, beside the sh
 `preset(paper=...)` gives the two settings the project compares:
 - paper=True: the paper's method literally (the method's `paper` settings in its declaration);
 - paper=False (the default): this project's choices per method and arm (the method's
-  `defaults(arm)`), each backed by a measured comparison in benchmarks/bench_quality.py.
+  `defaults(arm)`), each backed by a measured comparison (benchmarks/bench_quality.py and
+  bench_arms.py: docs/results/paper-budget.md, docs/results/real-arms.md).
 """
 
 from __future__ import annotations

@@ -31,8 +31,8 @@ from threadpoolctl import threadpool_limits
 import robots
 
 from lab.methods import Backend, Population, make_backend
-from lab.recording.population import display_goal, population_logged
 from lab.running.config import TrainConfig
+from lab.running.decimation import display_goal, population_logged
 from lab.running.history import History
 from lab.problem.controllers import Controller
 from lab.problem.encoding import Encoding
@@ -49,7 +49,7 @@ class GenerationEvent:
     gen_best/median/worst over this generation's population; evaluations so far; seconds of
     run time so far (pauses excluded); wall_time: when the generation ended (Unix time);
     population: the generation's candidates (lab.methods.Population) on the generations
-    lab.recording.population.population_logged names (their MSE, species and points at the display
+    lab.running.decimation.population_logged names (their MSE, species and points at the display
     goal), with their controllers at most every POPULATION_PERIOD and whenever the run holds
     (paused, a Step, the last generation); None otherwise."""
 

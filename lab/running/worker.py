@@ -9,7 +9,7 @@ The same interface and events as lab.running.runner.Runner (both are RunBase), s
 Rerun logger, the app) cannot tell them apart. What differs is where the optimizer runs: in
 `python -m lab.running.worker`, with an interpreter and a GIL of its own, so a busy process beside it
 (the app's server, its tabs, its redraws) no longer slows it down, and it cannot slow them.
-The worker sends each generation through a pipe (lab/pipes.py: its numbers, and the best
+The worker sends each generation through a pipe (lab/running/pipes.py: its numbers, and the best
 controller when it changed); pause, step, speed, resume and stop go the other way. A Step
 is exact: the parent counts it as asked only while it knows the run paused, and the worker's
 Runner runs one generation per Step it receives while paused. A worker whose parent
