@@ -28,7 +28,7 @@ import numpy as np
 EVERY_UNTIL = 10_000  # every generation below this one is logged
 POPULATION_EVERY_FIRST = 100  # generations 0 .. 99: each one's population
 POPULATION_THEN_EVERY = 10  # beyond: every 10th
-DISPLAY_SEED = 7  # app/goals.py's markers start at arm.sample_goals(k + 1, seed=7)[k]
+DISPLAY_SEED = 7  # app/tab/goals.py's markers start at arm.sample_goals(k + 1, seed=7)[k]
 
 
 def long_run(generation: int) -> bool:
