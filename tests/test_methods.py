@@ -20,21 +20,54 @@ ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = json.loads((Path(__file__).parent / "data" / "golden_runs.json").read_text())
 
 
-# ---------------------------------------------------------------- bit for bit
+# ---------------------------------------------------------------- recorded runs
+# Relative tolerance against the recorded values. They were recorded on one machine (Python 3.11,
+# numpy 2.4); the compiled kernels round differently on a CPU of another vector width, Python 3.12's
+# sum() and numpy 2.5 change pycma's last bits, and 40 generations amplify a last-bit difference to
+# at most 6e-10 relative (measured on Python 3.13 with numpy 2.5). A change of the method itself
+# moves these numbers by far more. Docs: docs/api.md, "Reproducibility".
+GOLDEN_RTOL = 1e-6
+
+
+def assert_close(got, want, rtol=GOLDEN_RTOL, where="controller"):
+    """Equal structure and strings; numbers equal to rtol (integers exactly)."""
+    if isinstance(want, dict):
+        assert isinstance(got, dict) and sorted(got) == sorted(want), where
+        for key in want:
+            assert_close(got[key], want[key], rtol, f"{where}.{key}")
+    elif isinstance(want, list):
+        assert isinstance(got, list) and len(got) == len(want), where
+        for i, (g, w) in enumerate(zip(got, want)):
+            assert_close(g, w, rtol, f"{where}[{i}]")
+    elif isinstance(want, float):
+        assert got == pytest.approx(want, rel=rtol, abs=1e-12), where
+    else:
+        assert got == want, where
+
+
 @pytest.mark.parametrize("name", sorted(GOLDEN))
 def test_runs_equal_the_values_recorded_before_the_registry(name):
     """tests/data/golden_runs.json was written at commit 6712b02, before methods had a registry
-    (lab.evolve with these settings); every number and the final controller must be the same."""
+    (lab.evolve with these settings): every number of the run and the final controller must be
+    the same, to GOLDEN_RTOL on any machine (bit for bit on the machine that recorded them)."""
     robot, method = name.split("-")
     extra = {"diagonal": 10} if method == "cmaes" else {}
     run = lab.evolve(robot, method, generations=40, population=16, targets=30, seed=3, test_goals=200, **extra)
     want = GOLDEN[name]
-    assert [float(h).hex() for h in run.history] == want["history"]
-    assert [float(h).hex() for h in run.median_history] == want["median"]
-    assert (float(run.train_mse).hex(), float(run.test_mse).hex()) == (want["train_mse"], want["test_mse"])
+    hexes = lambda values: [float.fromhex(h) for h in values]  # noqa: E731
+    np.testing.assert_allclose(run.history, hexes(want["history"]), rtol=GOLDEN_RTOL)
+    np.testing.assert_allclose(run.median_history, hexes(want["median"]), rtol=GOLDEN_RTOL)
+    np.testing.assert_allclose([run.train_mse, run.test_mse], hexes([want["train_mse"], want["test_mse"]]),
+                               rtol=GOLDEN_RTOL)
     assert run.evaluations == want["evaluations"]
-    text = json.dumps(run.controller.to_dict(), sort_keys=True)
-    assert hashlib.sha256(text.encode()).hexdigest() == want["controller_sha256"]
+    assert_close(json.loads(json.dumps(run.controller.to_dict())), want["controller"])
+
+
+def test_the_recorded_controllers_are_the_ones_whose_digest_was_recorded():
+    """The controllers stored beside the digests are the recorded ones, bit for bit."""
+    for name, want in GOLDEN.items():
+        text = json.dumps(want["controller"], sort_keys=True)
+        assert hashlib.sha256(text.encode()).hexdigest() == want["controller_sha256"], name
 
 
 # ---------------------------------------------------------------- every registered method
