@@ -37,7 +37,7 @@ def test_smoke_writes_every_arm_method_and_verdict(smoke):
             assert md.count(f"| {robot} | {label} | 2 |") == 2
     assert "## Verdicts" in md and md.count("Rule: ") == 2
     assert "**The numbers" in md.split("### Claim (ii)")[1] and "**The numbers" in md.split("### Conclusion")[1]
-    assert "2 seeds instead of the issue's 10" in md and (smoke / "claims_resampled.png").exists()
+    assert "2 seeds instead of 10;" in md and (smoke / "claims_resampled.png").exists()
     runs = list((smoke / "runs").glob("*.json"))
     assert len(runs) == len(C.ROBOTS) * len(C.METHODS) * 2 * 2 + len(C.RESAMPLE_ROBOTS) * 2
 

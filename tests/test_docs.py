@@ -63,7 +63,7 @@ def test_the_slug_follows_githubs_rule():
         "2026-12-02-real-arms-inputs-that-know-the-shoulder-sphere")
 
 
-JOURNAL = re.compile(r"\bissues? \d+\b|\b(?:evening|afternoon|morning) session\b|\bthis session\b|"
+JOURNAL = re.compile(r"\bissues? \d+\b|\bthe issue\b|\b(?:evening|afternoon|morning) session\b|\bthis session\b|"
                      r"lab/pipes\.py|lab/recording\.py|lab/recording_writer\.py|lab/replay\.py|README")
 
 

@@ -327,7 +327,7 @@ def _what(result) -> list[str]:
             f"**Time to reach**: the evaluations and seconds at the first checkpoint with held-out error at or "
             f"below {100 * C.TARGET_REACH:g}% of the arm's reach (median over runs, a run that never reaches it "
             "counting as infinite; in brackets how many reached it).",
-            f"- **Cut to fit 10 minutes on this 2-core machine:** {c.runs} seeds instead of the issue's 10; a budget "
+            f"- **Cut to fit 10 minutes on this 2-core machine:** {c.runs} seeds instead of 10; a budget "
             f"of {c.generations} {_label(C.METHODS[0])} generations (E = {c.budget(C.ROBOTS[0]):,} evaluations) "
             "instead of the paper's 1,000 (50,000), far below the real arms' defaults (generations or steps: "
             + ", ".join(f"{_label(m)} {TrainConfig.preset(robot=a, method=m).generations:,} on {a}"
