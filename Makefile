@@ -5,6 +5,7 @@
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
+WARM   := $(VENV)/.warm-stamp
 REQUIRES_PYTHON := $(shell sed -n 's/^requires-python *= *"\([^"]*\)".*/\1/p' pyproject.toml)
 # ">=3.11,<3.15" reads "3.11-3.14" in messages; any other form is shown as it is written
 PYTHON_RANGE := $(or $(shell echo '$(REQUIRES_PYTHON)' | sed -n 's/^ *>= *3\.\([0-9]*\) *, *< *3\.\([0-9]*\) *$$/\1 \2/p' \
@@ -93,10 +94,17 @@ $(STAMP): pyproject.toml
 	@$(CHECK_VENV)
 	@test -e $(VENV) || { py=$$($(PICK_PYTHON)) && echo "making $(VENV) with $$py ($$($$py -c 'import platform; print(platform.python_version())'))" \
 	  && { $$py -m venv $(VENV) || { rm -rf $(VENV); exit 1; }; }; }
+	@echo "installing Neuro-IK Lab and its dependencies into $(VENV): about 1 GB the first time (Pinocchio and"
+	@echo "the robots' meshes, Rerun, numba, playwright for the browser tests): a few minutes; pip names each package"
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev]"
-	$(PY) -m lab.running.warmup
+	$(PY) -m pip install -e ".[dev]"
 	@touch $(STAMP)
+
+# numba's kernels compiled once (the first page of the app needs few of them, so make app does not wait:
+# the app compiles the rest in the background); make test compiles them first, with a line per step
+$(WARM): $(STAMP)
+	$(PY) -m lab.running.warmup
+	@touch $(WARM)
 
 install: $(STAMP)
 	@$(CHECK_VENV)
@@ -117,7 +125,7 @@ browser:
 app: install
 	$(PY) -m app $(ARGS)
 
-test: install browser
+test: install browser $(WARM)
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 bench: install

@@ -24,6 +24,10 @@ import sys  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
 
+# runs start at 20 generations a second: a paper arm's 1,000 generations take under a minute and
+# its first hundred, where it learns most, about five seconds that an audience can follow
+WATCHING_SPEED = 20.0
+
 
 def parse(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m app", description="Neuro-IK Lab in the browser (viser).")
@@ -40,6 +44,9 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--limit", action="append", default=[], metavar="NAME=N",
                    help="raise (or set) a bound on the settings this server accepts: population, hidden, goals, "
                         "generations (beyond loopback: 200, 64, 1000, 100000 unless raised); repeatable")
+    p.add_argument("--speed", type=float, default=WATCHING_SPEED, metavar="GENERATIONS_PER_S",
+                   help=f"how fast runs go at first, so that an audience can follow (default {WATCHING_SPEED:g} "
+                        "generations a second; 0: as fast as the machine goes); the Speed menu changes it")
     p.add_argument("--open", action="store_true",
                    help="every tab may change the run and the shared settings, also beyond loopback")
     return p.parse_args(argv)
@@ -104,12 +111,26 @@ def main(argv=None) -> int:
         return 2
     app = LabApp(args.host, args.port, robot=args.robot, notebook=notebook, recordings=args.recordings,
                  record=not args.no_record, presenter_token=args.presenter_token, open_access=args.open,
-                 limits=limits)
+                 limits=limits, speed=args.speed or None)
     print(f"\nNeuro-IK Lab ready in {time.perf_counter() - t0:.1f} s: {app.url}", flush=True)
-    # the first Start would otherwise wait for numba to compile the fitness kernels (~30 s, once)
+    # the first Start would otherwise wait for numba to compile the fitness kernels (~15 s, once);
+    # on a machine where they are cached this takes milliseconds and says nothing
     from lab.running.warmup import compile_kernels
 
-    threading.Thread(target=compile_kernels, name="kernel-warmup", daemon=True).start()
+    def warm() -> None:
+        t = time.perf_counter()
+        said = []
+
+        def progress(text: str) -> None:
+            if time.perf_counter() - t > 1.0 or said:  # quiet when the kernels load from the cache
+                print(f"  {text}", flush=True)
+                said.append(text)
+
+        seconds = compile_kernels(progress)
+        if said:
+            print(f"  training kernels ready ({seconds:.0f} s, once: later starts load them)", flush=True)
+
+    threading.Thread(target=warm, name="kernel-warmup", daemon=True).start()
     if args.host in ("0.0.0.0", ""):
         print(f"  on this network: http://{socket.gethostname()}:{app.port}", flush=True)
     if app.state.limits:

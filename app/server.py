@@ -35,7 +35,7 @@ from app.classroom.limits import limits_for
 from app.panels.runs import RunsPanel
 from app.panels.train import TrainingPanel, notify
 from app.panels.views import error_map, map_grid, network_svg
-from app.tab.goals import REDRAW_PERIOD, TabSession, fmt_len
+from app.tab.goals import MORE, REDRAW_PERIOD, TabSession, fmt_len
 from app.tab.replay import TabReplay
 from app.tab.scene import frame_workspace
 from app.training.notebook import DEFAULT_PATH, Notebook
@@ -110,12 +110,13 @@ class LabApp:
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, *, robot: str = "planar",
                  notebook: str | Notebook = DEFAULT_PATH, recordings: str = "recordings", startup=True,
                  record: bool = True, presenter_token: str | None = None, open_access: bool = False,
-                 limits: dict[str, int] | None = None):
+                 limits: dict[str, int] | None = None, speed: float | None = None):
         """notebook: a Notebook or its path (NotebookError, before anything starts, if the path holds
         something else). presenter_token, open_access: who may change shared state (app/classroom/access.py:
         beyond loopback only tabs opened with `presenter_url`; on loopback every tab unless a token
         is given; open_access: every tab, on purpose). limits: bounds raised (or set) at start,
         app/classroom/limits.py: beyond loopback the classroom's bounds apply, with these in their place.
+        speed: generations a second runs start at (None: as fast as they go; `python -m app`: 20).
         startup: True (each arm's shipped controller, else a quickly trained one),
         a controller (shown on the arm it was made for), or None. Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
         notebook = notebook if isinstance(notebook, Notebook) else Notebook(notebook)
@@ -128,7 +129,7 @@ class LabApp:
         lab_worker.prestart()  # a warmed-up training process, so that Start trains at once
         self.state = LabState(robot, notebook, startup=startup, startups=startups,
                               recorder=rerun_recorder(recordings) if record else None,
-                              limits=limits_for(is_loopback(host), limits))
+                              limits=limits_for(is_loopback(host), limits), speed=speed)
         self.startup_note = self.state.shown.source
         self.recordings = recordings
         self.access = Access(host, presenter_token, open_access)
@@ -147,15 +148,21 @@ class LabApp:
         gui = self.server.gui
         # a classroom shows no "share" button (a public tunnel; only a presenter could use it anyway)
         gui.configure_theme(control_width="large", show_share_button=not self.access.restricted)
+        gui.set_panel_label("Neuro-IK Lab")
         tabs = gui.add_tab_group(order=1)
         with tabs.add_tab("Train", viser.Icon.BRAIN):
             self.panel = TrainingPanel(gui, self.state, on_robot=self.switch_robot)
         with tabs.add_tab("Views", viser.Icon.EYE):
             self.network = gui.add_html(network_svg(None))
-            self.show_map = gui.add_checkbox("Error map", True)
+            # on by default for a planar arm, drawn in its plane under it; a spatial arm's map (a slice
+            # of its workspace) is off at first and, turned on, lies on the floor: it never hides the arm
+            self.show_map = gui.add_checkbox("Error map", len(self.state.arm.task_axes) == 2,
+                                             hint="the shown network's error over a grid of reachable goals")
             self.map_legend = gui.add_markdown("")
         with tabs.add_tab("Runs", viser.Icon.LIST):
             self.runs = RunsPanel(gui, self)
+        with tabs.add_tab("About", viser.Icon.INFO_CIRCLE):
+            gui.add_markdown(MORE)
         self.show_map.on_update(lambda e: setattr(self._map, "visible", self.show_map.value))
         self._drawn = (-1, None)  # (shown version, arm) of the map and the network
         # the render loop and callers must not interleave draws, nor rebuilds of the shared scene (two
@@ -252,6 +259,9 @@ class LabApp:
         scene.add_point_cloud("/training_goals", points=goals.astype(np.float32), colors=(200, 30, 30),
                               point_size=0.008 * size, point_shape="circle")
         self._map_z = -0.05 * size  # just under the planar arm (its visuals reach z = -0.04 size)
+        self._floor_z = ws["floor_z"] + 0.002 * size  # a spatial arm's map lies on the floor
+        if self._drawn[1] is not arm:  # each arm opens with its own default
+            self.show_map.value = len(arm.task_axes) == 2
         self._map = scene.add_image("/error_map", np.zeros((1, 1, 4), np.uint8), 1.0, 1.0, visible=False)
         self._drawn = (-1, arm)  # built for this arm: the render loop draws the views, without a second build
 
@@ -276,7 +286,8 @@ class LabApp:
         self._drawn = (shown.version, shown.arm)
         image, err, scale = error_map(shown.arm, shown.controller)
         grid = map_grid(shown.arm)
-        center = grid.center if len(shown.arm.task_axes) == 3 else np.array([*grid.center[:2], self._map_z])
+        z = self._floor_z if len(shown.arm.task_axes) == 3 else self._map_z
+        center = np.array([*grid.center[:2], z])
         self._map = self.server.scene.add_image(
             "/error_map", image, render_width=grid.n * grid.cell, render_height=grid.n * grid.cell,
             format="png", position=center, cast_shadow=False, receive_shadow=False, visible=self.show_map.value)
@@ -284,7 +295,7 @@ class LabApp:
         finite = err[np.isfinite(err)]
         self.map_legend.content = (
             f"Error map of the shown controller over {len(err)} reachable goals"
-            f"{'' if len(arm.task_axes) == 2 else ' (the slice through the middle of the workspace)'}: "
+            f"{'' if len(arm.task_axes) == 2 else ' (the slice through the middle of the workspace, drawn on the floor)'}: "
             f"dark purple 0, yellow ≥ {fmt_len(arm, scale)}. "
             + (f"Median {fmt_len(arm, float(np.median(finite)))}, max {fmt_len(arm, float(finite.max()))}."
                if len(finite) else "No controller.")

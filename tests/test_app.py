@@ -146,7 +146,9 @@ def test_training_panel_runs_pauses_refuses_and_keeps_a_notebook(app, tab):
         assert entry["run_id"] == state.runner.run_id and entry["state"] == "stopped"
         assert entry["robot"] == "planar" and entry["settings"]["population"] == 20 and entry["test_mse"] > 0
         assert Notebook(state.notebook.path).entries()[-1]["run_id"] == entry["run_id"]  # kept on disk
-        panel.buttons["Reset"].value = True
+        panel.buttons["Reset"].value = True  # an untrained network: the first generation of the next run
+        assert state.progress()["generation"] == 0 and state.shown.source.startswith("untrained")
+        panel.buttons["Trained network"].value = True  # one click brings the shipped one back
         assert state.progress()["generation"] == 0 and state.shown.source.startswith("shipped")
     finally:
         state.reset()
@@ -376,6 +378,8 @@ def test_a_real_arm_opens_with_its_own_controller_and_a_sensible_pose(robot, tmp
         assert wait_until(lambda: np.isfinite(session.goals[0].error))
         if shown.source.startswith("shipped"):
             assert session.goals[0].error < 0.05 * shown.arm.reach_radius
+        session.show_ik.value = True  # the classical IK beside it (off on a first visit)
+        session._toggle_ik()
         assert wait_until(lambda: session.goals[0].seeded is not None, timeout=30)  # the refined ghost
         assert session.goals[0].seeded[0] <= session.goals[0].error
     finally:
@@ -453,3 +457,30 @@ def test_every_way_of_stopping_the_app_notes_the_run_and_closes_its_recording(tm
     # the writer process finishes the file on its own after the app has gone (it may be behind)
     assert wait_until(lambda: read_recording(entries[0]["recording"]).summary is not None, timeout=30)
     assert read_recording(entries[0]["recording"]).summary["state"] == entries[0]["state"]
+
+
+def test_reset_shows_an_untrained_network_off_the_goals_and_one_click_the_trained_one(app, tab):
+    """The demo's flow: Reset shows the network a new run starts from (its first generation's best,
+    far from the goals), Start trains from there, Trained network shows the shipped one again."""
+    panel, state = app.panel, app.state
+    try:
+        trained = state.shown.controller
+        panel.buttons["Reset"].value = True
+        untrained = state.shown.controller
+        assert state.shown.source.startswith("untrained") and untrained is not trained
+        config = panel.config()
+        problem = lab.Runner(config).problem
+        goals = problem.train_goals
+        mse = lambda c: float(np.mean(np.sum((state.arm.fk(c(goals))[:, list(state.arm.task_axes)] - goals) ** 2, 1)))  # noqa: E731
+        # the same network a run of these settings starts from, and far worse than the trained one
+        first = lab.Runner(lab.TrainConfig.from_dict({**config.to_dict(), "generations": 1})).run().controller
+        assert untrained.to_dict() == first.to_dict()
+        assert mse(untrained) > 100 * mse(trained)
+        session = session_of(app, tab)
+        assert wait_until(lambda: session.version == state.shown.version)
+        reach = state.arm.reach_radius
+        assert session.goals[0].error > 0.05 * reach  # visibly off the goal
+        panel.buttons["Trained network"].value = True
+        assert state.shown.source.startswith("shipped") and state.shown.controller is trained
+    finally:
+        state.reset()

@@ -129,3 +129,66 @@ def test_browser_steps_one_generation_sets_the_speed_and_races_two_runs(tmp_path
             browser.close()
     finally:
         app.stop()
+
+
+def in_view(page, locator) -> bool:
+    """The element is on screen without scrolling: its box lies within the viewport."""
+    box = locator.bounding_box()
+    size = page.viewport_size
+    return box is not None and box["y"] >= 0 and box["y"] + box["height"] <= size["height"] and \
+        box["x"] >= 0 and box["x"] + box["width"] <= size["width"]
+
+
+def test_a_first_visit_on_a_projector_sees_what_the_lab_is_and_an_untrained_network_learn(tmp_path):
+    """1366 x 768, as a classroom projector shows it, with the app's own defaults (`python -m app`):
+    the title, the about text, the drag hint, the run controls, the speed, the generation counter and
+    the convergence plot are all in view without scrolling; Reset shows an untrained network visibly
+    off the goal, Start trains it toward the goal (APP_SCREENSHOT_DIR keeps the screenshots)."""
+    from app.__main__ import WATCHING_SPEED
+    from app.server import LabApp
+
+    shots = os.environ.get("APP_SCREENSHOT_DIR") or str(tmp_path)
+    app = LabApp(port=0, notebook=str(tmp_path / "notebook.db"), recordings=str(tmp_path / "rec"), record=False,
+                 speed=WATCHING_SPEED)
+    try:
+        with sync_api.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, headless=True)
+            page = browser.new_page(viewport={"width": 1366, "height": 768})
+            page.goto(app.url)
+            sync_api.expect(page.get_by_role("tab", name="Train")).to_be_visible(timeout=30_000)
+            assert wait_until(lambda: len(app.sessions) == 1)
+            session = next(iter(app.sessions.values()))
+            title = page.get_by_text("Neuro-IK Lab", exact=True).first
+            about = page.get_by_text("never shown a right answer", exact=False).first
+            hint = page.get_by_text("Drag the arrows", exact=False).first
+            for what in (title, about, hint, page.get_by_role("button", name="Start", exact=True),
+                         page.get_by_role("button", name="Reset", exact=True),
+                         page.get_by_role("button", name="Trained network"),
+                         page.get_by_text("Speed", exact=True).first, page.get_by_text("generation 0", exact=False).first,
+                         page.get_by_text("Convergence", exact=False).first):
+                sync_api.expect(what).to_be_visible(timeout=10_000)
+                assert in_view(page, what), f"{what} is below the fold at 1366 x 768"
+            page.screenshot(path=os.path.join(shots, "first-visit.png"))
+            trained_error = session.goals[0].error
+            page.get_by_role("button", name="Reset", exact=True).click()
+            assert wait_until(lambda: app.state.shown.source.startswith("untrained"))
+            assert wait_until(lambda: session.version == app.state.shown.version)
+            off = session.goals[0].error
+            assert off > 0.05 * app.state.arm.reach_radius and off > 20 * trained_error  # visibly off the goal
+            page.wait_for_timeout(800)
+            page.screenshot(path=os.path.join(shots, "first-visit-reset.png"))
+            page.get_by_role("button", name="Start", exact=True).click()
+            assert wait_until(lambda: app.state.progress()["generation"] >= 60, timeout=20)
+            # the speed a class can follow: about 20 generations a second, not the machine's pace
+            assert app.state.progress()["generation"] < 200
+            # the controls of a running run, and the plot, stay in view
+            for name in ("Pause", "Stop", "Reset"):
+                button = page.get_by_role("button", name=name, exact=True)
+                sync_api.expect(button).to_be_visible(timeout=5_000)
+                assert in_view(page, button)
+            assert wait_until(lambda: session.version == app.state.shown.version and session.goals[0].error < off)
+            page.wait_for_timeout(800)
+            page.screenshot(path=os.path.join(shots, "first-visit-learning.png"))
+            browser.close()
+    finally:
+        app.stop()

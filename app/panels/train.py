@@ -23,7 +23,7 @@ from lab import methods
 from app.classroom.limits import refusal as limits_refusal
 from app.panels.teaching import RaceFields, Watching
 from app.training.live import decimate, lead_line, sample
-from app.training.state import SPEEDS, run_label
+from app.training.state import SPEEDS, run_label, speed_label
 
 SHARED = ("population", "generations", "hidden", "seed")  # the TrainConfig fields shown
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
@@ -41,41 +41,52 @@ class TrainingPanel:
         self.state, self.on_robot = state, on_robot
         self.gui = gui
         d = lab.TrainConfig.preset(robot=state.arm.name)
+        # what a presenter uses comes first, so that it is in view on a projector (1366 x 768): the
+        # arm and method, the run controls, the speed, the progress and the convergence plot; the
+        # numbers behind a run, the race and the method's views follow
         self.robot = gui.add_dropdown("Robot", robots.names(), initial_value=state.arm.name)
         self.method = gui.add_dropdown("Method", tuple(m.label for m in methods.all_methods()),
                                        initial_value=methods.get(d.method).label)
-        # float fields, so that a fraction typed in the browser reaches us (and is refused) instead of
-        # being truncated by viser's int cast
-        self.population = gui.add_number("Population", float(d.population), step=1)
-        self.generations = gui.add_number("Generations", float(d.generations), step=1)
-        self.hidden = gui.add_number("Hidden units", float(d.hidden), step=1)
-        self.seed = gui.add_number("Seed", float(d.seed), step=1)
-        self.options_folder = gui.add_folder("Method options", expand_by_default=False)
-        self.options: dict = {}  # option name -> its field, for the selected method
-        self._options_lock = threading.RLock()  # callbacks of several tabs may rebuild them at once
-        self._build_options(d)
-        self.race = RaceFields(gui, self)
-        actions = {"Start": self.start, "Pause": self.pause, "Step": self.step, "Resume": self.resume,
-                   "Stop": self.stop, "Reset": self.reset}
+        actions = {"Start": self.start, "Pause": self.pause, "Resume": self.resume, "Step": self.step,
+                   "Stop": self.stop, "Reset": self.reset, "Trained network": self.trained}
         icons = {"Start": viser.Icon.PLAYER_PLAY, "Pause": viser.Icon.PLAYER_PAUSE, "Step": viser.Icon.PLAYER_TRACK_NEXT,
-                 "Resume": viser.Icon.PLAYER_PLAY, "Stop": viser.Icon.PLAYER_STOP, "Reset": viser.Icon.REFRESH}
-        hints = {"Step": "while paused: exactly one more generation"}
+                 "Resume": viser.Icon.PLAYER_PLAY, "Stop": viser.Icon.PLAYER_STOP, "Reset": viser.Icon.REFRESH,
+                 "Trained network": viser.Icon.SCHOOL}
+        hints = {"Start": "train a new network from scratch and watch it learn",
+                 "Step": "while paused: exactly one more generation",
+                 "Reset": "stop the run and show an untrained network (the first generation of the next run)",
+                 "Trained network": "stop the run and show the network trained for this arm (shipped with the lab)"}
         self.buttons = {}
         for name, action in actions.items():
             button = self.buttons[name] = gui.add_button(name, icon=icons[name], hint=hints.get(name))
             button.on_click(lambda event, action=action: action(event.client))
-        self.speed = gui.add_dropdown("Speed", tuple(SPEEDS), initial_value="unlimited",
+        self._buttons_shown = None
+        self.speed = gui.add_dropdown("Speed", tuple(SPEEDS), initial_value=speed_label(state.speed),
                                       hint="at most this many generations a second, so that a class can follow")
         self.speed.on_update(lambda event: self._simple(lambda: self.state.set_speed(SPEEDS[self.speed.value]),
                                                         event.client))
         self.progress_bar = gui.add_progress_bar(0.0, animated=False)
-        self.curves_folder = gui.add_folder("Convergence")
-        self._racing = None
-        self._build_curves(racing=False)
         self.status = gui.add_markdown("Idle.")
         self.message = gui.add_markdown("")
+        self.curves_folder = gui.add_folder("Convergence: training MSE (log scale)")
+        self._racing = None
+        self._build_curves(racing=False)
+        self.settings_folder = gui.add_folder("Settings", expand_by_default=False)
+        with self.settings_folder:
+            # float fields, so that a fraction typed in the browser reaches us (and is refused) instead
+            # of being truncated by viser's int cast
+            self.population = gui.add_number("Population", float(d.population), step=1)
+            self.generations = gui.add_number("Generations", float(d.generations), step=1)
+            self.hidden = gui.add_number("Hidden units", float(d.hidden), step=1)
+            self.seed = gui.add_number("Seed", float(d.seed), step=1)
+            self.options_folder = gui.add_folder("Method options", expand_by_default=False)
+            self.options: dict = {}  # option name -> its field, for the selected method
+            self._options_lock = threading.RLock()  # callbacks of several tabs may rebuild them at once
+            self._build_options(d)
+        self.race = RaceFields(gui, self)
         self.watching = Watching(gui, self)  # the population's legend and the live plots
         self.legend, self.statistics = self.watching.legend, self.watching.statistics
+        self._show_buttons()
         self._valid = {id(h): h.value for h in self._fields()}
         self._reverting = False
         for h in (self.robot, self.method, self.population, self.generations, self.hidden, self.seed):
@@ -229,10 +240,36 @@ class TrainingPanel:
         return self._simple(self.state.stop, client)
 
     def reset(self, client=None):
+        """Stop any run and show an untrained network: the first generation's best of the run that
+        Start would begin with these settings (the startup controller when they are invalid)."""
+        try:
+            config = self.config()
+        except (ValueError, TypeError):
+            config = None
+        self.state.reset(untrained=config)
+        self.message.content = ""
+        self._shown_gen = -1
+        self.refresh(force=True)
+
+    def trained(self, client=None):
+        """Stop any run and show the arm's trained network again (the one it opened with)."""
         self.state.reset()
         self.message.content = ""
         self._shown_gen = -1
         self.refresh(force=True)
+
+    def _show_buttons(self) -> None:
+        """Only the run controls that apply now: Start, Reset and Trained network when no run
+        goes; Pause, Stop and Reset while one runs; Resume, Step, Stop and Reset while paused."""
+        states = {r.state for r in self.state.runners()}
+        now = "running" if "running" in states else "paused" if "paused" in states else "idle"
+        if now == self._buttons_shown:
+            return
+        self._buttons_shown = now
+        shown = {"idle": ("Start", "Reset", "Trained network"), "running": ("Pause", "Stop", "Reset"),
+                 "paused": ("Resume", "Step", "Stop", "Reset")}[now]
+        for name, button in self.buttons.items():
+            button.visible = name in shown
 
     # ------------------------------------------------------------------ progress
     def _build_curves(self, racing: bool) -> None:
@@ -252,7 +289,7 @@ class TrainingPanel:
             self.plot = self.gui.add_uplot(
                 data=EMPTY_PLOT + ((np.full(2, np.nan),) * 2 if racing else ()), series=tuple(series),
                 scales={"x": viser.uplot.Scale(time=False), "y": viser.uplot.Scale(distr=3, log=10)},
-                title="Convergence (training MSE, log scale)", aspect=1.5)
+                aspect=2.4)
 
     def refresh(self, force: bool = False) -> None:
         """Show the run's progress (called by the render loop, a few times a second)."""
@@ -260,6 +297,7 @@ class TrainingPanel:
         n = p["generation"]
         partner = self.state.partner
         going = p["state"] == "running" or (partner is not None and partner.runner.state == "running")
+        self._show_buttons()
         self.watching.refresh_population(force)
         if n == self._shown_gen and not force and not going:
             return

@@ -27,14 +27,31 @@ import numpy as np
 
 import robots
 from lab.problem.controllers import proposals
+from lab.recording.population import ramp
 from robots.ik import dls_ik, refine
 
 from app.tab.extras import GoalExtras, TabExtras
+from app.training.live import swatch
 from app.tab.ikworker import IK_WORKER
 from app.tab.scene import ArmView, frame_workspace, to_world
 from app.viser_private import set_pose
 
 MAX_GOALS = 8
+INTRO = "**Drag the arrows** to move the goal: the arm follows a neural network. **Start** trains a new one."
+ABOUT = ("A small tanh network maps a goal to joint angles. It is never shown a right answer: its "
+         "fitness is the arm's error over 70 fixed goals, through forward kinematics. CMA-ES evolves "
+         "its weights; NEAT its wiring too. After Martín, de Lope and Santos (2009).")
+MORE = (
+    "The fitness is the mean squared distance between the training goals and where the network's joint "
+    "angles put the end effector. **CMA-ES** evolves the weights of a fixed network, **NEAT** its wiring "
+    "and weights together, and **Gradient (Adam)**, the baseline the paper argues against, follows the "
+    "gradient through the arm's Jacobian. Goals the network never trained on measure how well it "
+    "generalizes. Reset shows an untrained network; *Trained network* the one trained for this arm.  \n"
+    "J. A. Martín H., J. de Lope and M. Santos (2009), *A method to learn the inverse kinematics of "
+    "multi-link robots by evolving neuro-controllers*.")
+POPULATION_KEY = ("<small>Each candidate of the generation at the goal, coloured by its training error:"
+                  + "".join(swatch(c, "") for c in ramp([0.0, 0.25, 0.5, 0.75, 1.0]))
+                  + " from the best (dark purple) to the worst (yellow).</small>")
 GHOST = (120, 200, 255)  # damped least squares from the rest pose
 REFINED = (255, 170, 60)  # the network's answer refined
 REFINE_STEPS = 3
@@ -164,21 +181,28 @@ class TabSession(TabExtras):
         self.latency = deque(maxlen=10_000) if latency is None else latency
         self.goals: list[GoalView] = []
         gui = client.gui
-        self.folder = gui.add_folder("Goals (this tab)", order=0)
+        # what the lab is and what to do, above the shared panels (each tab its own copy)
+        self.intro = gui.add_markdown(INTRO, order=0)
+        with gui.add_folder("About this lab", order=0.5):
+            self.about = gui.add_markdown(ABOUT)
+        self.folder = gui.add_folder("Goals and what to draw (this tab)", order=2)
         with self.folder:
             self.add_button = gui.add_button("Add goal")  # no icons: viser reads each from a zip file
             self.remove_button = gui.add_button("Remove goal")
-            self.show_ik = gui.add_checkbox("IK ghosts (refined network, DLS)", True,
-                                            hint="orange: the network's answer, its base turned to the goal, + at most 3 "
-                                                 "Gauss-Newton steps; "
-                                                 "blue: damped least squares from the rest pose")
             self.show_population = gui.add_checkbox(
                 "Population", True, hint="every candidate of the current generation at its reach for each goal")
-            self.faint_arms = gui.add_checkbox("Population as faint arms", False)
+            self.faint_arms = gui.add_checkbox("Population as faint arms", True,
+                                               hint="each candidate drawn as a whole arm, not only its reach")
             self.by_species = gui.add_checkbox("Colour by species", False,
                                                hint="for a method with species (NEAT); else by training MSE")
+            self.population_key = gui.add_html(POPULATION_KEY)
+            self.show_ik = gui.add_checkbox("Classical IK beside it", False,
+                                            hint="for goal 1: orange, the network's answer made exact by at most 3 "
+                                                 "Gauss-Newton steps; blue, damped least squares from the rest pose")
             self.table = gui.add_markdown("")
-        with gui.add_folder("Share this lesson", order=1, expand_by_default=False):
+            with gui.add_folder("Details: errors and timings", expand_by_default=False):
+                self.details = gui.add_markdown("")
+        with gui.add_folder("Share this lesson", order=3, expand_by_default=False):
             self.lesson = gui.add_markdown("")
         self.page_url = ""
         for toggle in (self.show_population, self.faint_arms, self.by_species):
@@ -327,7 +351,14 @@ class TabSession(TabExtras):
         return True
 
     def write_table(self, shown=None) -> None:
+        """The error of the network's answer at each goal; the classical solvers' errors and the
+        timings in the details fold."""
         shown, arm = shown or self.shown, self.arm
+        errors = ", ".join(f"goal {g.index + 1}: **{fmt_len(arm, g.error)}**" for g in self.goals)
+        g0_partner = (self.goals[0] if self.goals and self.goals[0].partner_view is not None
+                      and self.goals[0].partner_view.visible else None)
+        partner = f"; race partner (purple), goal 1: {fmt_len(arm, g0_partner.partner_error)}" if g0_partner else ""
+        self.table.content = f"Network: {shown.source}  \nDistance to the goal: {errors}{partner}"
         rows = ["| goal | network | refined | DLS |", "|---|---|---|---|"]
         show = self.show_ik.value
         for g in self.goals:
@@ -335,11 +366,9 @@ class TabSession(TabExtras):
             ik = fmt_len(arm, g.ik.error) if first and g.ik is not None else ""
             seeded = fmt_len(arm, g.seeded[0]) if first and g.seeded is not None else ""
             rows.append(f"| {g.index + 1} | {fmt_len(arm, g.error)} | {seeded} | {ik} |")
-        if g0_partner := (self.goals[0] if self.goals and self.goals[0].partner_view is not None
-                          and self.goals[0].partner_view.visible else None):
-            rows.append(f"| 1, race partner (purple) | {fmt_len(arm, g0_partner.partner_error)} | | |")
+        lines = ["Refined: the network's answer made exact by at most 3 Gauss-Newton steps; DLS: damped "
+                 "least squares from the rest pose (turn on *Classical IK beside it*).", "", *rows]
         g0 = self.goals[0] if self.goals else None
-        lines = [f"Controller: {shown.source}", "", *rows]
         if g0 is not None and g0.ik is not None and show and np.isfinite(g0.net_s):
             line = f"Goal 1: network, one forward pass {1e6 * g0.net_s:.0f} µs"
             if g0.seeded is not None:
@@ -347,7 +376,7 @@ class TabSession(TabExtras):
             line += (f"; DLS from rest, {g0.ik.iterations} iterations, {1e3 * g0.ik.seconds:.2f} ms"
                      f"{'' if g0.ik.converged else ' (not converged)'}")
             lines += ["", line]
-        self.table.content = "\n".join(lines)
+        self.details.content = "\n".join(lines)
 
     def close(self) -> None:
         with self.lock:

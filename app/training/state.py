@@ -31,6 +31,13 @@ from app.training.notebook import Notebook, entry_from_summary
 
 SPEEDS = {"1 generation/s": 1.0, "5 generations/s": 5.0, "20 generations/s": 20.0, "unlimited": None}
 
+
+def speed_label(generations_per_second: float | None) -> str:
+    """The Speed menu's entry for a rate (the nearest one)."""
+    if generations_per_second is None:
+        return "unlimited"
+    return min((k for k, v in SPEEDS.items() if v is not None), key=lambda k: abs(SPEEDS[k] - generations_per_second))
+
 log = logging.getLogger(__name__)
 # points of a run's MSE history the app keeps (lab.running.history.History): every generation up to
 # this many, then fewer and fewer, so a run of 10^9 generations takes as little memory as one of 5,000
@@ -86,12 +93,13 @@ class _Tap:
 
 class LabState:
     def __init__(self, robot: str = "planar", notebook: Notebook | None = None, startup=None,
-                 recorder=None, startups=None, limits: dict | None = None):
+                 recorder=None, startups=None, limits: dict | None = None, speed: float | None = None):
         """startup: controller shown first (or None); startups: callable(robot name) -> (controller,
         note), the controller an arm opens with (app.startup.startup_controller), called once per arm;
         recorder: callable(runner) -> object with .path that records the run
         (lab.recording.RerunLogger), or None for no recordings. limits: the bounds this server puts
-        on settings (app/classroom/limits.py; None: the lab's own)."""
+        on settings (app/classroom/limits.py; None: the lab's own). speed: generations a second every
+        run starts with (None: as fast as it goes)."""
         self.limits = limits
         self._lock = threading.RLock()
         self.notebook = notebook or Notebook()
@@ -100,7 +108,7 @@ class LabState:
         self.recording: str | None = None
         self.track: RunTrack | None = None  # the run's live numbers and population (app/training/live.py)
         self.partner: Partner | None = None  # a race's second run
-        self.speed: float | None = None  # generations per second (None: no cap), for every run
+        self.speed: float | None = speed  # generations per second (None: no cap), for every run
         self.replaying = False  # the arms show a replayed controller, not the run's best
         self.replayed_population = None  # the population a replayed recording logged at its generation
         self._startup = startup
@@ -291,15 +299,31 @@ class LabState:
         for r in going:
             r.stop(wait=True, timeout=10)
 
-    def reset(self) -> None:
-        """Stop any run, clear the progress and show the startup controller again."""
+    def reset(self, untrained: lab.TrainConfig | None = None) -> None:
+        """Stop any run and clear the progress; show the startup controller again or, given a
+        config, the untrained network that config's run starts from (the best of its first
+        generation, the same controller its first event will show)."""
         if self.running:
             self.stop()
+        first = self.untrained(untrained) if untrained is not None else None
         with self._lock:
             self.runner, self.recording, self.partner, self.track = None, None, None, None
             self._clear_history()
             self.replaying = False
-            self._show_startup()
+            if first is not None and untrained.robot == self.arm.name:
+                self.show(first, f"untrained (generation 1 of {run_label(untrained)})")
+            else:
+                self._show_startup()
+
+    @staticmethod
+    def untrained(config: lab.TrainConfig):
+        """The best controller of config's first generation (None when it cannot be made)."""
+        try:
+            first = lab.TrainConfig.from_dict({**config.to_dict(), "generations": 1})
+            return lab.Runner(first).run().controller
+        except Exception:  # noqa: BLE001 - the startup controller is shown instead
+            log.exception("cannot make the untrained network of %s", config)
+            return None
 
     def _clear_history(self) -> None:
         self._history = History(HISTORY_POINTS)

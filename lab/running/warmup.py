@@ -1,8 +1,9 @@
 """Compile the numba kernels once, so the first training run does not wait for them.
 
-numba compiles on first call and caches the machine code under __pycache__/ (about 30 s of
-compiling on a 2-core machine, then milliseconds to load). `make install` runs this once;
-the app runs `compile_kernels` in a background thread at startup.
+numba compiles on first call and caches the machine code under __pycache__/ (about 15 s of
+compiling on a 2-core machine, then milliseconds to load). `make test` runs this first; the app
+runs `compile_kernels` in a background thread at startup, after its first page is served (that
+page needs only the kinematics and the controllers' kernels, which it compiles as it starts).
 
     python -m lab.running.warmup
 """
@@ -12,26 +13,32 @@ from __future__ import annotations
 import time
 
 
-def compile_kernels() -> float:
-    """Call every kernel once (forward kinematics, each method's fitness, controllers); seconds taken."""
+def compile_kernels(progress=None) -> float:
+    """Call every kernel once (forward kinematics, each method's fitness, controllers); seconds taken.
+    progress(text): told before each step (None: silent)."""
     import robots
     from lab import methods
 
     from lab.running.evolve import evolve
 
+    say = progress or (lambda text: None)
     t = time.perf_counter()
+    names = methods.names()
+    say(f"compiling kernels (1/{len(names) + 1}): forward kinematics")
     arm = robots.load("planar")
     q = arm.sample_q(2, seed=0)
     arm.fk(q)
     arm.joint_positions(q)
-    for method in methods.names():
+    for k, method in enumerate(names, 2):
+        say(f"compiling kernels ({k}/{len(names) + 1}): {methods.get(method).label} fitness and controller")
         run = evolve("planar", method, generations=2, population=10, targets=5, test_goals=5, seed=0)
         run.controller(arm.sample_goals(2, seed=1))
     return time.perf_counter() - t
 
 
 def main() -> None:
-    print(f"numba kernels compiled and cached in {compile_kernels():.1f} s")
+    seconds = compile_kernels(lambda text: print(text, flush=True))
+    print(f"numba kernels compiled and cached in {seconds:.1f} s (once: later runs load them)")
 
 
 if __name__ == "__main__":
