@@ -90,6 +90,95 @@ def test_views_and_blueprint(run):
     RrdReader(logger.path).store()  # a cleanly closed file has its footer
 
 
+def logged_at(path, generation: int, timeline: str = "generation") -> set:
+    """The entities the viewer has data for at `generation` (latest-at: static, or a row of the
+    timeline at or before it). Rerun 0.41's dataframe queries need datafusion (the [catalog]
+    extra), so this reads the chunks."""
+    out = set()
+    for ch in RrdReader(path).stream():
+        if ch.is_static:
+            out.add(ch.entity_path)
+            continue
+        rb = ch.to_record_batch()
+        if timeline in rb.schema.names and min(rb.column(timeline).to_pylist()) <= generation:
+            out.add(ch.entity_path)
+    return out
+
+
+def _views(reader) -> list:
+    """The stored blueprint's views: {"class", "origin", "components"} (every component logged under
+    the view's entity, e.g. VisibleTimeRanges:ranges)."""
+    views, parts = {}, {}
+    for ch in reader.stream(store=reader.blueprints()[0]):
+        path = ch.entity_path.split("/")
+        if len(path) < 3 or path[1] != "view":
+            continue
+        rb = ch.to_record_batch()
+        view = views.setdefault(path[2], {"components": set()})
+        view["components"].update(rb.schema.names)
+        if "ViewBlueprint:class_identifier" in rb.schema.names:
+            view["class"] = rb.column("ViewBlueprint:class_identifier").to_pylist()[-1][0] + "View"
+            view["origin"] = rb.column("ViewBlueprint:space_origin").to_pylist()[-1][0]
+    return list(views.values())
+
+
+def logged_generations(path, entity: str) -> list:
+    return sorted(g for ch in RrdReader(path).stream() if ch.entity_path == entity and not ch.is_static
+                  for g in ch.to_record_batch().column("generation").to_pylist())
+
+
+def test_the_first_generation_shows_the_arms_and_the_network(run):
+    """Issue #31 (7): the replay showed only the goals, and an empty network panel, for the first
+    hundreds of generations: poses and the network were logged for the last generation of each
+    batch the writer read from its pipe, and the first batch holds every generation made while
+    the writer started (~1 s). The first generation with a controller is posed."""
+    runner, logger, _, events = run
+    at0 = logged_at(logger.path, 0)
+    for entity in ("/world/arm", "/world/reached", "/world/errors", "/world/goals", "/controller"):
+        assert entity in at0, entity
+    assert ("/network" in at0) == (runner.config.method == "neat")
+    # no method's recording has a panel it never fills: a graph method's /network, else the JSON
+    views = _views(RrdReader(logger.path))
+    detail = [v for v in views if v["class"] in ("GraphView", "TextDocumentView") and v["origin"] != "/about"]
+    assert [v["origin"] for v in detail] == ["/network" if runner.config.method == "neat" else "/controller"]
+    # every view shows the latest data at the time cursor: none has a visible time range
+    assert not any("range" in c.lower() for v in views for c in v["components"]), views
+    # after the first: on improvement, at most every max(pose_every, g / 5) generations, and the last
+    posed = logged_generations(logger.path, "/world/arm")
+    assert posed[0] == 0 and posed[-1] <= len(events) - 1 and len(posed) > 1
+    assert all(b - a >= max(logger.pose_every, b // 5) for a, b in zip(posed, posed[1:-1]))
+    if runner.config.method == "neat":  # the network of every controller the file holds
+        assert logged_generations(logger.path, "/network") == [g for g, _ in read_recording(logger.path).controllers]
+
+
+def test_poses_and_networks_do_not_depend_on_how_the_writer_reads_its_pipe(run, tmp_path):
+    """The same generations in one batch, one per batch, or as the run's pipe happened to hand them
+    over: the same generations posed and the same networks (the rule is applied to every generation)."""
+    from lab.recording.logger import METHOD_VIEW
+    from lab.recording.writer import Writer
+
+    runner, logger, _, events = run
+    method = lab.methods.get(runner.config.method)
+    entities = ("/world/arm", "/world/errors", "/network", "/controller")
+
+    def written(batches, name) -> dict:
+        path = tmp_path / name
+        writer = Writer({"path": str(path), "config": runner.config.to_dict(), "run_id": "batches",
+                         "method": {k: getattr(method, k) for k in METHOD_VIEW}, "robot": runner.problem.arm.name,
+                         "train_goals": runner.problem.train_goals, "goal_seed": runner.problem.goal_seed,
+                         "hyperparameters": {}, "pose_every": logger.pose_every, "compact": False})
+        for batch in batches:
+            writer.write(batch)
+        writer.end(None)
+        writer.close()
+        return {entity: logged_generations(path, entity) for entity in entities}
+
+    whole = written([events], "whole.rrd")
+    assert whole == written([[e] for e in events], "single.rrd")
+    assert whole == written([events[:7], events[7:8], events[8:]], "three.rrd")
+    assert whole == {entity: logged_generations(logger.path, entity) for entity in entities}
+
+
 def test_mse_series_and_search_extras(run):
     runner, logger, _, events = run
     rows, times = {}, {}

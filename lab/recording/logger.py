@@ -15,9 +15,13 @@ Contract of the file (lab/recording/replay.py reads it back; docs/recordings.md)
 - /controller: a JSON TextDocument {"generation", "best_mse", "controller": to_dict()} whenever the
   best controller changes (so at the first generation too); floats are written with repr, so the
   controller rebuilds bit for bit;
-- decimated: /world/{arm,reached,errors} (the best controller's pose for every training goal, on
-  improvement, at most every max(pose_every, generation / 5) generations, and at the end) and, for
-  NEAT, /network (GraphNodes and GraphEdges of the best genome, inputs left, outputs right);
+- decimated: /world/{arm,reached,errors} and /world/robot (the best controller's pose for every
+  training goal: at the first generation, then on improvement at most every
+  max(pose_every, generation / 5) generations, and at the end);
+- for a graph method (NEAT), /network: GraphNodes and GraphEdges of the best genome (inputs left,
+  outputs right) at every /controller row, so from the first generation; an MLP method has no
+  network panel (its shape never changes, and the viewer's graph edges carry no weights): its view
+  shows /controller;
 - populations (lab.running.decimation.population_logged: every generation up to 100, then every
   10th): /world/population (each candidate's point at the display goal, coloured by training MSE;
   /world/population_species by species) and /population (AnyValues mse, species);

@@ -94,7 +94,8 @@ class Writer:
             return
         self._write_rows([e for e in events if long_run(e.index)])
         self._last_event = events[-1]
-        self._write_pose(events[-1])
+        for e in events:  # the rule at every generation: the first one is posed, whatever the batch holds
+            self._write_pose(e)
         self._write_populations(events)
 
     def _write_rows(self, events: list) -> None:
@@ -177,14 +178,16 @@ class Writer:
         self._rec.send_columns(
             "controller", indexes=_indexes([e for e, _ in rows]),
             columns=[_Column(_Column.TEXT, [[t] for _, t in rows], pa.string())])
-        e = rows[-1][0]
-        if self.method.controller == "graph":
-            self._set_time(e)
-            self._rec.log("network", *views.network(e.controller))
+        if self.method.controller == "graph":  # the network in force at every logged generation
+            for e, _ in rows:
+                self._set_time(e)
+                self._rec.log("network", *views.network(e.controller))
 
     def _write_pose(self, e, final: bool = False) -> None:
         """The pose of a new best controller, at most every max(pose_every, generation / 5)
-        generations: frequent early, ~12 per tenfold of generations later (bounded files)."""
+        generations: frequent early, ~12 per tenfold of generations later (bounded files). Called
+        for every generation (the first with a controller is posed), so which generations are
+        posed does not depend on how many generations each read of the pipe brought."""
         posed, at = self._posed
         if e.controller is None or e.controller is posed:
             return
