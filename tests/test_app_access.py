@@ -247,3 +247,40 @@ def test_a_viewer_cannot_open_a_public_share_tunnel(app, viewer, presenter, monk
     assert asked == []
     presenter.send(_messages.ShareUrlRequest())  # the presenter may (the lab never asks by itself)
     assert wait_until(lambda: asked == [1], 10)
+
+
+
+def test_invalid_values_to_any_control_are_dropped_and_logged_once_per_tab(app, presenter, viewer, caplog):
+    """A tab (a viewer too) sending 500 invalid values to its own controls and to shared ones: each is
+    dropped before viser applies it, one log line per tab, no "Task exception was never retrieved", and
+    a good message still works afterwards."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    assert wait_until(lambda: len(app.sessions) >= 2)
+    viewer_id = max(app.sessions)
+    ghosts = gui_uuid(viewer, "IK ghosts (refined network, DLS)")
+    session = app.sessions[viewer_id]
+    assert ghosts in session.client.gui._gui_input_handle_from_uuid  # a per-tab control
+    slider = session.replay.slider._impl.uuid  # the viewer's own replay slider
+    assert slider in session.client.gui._gui_input_handle_from_uuid
+    population = gui_uuid(presenter, "Population")
+    bads = [{"value": float("nan")}, {"value": "abc"}, {"color": "red"}, {"value": [1, 2]}, {"value": None},
+            {"value": float("inf")}, {"bogus": 1, "value": True}]
+    for k in range(500):
+        viewer.send(_messages.GuiUpdateMessage(uuid=(ghosts, slider)[k % 2], updates=bads[k % len(bads)]))
+        presenter.send(_messages.GuiUpdateMessage(uuid=population, updates=bads[k % len(bads)]))
+    time.sleep(1.0)
+    assert app.panel.population.value == 10 and session.show_ik.value is True
+    assert session.replay.slider.value == 0
+    # a good message still works, in both tabs
+    viewer.send(_messages.GuiUpdateMessage(uuid=ghosts, updates={"value": False}))
+    assert wait_until(lambda: session.show_ik.value is False, 10)
+    presenter.send(_messages.GuiUpdateMessage(uuid=population, updates={"value": 12}))
+    assert wait_until(lambda: app.panel.population.value == 12, 10)
+    app.panel.population.value = 10
+    text = caplog.text
+    assert "Task exception was never retrieved" not in text and "Traceback" not in text, text[-3000:]
+    lines = [r.getMessage() for r in caplog.records if "invalid message" in r.getMessage()]
+    assert 1 <= len(lines) <= 2, lines  # one per tab (the viewer's and the presenter's)
+    assert len(caplog.records) <= 4, [r.getMessage() for r in caplog.records][:10]
