@@ -102,6 +102,17 @@ def connection_query(server, client_id: int) -> dict[str, str] | None:
     return parse_query(getattr(request, "path", "") or "")
 
 
+def connection_address(server, client_id: int) -> str | None:
+    """The remote IP address of a tab's connection (None when it has gone). Same reach as
+    connection_query, then websockets' public ServerConnection.remote_address."""
+    missing = query_api_missing(server)
+    if missing:
+        raise ViserChanged(f"viser changed: {', '.join(missing)} missing; a tab's address cannot be read")
+    connection = server._websock_server._live_connections.get(client_id)
+    address = getattr(connection, "remote_address", None)
+    return str(address[0]) if isinstance(address, tuple) and address else None
+
+
 def query_api_missing(server) -> list[str]:
     """What of the private API client_query uses this viser server lacks (empty: all there)."""
     websock = getattr(server, "_websock_server", None)
