@@ -226,13 +226,21 @@ class TrainingPanel:
         return self._simple(self.state.resume, client)
 
     def stop(self, client=None):
-        return self._simple(self.state.stop, client)
+        msg = self._simple(self.state.stop, client)
+        self._tell_notice()
+        return msg
 
     def reset(self, client=None):
         self.state.reset()
         self.message.content = ""
+        self._tell_notice()
         self._shown_gen = -1
         self.refresh(force=True)
+
+    def _tell_notice(self) -> None:
+        """A run's end the class should know of (a worker killed after Stop): in the shared message."""
+        if self.state.notice:
+            self.message.content = f"**{self.state.notice}**"
 
     # ------------------------------------------------------------------ progress
     def _build_curves(self, racing: bool) -> None:
@@ -288,5 +296,7 @@ class TrainingPanel:
                        + (f", recording `{partner.recording}`" if partner.recording else ""))
             status += "  \n" + lead_line(self.state.track, partner.track, run_label(self.state.runner.config),
                                           partner.label)
+        if self.state.notice:
+            status += f"  \n{self.state.notice}"
         self.status.content = status
         self.watching.refresh_live(force)
