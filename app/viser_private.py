@@ -384,7 +384,7 @@ def send_gui_props(client, uuid: str, **props) -> None:
 # in the button's value. guard_uploads puts our checks in front of viser's own handlers.
 def guard_uploads(server, on_start, on_part) -> None:
     """In front of viser's upload handlers of `server` (shared GUI): on_start(client_id, transfer_id,
-    filename, size_bytes) and on_part(client_id, transfer_id, nbytes) return True to let viser
+    filename, size_bytes, part_count) and on_part(client_id, transfer_id, nbytes, part_index) return True to let viser
     have the message. A refused start is never seen by viser (its parts are then ignored: viser
     drops parts of unknown transfers); a refused part drops the transfer and what viser buffered
     of it. Both run in viser's event loop: keep them short. Idempotent per server."""
@@ -394,10 +394,10 @@ def guard_uploads(server, on_start, on_part) -> None:
     if getattr(server, "_lab_uploads_guarded", False):
         return
     _guard(handlers, _messages.FileTransferStartUpload,
-           lambda cid, m: on_start(cid, m.transfer_uuid, m.filename, int(m.size_bytes)))
+           lambda cid, m: on_start(cid, m.transfer_uuid, m.filename, int(m.size_bytes), int(m.part_count)))
 
     def allow_part(cid, m):
-        if on_part(cid, m.transfer_uuid, len(m.content)):
+        if on_part(cid, m.transfer_uuid, len(m.content), int(m.part_index)):
             return True
         drop_upload(server, m.transfer_uuid)
         return False
