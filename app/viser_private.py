@@ -8,7 +8,11 @@ from __future__ import annotations
 
 import asyncio
 import inspect
+import logging
+import math
 import re
+import threading
+import time
 import urllib.parse
 
 import numpy as np
@@ -211,14 +215,12 @@ def _message_buffer_class():
 BAD_LOG_PERIOD = 60.0  # s: at most one log line per tab in this while
 MAX_TEXT = 10_000  # characters of a text value a tab may send
 _bad_log: dict = {}  # (event loop id, client id) -> [time of the last line, messages dropped since]
-_bad_lock = __import__("threading").Lock()
+_bad_lock = threading.Lock()
 
 
 def gui_update_problem(state, updates) -> str | None:
     """Why a tab's GuiUpdateMessage `updates` may not be applied to an element whose state is `state`
     (viser's _GuiHandleState), or None. A browser only ever sends {"value": ...} of the element's type."""
-    import math
-
     if not isinstance(updates, dict) or set(updates) != {"value"}:
         return f"properties {sorted(map(str, updates))[:5] if isinstance(updates, dict) else updates!r:.40} (only value may be sent)"
     value, current = updates["value"], getattr(state, "value", None)
@@ -248,9 +250,6 @@ def gui_update_problem(state, updates) -> str | None:
 
 def report_bad_message(client_id, what: str) -> None:
     """Log a tab's dropped message: one line per tab per BAD_LOG_PERIOD (per server: its event loop)."""
-    import logging
-    import time
-
     try:
         loop = id(asyncio.get_running_loop())
     except RuntimeError:
