@@ -256,6 +256,9 @@ def report_bad_message(client_id, what: str) -> None:
         loop = None
     now = time.monotonic()
     with _bad_lock:
+        if len(_bad_log) > 10_000:  # tabs come and go: forget those quiet for a while
+            for key in [k for k, (t, _n) in _bad_log.items() if t is None or now - t >= BAD_LOG_PERIOD]:
+                del _bad_log[key]
         entry = _bad_log.setdefault((loop, client_id), [None, 0])
         if entry[0] is not None and now - entry[0] < BAD_LOG_PERIOD:
             entry[1] += 1
