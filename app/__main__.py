@@ -4,9 +4,13 @@
     python -m app --host 0.0.0.0          # a classroom network: every machine that can reach this one
     python -m app --port 9000 --robot ur5
     python -m app --host 0.0.0.0 --open   # every tab may change the run (on purpose)
+    python -m app --host 0.0.0.0 --presenter-token-file ~/.lab-token   # a token of your own, not in `ps`
 
 Beyond loopback only presenter tabs (opened with the printed presenter link) change the run and the
-shared settings; every other tab is a viewer (app/classroom/access.py).
+shared settings; every other tab is a viewer (app/classroom/access.py). A token of your own (at least
+16 characters) comes, as Jupyter's does, from a file (--presenter-token-file), the environment
+(LAB_PRESENTER_TOKEN) or the command line (--presenter-token, which every local user sees in `ps`:
+a warning says so).
 """
 
 from __future__ import annotations
@@ -29,6 +33,37 @@ import time  # noqa: E402
 WATCHING_SPEED = 20.0
 
 
+TOKEN_ENV = "LAB_PRESENTER_TOKEN"  # as Jupyter's JUPYTER_TOKEN: a token that does not show in `ps`
+
+
+def presenter_token(args) -> tuple[str | None, str | None]:
+    """(token, None) from --presenter-token, --presenter-token-file or LAB_PRESENTER_TOKEN (None: none
+    given), or (None, the error line)."""
+    if args.presenter_token is not None and args.presenter_token_file is not None:
+        return None, "error: --presenter-token and --presenter-token-file contradict each other; give one"
+    if args.presenter_token_file is not None:
+        source = "--presenter-token-file"
+        try:
+            with open(args.presenter_token_file, encoding="utf-8") as f:
+                token = f.readline().strip()
+        except (OSError, UnicodeDecodeError) as e:
+            return None, f"error: --presenter-token-file {args.presenter_token_file}: {getattr(e, 'strerror', None) or e}"
+    elif args.presenter_token is not None:
+        source, token = "--presenter-token", args.presenter_token
+        print("warning: --presenter-token shows the token to every user of this machine (`ps`); "
+              f"--presenter-token-file PATH or {TOKEN_ENV} keep it out of sight", file=sys.stderr, flush=True)
+    elif os.environ.get(TOKEN_ENV):
+        source, token = TOKEN_ENV, os.environ[TOKEN_ENV].strip()
+    else:
+        return None, None
+    if args.open:
+        return None, f"error: --open and a presenter token ({source}) contradict each other"
+    from app.classroom.access import token_problem
+
+    problem = token_problem(token)
+    return (None, f"error: {source}: {problem}") if problem else (token, None)
+
+
 def parse(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m app", description="Neuro-IK Lab in the browser (viser).")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
@@ -40,7 +75,11 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--no-record", action="store_true", help="do not write Rerun recordings")
     p.add_argument("--presenter-token", default=None, metavar="TOKEN",
                    help="the presenter link's token (default: a random one beyond loopback; on loopback, "
-                        "giving one makes the other tabs viewers); letters, digits and . _ ~ - only")
+                        "giving one makes the other tabs viewers); at least 16 of letters, digits and . _ ~ - ; "
+                        "visible in `ps` to every local user: prefer --presenter-token-file or "
+                        f"{TOKEN_ENV}")
+    p.add_argument("--presenter-token-file", default=None, metavar="PATH",
+                   help=f"read the presenter token from this file (its first line); or set {TOKEN_ENV}")
     p.add_argument("--limit", action="append", default=[], metavar="NAME=N",
                    help="raise (or set) a bound on the settings this server accepts: population, hidden, goals, "
                         "generations (beyond loopback: 200, 64, 1000, 100000 unless raised); repeatable")
@@ -83,17 +122,12 @@ def main(argv=None) -> int:
     if not args.no_record and (blocker := not_a_folder(args.recordings)) is not None:
         print(f"error: --recordings must be a folder, but {blocker} is a file", file=sys.stderr)
         return 2
-    from app.classroom.access import Access
     from app.training.notebook import Notebook, NotebookError
     from app.server import LabApp
 
-    if args.open and args.presenter_token is not None:
-        print("error: --open and --presenter-token contradict each other", file=sys.stderr)
-        return 2
-    try:
-        Access(args.host, args.presenter_token, args.open)
-    except ValueError as e:
-        print(f"error: --presenter-token: {e}", file=sys.stderr)
+    token, problem = presenter_token(args)
+    if problem:
+        print(problem, file=sys.stderr)
         return 2
     from app.classroom.limits import parse_limit
 
@@ -110,7 +144,7 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     app = LabApp(args.host, args.port, robot=args.robot, notebook=notebook, recordings=args.recordings,
-                 record=not args.no_record, presenter_token=args.presenter_token, open_access=args.open,
+                 record=not args.no_record, presenter_token=token, open_access=args.open,
                  limits=limits, speed=args.speed or None)
     print(f"\nNeuro-IK Lab ready in {time.perf_counter() - t0:.1f} s: {app.url}", flush=True)
     # the first Start would otherwise wait for numba to compile the fitness kernels (~15 s, once);
@@ -142,7 +176,8 @@ def main(argv=None) -> int:
         if here != app.url:
             print(f"  presenter link on this machine: {app.presenter_url}", flush=True)
     elif not args.open:
-        print("  every tab is a presenter (loopback only); --presenter-token TOKEN makes other tabs viewers", flush=True)
+        print("  every tab is a presenter (loopback only); a presenter token (--presenter-token-file PATH) makes "
+              "other tabs viewers", flush=True)
     else:
         print("  --open: every tab may change the run", flush=True)
     print(f"  startup controller: {app.startup_note}; runs list: {args.notebook}. Ctrl-C stops.", flush=True)

@@ -40,7 +40,7 @@ from app.tab.replay import TabReplay
 from app.tab.scene import frame_workspace
 from app.training.notebook import DEFAULT_PATH, Notebook
 from app.training.state import LabState
-from app.viser_private import client_host, client_query, install_loop_safe_wakeups
+from app.viser_private import client_host, client_query, install_loop_safe_wakeups, install_message_gate
 
 log = logging.getLogger(__name__)
 
@@ -137,6 +137,7 @@ class LabApp:
         # the render loop, the run's reader and viser's thread pool all update handles: each update's
         # wake-up of viser's sender must reach its event loop safely (see app/viser_private.py)
         install_loop_safe_wakeups()
+        install_message_gate()  # a tab's invalid GUI values are dropped, logged once a minute
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.access.install(self.server, notify=self._tell)  # before any tab can change anything
         self.host = host

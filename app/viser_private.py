@@ -8,7 +8,11 @@ from __future__ import annotations
 
 import asyncio
 import inspect
+import logging
+import math
 import re
+import threading
+import time
 import urllib.parse
 
 import numpy as np
@@ -102,6 +106,17 @@ def connection_query(server, client_id: int) -> dict[str, str] | None:
     return parse_query(getattr(request, "path", "") or "")
 
 
+def connection_address(server, client_id: int) -> str | None:
+    """The remote IP address of a tab's connection (None when it has gone). Same reach as
+    connection_query, then websockets' public ServerConnection.remote_address."""
+    missing = query_api_missing(server)
+    if missing:
+        raise ViserChanged(f"viser changed: {', '.join(missing)} missing; a tab's address cannot be read")
+    connection = server._websock_server._live_connections.get(client_id)
+    address = getattr(connection, "remote_address", None)
+    return str(address[0]) if isinstance(address, tuple) and address else None
+
+
 def query_api_missing(server) -> list[str]:
     """What of the private API client_query uses this viser server lacks (empty: all there)."""
     websock = getattr(server, "_websock_server", None)
@@ -188,6 +203,110 @@ def _message_buffer_class():
     return AsyncMessageBuffer
 
 
+# ---------------------------------------------------------------------- bad messages from a tab
+# viser 1.1.1 applies a tab's GuiUpdateMessage by casting its value to the element's type
+# (GuiApi._handle_gui_updates: `type(current)(value)`, `assert hasattr(state, prop)`) in a task of its
+# event loop that nobody awaits: a slider sent "abc", a checkbox sent an unknown property, raises,
+# and asyncio prints an 8-line "Task exception was never retrieved" per message; NaN, a string to a
+# checkbox (bool("abc") is True) or an out-of-list dropdown value are even applied. The gate checks
+# every GuiUpdateMessage against its element (shared or per-tab) before viser sees it, drops a bad
+# one, and catches whatever a tab's message still raises in any handler: one log line per tab per
+# BAD_LOG_PERIOD seconds, the count of the others in the next line, never a traceback.
+BAD_LOG_PERIOD = 60.0  # s: at most one log line per tab in this while
+MAX_TEXT = 10_000  # characters of a text value a tab may send
+_bad_log: dict = {}  # (event loop id, client id) -> [time of the last line, messages dropped since]
+_bad_lock = threading.Lock()
+
+
+def gui_update_problem(state, updates) -> str | None:
+    """Why a tab's GuiUpdateMessage `updates` may not be applied to an element whose state is `state`
+    (viser's _GuiHandleState), or None. A browser only ever sends {"value": ...} of the element's type."""
+    if not isinstance(updates, dict) or set(updates) != {"value"}:
+        return f"properties {sorted(map(str, updates))[:5] if isinstance(updates, dict) else updates!r:.40} (only value may be sent)"
+    value, current = updates["value"], getattr(state, "value", None)
+
+    def number(v) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    if getattr(state, "is_button", False) and isinstance(current, bool):
+        ok = value is True
+    elif isinstance(current, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(current, (int, float)):
+        ok = number(value)
+    elif isinstance(current, str):
+        ok = isinstance(value, str) and len(value) <= MAX_TEXT
+        options = getattr(state, "options", None)
+        if ok and isinstance(options, (tuple, list)) and options and all(isinstance(o, str) for o in options):
+            ok = value in options
+    elif isinstance(current, tuple):
+        ok = (isinstance(value, (list, tuple)) and len(value) == len(current)
+              and all(number(v) if isinstance(c, (int, float)) and not isinstance(c, bool) else type(v) is type(c)
+                      for v, c in zip(value, current)))
+    else:  # an upload's file, a value the browser never sends
+        ok = False
+    return None if ok else f"value {value!r:.40} for a {type(current).__name__} element"
+
+
+def report_bad_message(client_id, what: str) -> None:
+    """Log a tab's dropped message: one line per tab per BAD_LOG_PERIOD (per server: its event loop)."""
+    try:
+        loop = id(asyncio.get_running_loop())
+    except RuntimeError:
+        loop = None
+    now = time.monotonic()
+    with _bad_lock:
+        if len(_bad_log) > 10_000:  # tabs come and go: forget those quiet for a while
+            for key in [k for k, (t, _n) in _bad_log.items() if t is None or now - t >= BAD_LOG_PERIOD]:
+                del _bad_log[key]
+        entry = _bad_log.setdefault((loop, client_id), [None, 0])
+        if entry[0] is not None and now - entry[0] < BAD_LOG_PERIOD:
+            entry[1] += 1
+            return
+        dropped, entry[0], entry[1] = entry[1], now, 0
+    more = f" ({dropped} more dropped in the last {BAD_LOG_PERIOD:g} s)" if dropped else ""
+    logging.getLogger("app.viser").warning(
+        "tab %s sent an invalid message, dropped: %s%s; further ones are logged at most once a minute",
+        client_id, what, more)
+
+
+def install_message_gate() -> None:
+    """Check every tab's GUI update against its element before viser applies it, and catch what any
+    tab's message raises in viser's handlers (report_bad_message, no traceback). Process-wide, for
+    every ViserServer and tab created from now on (call it before creating the server); idempotent.
+    ViserChanged, naming it, when what it wraps is gone."""
+    try:
+        from viser._gui_api import GuiApi
+        from viser.infra._infra import WebsockMessageHandler
+    except ImportError as e:
+        raise ViserChanged(f"viser changed: {e}; bad messages cannot be dropped") from e
+    for cls, name in ((GuiApi, "_handle_gui_updates"), (WebsockMessageHandler, "_handle_incoming_message")):
+        if not inspect.iscoroutinefunction(getattr(cls, name, None)):
+            raise ViserChanged(f"viser changed: {cls.__name__}.{name} is not a coroutine function any more")
+    if getattr(GuiApi, "_lab_gated", False):
+        return
+    apply_update, dispatch = GuiApi._handle_gui_updates, WebsockMessageHandler._handle_incoming_message
+
+    async def _handle_gui_updates(self, client_id, message):
+        handle = self._gui_input_handle_from_uuid.get(message.uuid)
+        if handle is not None and not handle._impl.removed:
+            problem = gui_update_problem(handle._impl, message.updates)
+            if problem is not None:
+                report_bad_message(client_id, f"{getattr(handle._impl, 'label', '?')!r:.40}: {problem}")
+                return
+        await apply_update(self, client_id, message)
+
+    async def _handle_incoming_message(self, client_id, message):
+        try:
+            await dispatch(self, client_id, message)
+        except Exception as e:  # noqa: BLE001 - a tab's message: dropped, told once a minute
+            report_bad_message(client_id, f"{type(message).__name__} raised {type(e).__name__}: {e!s:.80}")
+
+    GuiApi._handle_gui_updates = _handle_gui_updates
+    WebsockMessageHandler._handle_incoming_message = _handle_incoming_message
+    GuiApi._lab_gated = True
+
+
 # ---------------------------------------------------------------------- shared GUI: who may change it
 # Elements of server.gui are shared by every tab. guard_shared_gui drops a tab's change of one of them
 # (a value typed, a button pressed or held) before viser applies it, unless allow(client_id) says the
@@ -267,7 +386,7 @@ def send_gui_props(client, uuid: str, **props) -> None:
 # in the button's value. guard_uploads puts our checks in front of viser's own handlers.
 def guard_uploads(server, on_start, on_part) -> None:
     """In front of viser's upload handlers of `server` (shared GUI): on_start(client_id, transfer_id,
-    filename, size_bytes) and on_part(client_id, transfer_id, nbytes) return True to let viser
+    filename, size_bytes, part_count) and on_part(client_id, transfer_id, nbytes, part_index) return True to let viser
     have the message. A refused start is never seen by viser (its parts are then ignored: viser
     drops parts of unknown transfers); a refused part drops the transfer and what viser buffered
     of it. Both run in viser's event loop: keep them short. Idempotent per server."""
@@ -277,10 +396,10 @@ def guard_uploads(server, on_start, on_part) -> None:
     if getattr(server, "_lab_uploads_guarded", False):
         return
     _guard(handlers, _messages.FileTransferStartUpload,
-           lambda cid, m: on_start(cid, m.transfer_uuid, m.filename, int(m.size_bytes)))
+           lambda cid, m: on_start(cid, m.transfer_uuid, m.filename, int(m.size_bytes), int(m.part_count)))
 
     def allow_part(cid, m):
-        if on_part(cid, m.transfer_uuid, len(m.content)):
+        if on_part(cid, m.transfer_uuid, len(m.content), int(m.part_index)):
             return True
         drop_upload(server, m.transfer_uuid)
         return False

@@ -247,3 +247,105 @@ def test_a_viewer_cannot_open_a_public_share_tunnel(app, viewer, presenter, monk
     assert asked == []
     presenter.send(_messages.ShareUrlRequest())  # the presenter may (the lab never asks by itself)
     assert wait_until(lambda: asked == [1], 10)
+
+
+
+def test_invalid_values_to_any_control_are_dropped_and_logged_once_per_tab(app, presenter, viewer, caplog):
+    """A tab (a viewer too) sending 500 invalid values to its own controls and to shared ones: each is
+    dropped before viser applies it, one log line per tab, no "Task exception was never retrieved", and
+    a good message still works afterwards."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    assert wait_until(lambda: len(app.sessions) >= 2)
+    viewer_id = max(app.sessions)
+    ghosts = gui_uuid(viewer, "IK ghosts (refined network, DLS)")
+    session = app.sessions[viewer_id]
+    assert ghosts in session.client.gui._gui_input_handle_from_uuid  # a per-tab control
+    slider = session.replay.slider._impl.uuid  # the viewer's own replay slider
+    assert slider in session.client.gui._gui_input_handle_from_uuid
+    population = gui_uuid(presenter, "Population")
+    bads = [{"value": float("nan")}, {"value": "abc"}, {"color": "red"}, {"value": [1, 2]}, {"value": None},
+            {"value": float("inf")}, {"bogus": 1, "value": True}]
+    for k in range(500):
+        viewer.send(_messages.GuiUpdateMessage(uuid=(ghosts, slider)[k % 2], updates=bads[k % len(bads)]))
+        presenter.send(_messages.GuiUpdateMessage(uuid=population, updates=bads[k % len(bads)]))
+    time.sleep(1.0)
+    assert app.panel.population.value == 10 and session.show_ik.value is True
+    assert session.replay.slider.value == 0
+    # a good message still works, in both tabs
+    viewer.send(_messages.GuiUpdateMessage(uuid=ghosts, updates={"value": False}))
+    assert wait_until(lambda: session.show_ik.value is False, 10)
+    presenter.send(_messages.GuiUpdateMessage(uuid=population, updates={"value": 12}))
+    assert wait_until(lambda: app.panel.population.value == 12, 10)
+    app.panel.population.value = 10
+    text = caplog.text
+    assert "Task exception was never retrieved" not in text and "Traceback" not in text, text[-3000:]
+    lines = [r.getMessage() for r in caplog.records if "invalid message" in r.getMessage()]
+    assert 1 <= len(lines) <= 2, lines  # one per tab (the viewer's and the presenter's)
+    assert len(caplog.records) <= 4, [r.getMessage() for r in caplog.records][:10]
+
+
+def test_wrong_tokens_are_logged_by_address_and_limited_per_address(app, caplog):
+    """Every wrong try is logged with the tab's address (never the token); after 5 wrong tries from an
+    address within a minute, its tabs are viewers without comparison (even with the right token),
+    logged once; a minute later the right token works again."""
+    import logging
+    import urllib.parse
+
+    from app.classroom import access as access_module
+
+    caplog.set_level(logging.WARNING, logger="app.classroom.access")
+    now = [1000.0]
+    app.access.clock, app.access._wrong, app.access._locked_told = (lambda: now[0]), {}, {}
+    right = urllib.parse.unquote(app.presenter_url.split("websocket=")[1])
+    try:
+        for k in range(access_module.MAX_WRONG + 2):
+            probe = tab_of(app.url + f"/?token=guess{k}")
+            probe.close()
+        probe = tab_of(right)  # locked: not even compared
+        try:
+            probe.wait_for(lambda m: m["type"] == "GuiMarkdownMessage" and "Viewer" in str(m))
+        finally:
+            probe.close()
+        lines = [r.getMessage() for r in caplog.records]
+        wrong = [m for m in lines if "wrong token from 127.0.0.1" in m]
+        locked = [m for m in lines if "wrong tries from 127.0.0.1" in m]
+        assert len(wrong) == access_module.MAX_WRONG and len(locked) == 1, lines
+        assert not any(TOKEN in m or "guess" in m for m in lines)
+        now[0] += access_module.WRONG_WINDOW + 1  # the window has passed
+        probe = tab_of(right)
+        try:
+            time.sleep(1.0)
+            assert not any(m["type"] == "GuiMarkdownMessage" and "Viewer" in str(m) for _t, m in probe.messages)
+        finally:
+            probe.close()
+    finally:
+        app.access.clock, app.access._wrong, app.access._locked_told = time.monotonic, {}, {}
+
+
+def test_a_short_presenter_token_is_refused_and_one_can_come_from_a_file_or_the_environment(tmp_path, capsys,
+                                                                                             monkeypatch):
+    from app.__main__ import TOKEN_ENV, main, parse, presenter_token
+
+    monkeypatch.delenv(TOKEN_ENV, raising=False)
+    assert main(["--presenter-token", "a", "--port", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "at least 16" in err and "ps" in err  # refused, and told it shows in ps
+    good = "a-Long-Enough-Token_123"
+    (tmp_path / "token").write_text(good + "\n")
+    assert presenter_token(parse(["--presenter-token-file", str(tmp_path / "token")])) == (good, None)
+    assert capsys.readouterr().err == ""  # no warning: nothing in ps
+    (tmp_path / "short").write_text("abc\n")
+    assert main(["--presenter-token-file", str(tmp_path / "short"), "--port", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--presenter-token-file" in err and "at least 16" in err
+    assert main(["--presenter-token-file", str(tmp_path / "missing"), "--port", "0"]) == 2
+    assert "missing" in capsys.readouterr().err
+    monkeypatch.setenv(TOKEN_ENV, good)
+    assert presenter_token(parse([])) == (good, None)
+    monkeypatch.setenv(TOKEN_ENV, "short")
+    assert main(["--port", "0"]) == 2
+    assert TOKEN_ENV in capsys.readouterr().err
+    assert presenter_token(parse(["--presenter-token", good])) == (good, None)  # still works, with a warning
+    assert "ps" in capsys.readouterr().err

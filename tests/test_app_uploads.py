@@ -84,12 +84,8 @@ def test_one_upload_at_a_time_and_the_last_file_is_not_kept(app, tab):
     button, first = start(tab, "a.rrd", 2 * MiB, 2)
     part(tab, button, first, 0, b"R" * MiB)
     assert wait_until(lambda: first in viser_private.buffered_uploads(app.server))
-    other = Probe(app.url).start()
-    try:
-        start(other, "b.rrd", MiB, 1)
-        notified(other, "another upload is under way")
-    finally:
-        other.close()
+    start(tab, "b.rrd", MiB, 1)  # one at a time per tab (another tab's is not held up: see below)
+    notified(tab, "another upload from this tab is under way")
     part(tab, button, first, 1, b"R" * MiB)  # complete: not a recording, refused by the app
     notified(tab, "not a Rerun recording")
     assert wait_until(lambda: app.runs.uploads.in_flight() == 0)
@@ -150,3 +146,59 @@ def test_a_file_that_fails_its_check_leaves_nothing(tmp_path):
     with pytest.raises(ValueError):
         save_upload(str(tmp_path), "x.rrd", b"RRF", check=bad)
     assert os.listdir(tmp_path) == []
+
+
+def test_an_upload_declaring_absurd_part_counts_is_refused_as_it_starts(app, tab):
+    """A billion parts for 1 MiB, more parts than bytes, more than a 200 MiB file has: refused as the
+    transfer starts, nothing held; a transfer whose bytes are all in but not its parts is dropped at once."""
+    for name, size, parts, said in (("huge.rrd", MiB, 10**9, "1,000,000,000 parts"), ("tiny.rrd", 10, 11, "11 parts"),
+                                    ("many.rrd", 100 * MiB, 401, "401 parts")):
+        button, transfer = start(tab, name, size, parts)
+        notified(tab, said)
+        part(tab, button, transfer, 0, b"R" * 10)
+        time.sleep(0.1)
+        assert viser_private.buffered_uploads(app.server) == {} and app.runs.uploads.in_flight() == 0
+        app.runs.uploads._starts.clear()
+    button, transfer = start(tab, "short.rrd", MiB, 3)
+    part(tab, button, transfer, 0, b"R" * MiB)  # every byte, in one of the 3 parts it declared
+    notified(tab, "in 1 of the 3 parts it declared")
+    assert wait_until(lambda: viser_private.buffered_uploads(app.server) == {} and app.runs.uploads.in_flight() == 0)
+
+
+def test_a_stalled_upload_of_one_tab_does_not_hold_up_another_tabs(app, tab):
+    button, stalled = start(tab, "stalled.rrd", 2 * MiB, 2)
+    part(tab, button, stalled, 0, b"R" * MiB)  # and never the rest
+    assert wait_until(lambda: stalled in viser_private.buffered_uploads(app.server))
+    other = Probe(app.url).start()
+    try:
+        t0 = time.monotonic()
+        other_button, transfer = start(other, "b.rrd", MiB, 1)
+        part(other, other_button, transfer, 0, b"R" * MiB)
+        notified(other, "not a Rerun recording")  # whole, and handled by the app: not held up
+        assert time.monotonic() - t0 < 5.0
+        assert not any("under way" in str(m) for _t, m in other.messages)
+    finally:
+        other.close()
+    assert wait_until(lambda: list(viser_private.buffered_uploads(app.server)) == [stalled])
+    viser_private.drop_upload(app.server, stalled)
+    app.runs.uploads._active.clear()
+
+
+def test_the_memory_held_by_uploads_under_way_is_capped_and_the_waiting_tab_told_why(tmp_path):
+    guard = UploadGuard(str(tmp_path), max_in_flight=300)
+    assert guard.start(1, "a", "a.rrd", 200, 1)
+    assert "another upload from this tab" in guard.refusal(1, "c.rrd", 10, "c")
+    why = guard.refusal(2, "b.rrd", 200, "b")
+    assert "must wait" in why and "b.rrd" in why
+    assert guard.refusal(2, "b.rrd", 100, "b") is None
+
+
+def test_refusals_name_the_file_as_the_user_did_never_the_servers_paths(app, tab):
+    content = b"RRF2" + b"\0" * 2000  # looks like a recording, is not one
+    button, transfer = start(tab, "C:\\Users\\me\\mine.rrd", len(content), 1)
+    part(tab, button, transfer, 0, content)
+    m = notified(tab, "cannot be replayed")
+    text = str(m)
+    assert "mine.rrd" in text
+    for hidden in (app.recordings, os.path.abspath(app.recordings), "uploads/", ".upload-", ".part", "/tmp"):
+        assert hidden not in text, (hidden, text)

@@ -211,3 +211,25 @@ def test_the_private_api_for_guarding_uploads_is_still_there(server):
     assert viser_private.upload_api_missing(server) == [], f"viser {viser.__version__} changed"
     viser_private.guard_uploads(server, lambda *a: True, lambda *a: True)
     assert viser_private.upload_api_missing(server) == [] and viser_private.buffered_uploads(server) == {}
+
+
+def test_the_message_gate_checks_each_value_against_its_element():
+    """install_message_gate's check (app/viser_private.py: gui_update_problem): a browser sends only
+    {"value": ...} of the element's type; anything else is dropped before viser casts it."""
+    from types import SimpleNamespace as S
+
+    problem = viser_private.gui_update_problem
+    number, box, text = S(value=1.0), S(value=True), S(value="planar", options=("planar", "ur5"))
+    assert problem(number, {"value": 2}) is None and problem(number, {"value": 2.5}) is None
+    for bad in (float("nan"), float("inf"), "abc", True, None, [1]):
+        assert problem(number, {"value": bad}) is not None, bad
+    assert problem(box, {"value": False}) is None and problem(box, {"value": "abc"}) is not None
+    assert problem(box, {"color": "red"}) is not None and problem(box, {"value": True, "x": 1}) is not None
+    assert problem(text, {"value": "ur5"}) is None and problem(text, {"value": "kuka"}) is not None
+    assert problem(S(value=(1.0, 2.0)), {"value": [3, 4.5]}) is None
+    assert problem(S(value=(1.0, 2.0)), {"value": [3, float("nan")]}) is not None
+    assert problem(S(value=False, is_button=True), {"value": True}) is None
+    assert problem(S(value=False, is_button=True), {"value": False}) is not None
+    assert problem(number, "not a dict") is not None
+    viser_private.install_message_gate()
+    viser_private.install_message_gate()  # idempotent

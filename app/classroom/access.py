@@ -18,17 +18,30 @@ Who is restricted: beyond loopback (any --host that is not 127.0.0.1, ::1, local
 presenters; on loopback every tab is a presenter unless a presenter token is given; `open=True`
 (`--open`) lifts the restriction on purpose. Tokens are compared in constant time
 (hmac.compare_digest), never logged, never written to the notebook or recordings.
+
+Wrong tries (as Jupyter, whose login handler logs each failed login with the client's address and
+never the token; Jupyter has no lockout, the lab adds one): every tab that connects with a wrong
+token is logged with its address; after MAX_WRONG (5) wrong tries from one address within
+WRONG_WINDOW (60 s) further tabs from that address are viewers without their token being compared
+(logged once per lockout) until the window has passed. A token given by the user must be at least
+MIN_TOKEN (16) characters (`token_problem`, checked by `python -m app` at startup; a random one is
+24 bytes, 32 characters, as Jupyter's is 24 random bytes).
 """
 
 from __future__ import annotations
 
 import hmac
 import ipaddress
+import logging
 import secrets
 import threading
 import time
 
 from app import viser_private
+
+log = logging.getLogger(__name__)
+MIN_TOKEN = 16  # characters of a presenter token the user gives
+MAX_WRONG, WRONG_WINDOW = 5, 60.0  # wrong tries per address in this many seconds, then no comparison
 
 VIEWER_LINE = ("**Viewer.** The presenter controls the run and the shared settings; your goal markers, "
                "IK ghosts and camera are your own.")
@@ -46,15 +59,30 @@ def is_loopback(host: str) -> bool:
         return False
 
 
+def token_problem(token: str) -> str | None:
+    """Why a presenter token the user gave is not accepted (None: it is)."""
+    if not token or not viser_private.SAFE_VALUE.fullmatch(token):
+        return "the presenter token must be letters, digits and . _ ~ - only"
+    if len(token) < MIN_TOKEN:
+        return (f"the presenter token is {len(token)} characters; at least {MIN_TOKEN} are needed "
+                f"(a short one is guessed in seconds); leave it out for a random one")
+    return None
+
+
 class Access:
-    def __init__(self, host: str, token: str | None = None, open: bool = False):  # noqa: A002
-        """token: the presenter token (None: a random one where one is needed)."""
+    def __init__(self, host: str, token: str | None = None, open: bool = False,  # noqa: A002
+                 clock=time.monotonic):
+        """token: the presenter token (None: a random one where one is needed). Any length is
+        accepted here (tests); `python -m app` refuses a short one (token_problem)."""
         if token is not None and (not token or not viser_private.SAFE_VALUE.fullmatch(token)):
             raise ValueError("the presenter token must be letters, digits and . _ ~ - only")
         self.restricted = not open and (token is not None or not is_loopback(host))
-        self.token = (token or secrets.token_urlsafe(18)) if self.restricted else None
+        self.token = (token or secrets.token_urlsafe(24)) if self.restricted else None
         self._roles: dict[int, bool] = {}  # client id -> presenter?
         self._viewers: dict[int, dict] = {}  # client id -> {client, since, applied}
+        self._wrong: dict[str, list] = {}  # address -> times of its recent wrong tries
+        self._locked_told: dict[str, float] = {}  # address -> when its lockout was logged
+        self.clock = clock
         self._lock = threading.Lock()
         self.server = None
 
@@ -76,13 +104,44 @@ class Access:
         if role is None:
             try:
                 query = viser_private.connection_query(self.server, client_id)
+                address = viser_private.connection_address(self.server, client_id)
             except viser_private.ViserChanged:  # fail closed: a viewer
-                query = {}
-            role = hmac.compare_digest((query or {}).get("token", "").encode(), self.token.encode())
+                query, address = {}, None
+            role = self._try(client_id, address, (query or {}).get("token", "")) if query is not None else False
             if query is not None:  # a tab that has gone is not remembered
                 with self._lock:
                     self._roles[client_id] = role
         return role
+
+    def _try(self, client_id: int, address: str | None, given: str) -> bool:
+        """Whether `given` is the token, for a tab from `address`: a wrong one is logged (address,
+        never the token) and counted; an address with MAX_WRONG wrong tries in WRONG_WINDOW is not
+        compared at all (its tabs are viewers; logged once per lockout)."""
+        if not given:  # no token: an ordinary viewer, not a try
+            return False
+        where = address or "unknown address"
+        now = self.clock()
+        with self._lock:
+            tries = self._wrong.setdefault(where, [])
+            tries[:] = [t for t in tries if now - t < WRONG_WINDOW]
+            locked = len(tries) >= MAX_WRONG
+            tell = locked and now - self._locked_told.get(where, -WRONG_WINDOW) >= WRONG_WINDOW
+            if tell:
+                self._locked_told[where] = now
+        if locked:
+            if tell:
+                log.warning("presenter token: %d wrong tries from %s within %g s; its tabs are viewers without "
+                            "their token being compared until %g s after the last wrong try", MAX_WRONG, where,
+                            WRONG_WINDOW, WRONG_WINDOW)
+            return False
+        if hmac.compare_digest(given.encode(), self.token.encode()):
+            return True
+        with self._lock:
+            tries.append(now)
+            n = len(tries)
+        log.warning("presenter token: wrong token from %s (tab %s; %d of %d wrong tries allowed in %g s)",
+                    where, client_id, n, MAX_WRONG, WRONG_WINDOW)
+        return False
 
     def refusal(self, client_id: int) -> str | None:
         """None when this tab may change shared state, else the reason."""

@@ -132,7 +132,9 @@ class RunsPanel:
             controller = lab.controller_from_dict(doc["controller"])
             robot = rec.protocol.get("robot") or rec.protocol["config"]["robot"]
         except Exception as e:  # not a recording, not a lab run, damaged beyond salvage
-            return self.refuse(client, f"refused: {os.path.basename(path)} cannot be replayed: {e}")
+            name = os.path.basename(path)  # the message names the file, not where the server keeps it
+            why = str(e).replace(os.path.abspath(path), name).replace(str(path), name)
+            return self.refuse(client, f"refused: {name} cannot be replayed: {why}")
         gen = int(doc["generation"])
         msg = self._show(robot, controller, f"replay {os.path.basename(path)}, generation {gen + 1}", client)
         if msg is not None:
@@ -158,7 +160,7 @@ class RunsPanel:
         try:
             path = save_upload(os.path.join(self.app.recordings, "uploads"), name, content, check=read_recording)
         except OSError as e:
-            return self.refuse(client, f"refused: {shown} could not be saved: {e.strerror or e}")
+            return self.refuse(client, f"refused: {shown} could not be saved: {e.strerror or type(e).__name__}")
         except Exception as e:  # noqa: BLE001 - not a readable recording
             return self.refuse(client, f"refused: {shown} cannot be replayed: {e}")
         self.refresh(force=True)

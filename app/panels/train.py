@@ -237,7 +237,9 @@ class TrainingPanel:
         return self._simple(self.state.resume, client)
 
     def stop(self, client=None):
-        return self._simple(self.state.stop, client)
+        msg = self._simple(self.state.stop, client)
+        self._tell_notice()
+        return msg
 
     def reset(self, client=None):
         """Stop any run and show an untrained network: the first generation's best of the run that
@@ -248,6 +250,7 @@ class TrainingPanel:
             config = None
         self.state.reset(untrained=config)
         self.message.content = ""
+        self._tell_notice()
         self._shown_gen = -1
         self.refresh(force=True)
 
@@ -255,6 +258,7 @@ class TrainingPanel:
         """Stop any run and show the arm's trained network again (the one it opened with)."""
         self.state.reset()
         self.message.content = ""
+        self._tell_notice()
         self._shown_gen = -1
         self.refresh(force=True)
 
@@ -270,6 +274,11 @@ class TrainingPanel:
                  "paused": ("Resume", "Step", "Stop", "Reset")}[now]
         for name, button in self.buttons.items():
             button.visible = name in shown
+
+    def _tell_notice(self) -> None:
+        """A run's end the class should know of (a worker killed after Stop): in the shared message."""
+        if self.state.notice:
+            self.message.content = f"**{self.state.notice}**"
 
     # ------------------------------------------------------------------ progress
     def _build_curves(self, racing: bool) -> None:
@@ -326,5 +335,7 @@ class TrainingPanel:
                        + (f", recording `{partner.recording}`" if partner.recording else ""))
             status += "  \n" + lead_line(self.state.track, partner.track, run_label(self.state.runner.config),
                                           partner.label)
+        if self.state.notice:
+            status += f"  \n{self.state.notice}"
         self.status.content = status
         self.watching.refresh_live(force)

@@ -22,7 +22,7 @@ import lab
 import robots
 from lab.running.history import History
 from lab.running.runner import speed_period
-from lab.running.worker import ProcessRunner
+from lab.running.worker import STOP_GRACE, ProcessRunner
 
 from app.classroom.limits import refusal as limits_refusal
 from app.startup import made_for
@@ -109,6 +109,8 @@ class LabState:
         self.track: RunTrack | None = None  # the run's live numbers and population (app/training/live.py)
         self.partner: Partner | None = None  # a race's second run
         self.speed: float | None = speed  # generations per second (None: no cap), for every run
+        self.stop_grace = STOP_GRACE  # s Stop waits for a worker before killing it (stop())
+        self.notice: str | None = None  # what the class is told about the last run's end (the status shows it)
         self.replaying = False  # the arms show a replayed controller, not the run's best
         self.replayed_population = None  # the population a replayed recording logged at its generation
         self._startup = startup
@@ -230,6 +232,7 @@ class LabState:
             except Exception as e:
                 return f"refused: cannot build this run: {e}"
             recordings = [self._record(r) for r in runners]
+            self.notice = None
             self._clear_history()
             self.runner, self.recording, self.replaying = runners[0], recordings[0], False
             self.track = RunTrack(lab.methods.get(config.method))
@@ -291,20 +294,37 @@ class LabState:
             r.set_speed(generations_per_second)
 
     def stop(self) -> str | None:
+        """Stop every run going. A worker that has not ended its run stop_grace s after Stop is killed:
+        its run ends "stopped" with the generations it had sent (the notebook entry's error says it
+        was killed), and `notice` says so to the class."""
         going = self._going()
         if not going:
             return "refused: no run is going"
         for r in going:
             r.stop(wait=False)
+        deadline = time.monotonic() + self.stop_grace
         for r in going:
-            r.stop(wait=True, timeout=10)
+            r.join(max(0.0, deadline - time.monotonic()))
+        silent = [r for r in going if not r.done]
+        partner = self.partner.runner if self.partner is not None else None
+        for r in silent:
+            r.kill(f"the training process did not answer Stop within {self.stop_grace:g} s and was killed")
+        for r in silent:
+            r.join(10)
+        if silent:
+            self.notice = "; ".join(
+                f"the {'partner' if r is partner else 'run'}'s training process ({run_label(r.config)}) did not "
+                f"answer Stop within {self.stop_grace:g} s and was killed; its entry keeps the "
+                f"{r.snapshot().generation} generations it had sent" for r in silent)
+            self.notice = self.notice[0].upper() + self.notice[1:] + "."
 
     def reset(self, untrained: lab.TrainConfig | None = None) -> None:
         """Stop any run and clear the progress; show the startup controller again or, given a
         config, the untrained network that config's run starts from (the best of its first
         generation, the same controller its first event will show)."""
+        self.notice = None
         if self.running:
-            self.stop()
+            self.stop()  # a worker that does not answer is killed: `notice` says so
         first = self.untrained(untrained) if untrained is not None else None
         with self._lock:
             self.runner, self.recording, self.partner, self.track = None, None, None, None

@@ -34,6 +34,9 @@ from lab.running import pipes
 from lab.running.config import TrainConfig
 from lab.running.runner import RunBase, RunSummary, speed_period
 
+# s: how long stop_or_kill waits for a worker to end its run after Stop before killing it (a worker
+# that does not answer: stopped with SIGSTOP, hung in a native call, swapped out)
+STOP_GRACE = 5.0
 # s: the reader takes the worker's events in batches this far apart (hundreds of generations a second
 # would otherwise wake it, and take the GIL from the app's threads, hundreds of times a second)
 READ_PERIOD = 0.02
@@ -59,6 +62,8 @@ class ProcessRunner(RunBase):
         self._send_lock = threading.Lock()
         self._stop_asked = False
         self._speed: float | None = None
+        self.stop_grace = STOP_GRACE  # s, see stop_or_kill
+        self._killed: str | None = None  # why the worker was killed (its summary's error)
 
     @property
     def pid(self) -> int | None:
@@ -118,6 +123,31 @@ class ProcessRunner(RunBase):
         if wait:
             self._done.wait(timeout)
 
+    def stop_or_kill(self, grace: float | None = None) -> bool:
+        """Stop; a worker that has not ended its run `grace` s later (default: stop_grace) is killed
+        (SIGKILL: a process stopped by SIGSTOP cannot act on SIGTERM). The run then ends "stopped"
+        with the generations the worker had sent (its summary's error says it was killed). Returns
+        whether the worker had to be killed."""
+        grace = self.stop_grace if grace is None else grace
+        self.stop(wait=True, timeout=grace)
+        if self._proc is None or self._done.is_set():
+            return False
+        self.kill(f"the training process did not answer Stop within {grace:g} s and was killed")
+        self._done.wait(max(grace, 5.0))  # the reader sees the end of the pipe and concludes
+        return True
+
+    def kill(self, reason: str) -> None:
+        """End the worker at once; the run ends "stopped" with the generations received, `reason`
+        as its summary's error."""
+        if self._proc is None or self._done.is_set():
+            return
+        self._killed = reason
+        log.warning("run %s: %s", self.run_id, reason)
+        try:
+            self._proc.kill()
+        except OSError:  # already gone
+            pass
+
     def _command(self, *message) -> None:
         with self._send_lock:
             try:
@@ -143,7 +173,9 @@ class ProcessRunner(RunBase):
         self._proc.stdin.close()
         self._proc.stdout.close()
         code = self._proc.wait()
-        if summary is None:
+        if summary is None and self._killed is not None:  # killed by stop_or_kill: what it had sent counts
+            self._conclude(self._summarize("stopped", decode.controller, self._killed))
+        elif summary is None:
             self._conclude(self._summarize("failed", decode.controller,
                                            error or f"the training process exited with code {code}"))
         else:
