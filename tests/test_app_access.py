@@ -259,7 +259,7 @@ def test_invalid_values_to_any_control_are_dropped_and_logged_once_per_tab(app, 
     caplog.set_level(logging.WARNING)
     assert wait_until(lambda: len(app.sessions) >= 2)
     viewer_id = max(app.sessions)
-    ghosts = gui_uuid(viewer, "IK ghosts (refined network, DLS)")
+    ghosts = gui_uuid(viewer, "Classical IK beside it")
     session = app.sessions[viewer_id]
     assert ghosts in session.client.gui._gui_input_handle_from_uuid  # a per-tab control
     slider = session.replay.slider._impl.uuid  # the viewer's own replay slider
@@ -271,11 +271,11 @@ def test_invalid_values_to_any_control_are_dropped_and_logged_once_per_tab(app, 
         viewer.send(_messages.GuiUpdateMessage(uuid=(ghosts, slider)[k % 2], updates=bads[k % len(bads)]))
         presenter.send(_messages.GuiUpdateMessage(uuid=population, updates=bads[k % len(bads)]))
     time.sleep(1.0)
-    assert app.panel.population.value == 10 and session.show_ik.value is True
+    assert app.panel.population.value == 10 and session.show_ik.value is False
     assert session.replay.slider.value == 0
     # a good message still works, in both tabs
-    viewer.send(_messages.GuiUpdateMessage(uuid=ghosts, updates={"value": False}))
-    assert wait_until(lambda: session.show_ik.value is False, 10)
+    viewer.send(_messages.GuiUpdateMessage(uuid=ghosts, updates={"value": True}))
+    assert wait_until(lambda: session.show_ik.value is True, 10)
     presenter.send(_messages.GuiUpdateMessage(uuid=population, updates={"value": 12}))
     assert wait_until(lambda: app.panel.population.value == 12, 10)
     app.panel.population.value = 10
