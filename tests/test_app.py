@@ -244,6 +244,36 @@ def test_two_apps_sharing_a_notebook_lose_no_entry(tmp_path):
     assert ids == {f"{w}{k}" for w in "ab" for k in range(40)}
 
 
+def test_a_race_of_one_method_and_seed_records_two_files(tmp_path, monkeypatch):
+    """Both runs of a race start in the same second; with the same method and seed they still get a
+    recording each, whole, and each notebook entry points at its own."""
+    from datetime import datetime
+
+    import lab.recording.logger as logger_module
+    from app.server import rerun_recorder
+
+    class Frozen(datetime):  # one second for both, however slow the machine
+        @classmethod
+        def now(cls, tz=None):
+            return cls(2026, 12, 4, 11, 5, 0)
+
+    monkeypatch.setattr(logger_module, "datetime", Frozen)
+    from app.training.state import LabState
+    from lab.recording.replay import read_recording
+
+    state = LabState("planar", Notebook(str(tmp_path / "notebook.db")), recorder=rerun_recorder(str(tmp_path / "rec")))
+    config = lab.TrainConfig(robot="planar", method="cmaes", seed=0, generations=15, population=8, targets=10,
+                             test_goals=10)
+    assert state.start(config, partner=config) is None
+    assert state.recording != state.partner.recording
+    assert wait_until(lambda: len(state.notebook.entries()) == 2, 120)
+    entries = state.notebook.entries()
+    assert len({e["recording"] for e in entries}) == 2
+    for e in entries:
+        rec = read_recording(e["recording"])
+        assert (rec.salvaged, rec.last_generation, rec.protocol["run_id"]) == (False, 14, e["run_id"])
+
+
 def test_python_m_app_refuses_bad_paths_and_hosts_before_starting(tmp_path, capsys):
     from app.__main__ import main
 
