@@ -383,7 +383,7 @@ def test_a_read_only_notebook_is_listed_and_not_written(tmp_path, monkeypatch, c
             nb = Notebook(str(path))
             assert nb.read_only == why
             nb.add({"run_id": "session1", "robot": "planar", "method": "neat"})
-            assert [e["run_id"] for e in nb.entries()] == ["kept1", "session1"]  # this session's run: listed
+            assert [e["run_id"] for e in nb.entries()] == ["kept1", "session1"]  # a run added while read-only: listed
         [line] = [r.getMessage() for r in caplog.records]  # said once, clearly
         assert f"notebook {path} is read-only ({why})" in line and "new runs are not written" in line
         assert _sha(path) == before and sorted(os.listdir(tmp_path)) == ["nb.db"]

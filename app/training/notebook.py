@@ -24,8 +24,8 @@ left byte for byte as it was: it is read through SQLite's immutable=1 URI, which
 (no -wal or -shm file) beside it.
 
 A notebook that cannot be written (the file or its folder is read-only, by os.access, or SQLite
-says so) is opened read-only: its runs are listed, the runs of this session are listed too but not
-written, and that is said once (a warning; `read_only` names why). An entry that is not a run (not
+says so) is opened read-only: its runs are listed, the runs added since it was opened are listed
+too but not written, and that is said once (a warning; `read_only` names why). An entry that is not a run (not
 JSON, not a JSON object, no text run_id, robot or method) is kept as it is but not listed;
 `skipped()` names them (by run_id, else by its row: "seq N") and one log line says why.
 """
@@ -73,7 +73,7 @@ class Notebook:
             legacy = beside if os.path.basename(self.path) == "notebook.db" else None
         self._lock = threading.Lock()
         self._skipped: list[str] = []
-        self._unsaved: dict[str, dict] = {}  # a read-only notebook: this session's runs, listed only
+        self._unsaved: dict[str, dict] = {}  # a read-only notebook: the runs added since it was opened, listed only
         self.read_only: str | None = None
         self._check(self.path, sqlite=True)
         self._inspect()  # refuses what is not a lab notebook, writing nothing
