@@ -640,7 +640,8 @@ def test_every_way_of_stopping_the_app_notes_the_run_and_closes_its_recording(tm
         probe = Probe(url).start()
         probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
         probe.click("Start")  # the default planar run: 1000 generations, long enough
-        assert wait_until(lambda: any(rec.glob("*.rrd")), timeout=30)
+        # the writer has started (a name is claimed, empty, at Start; the writer fills it)
+        assert wait_until(lambda: any(f.stat().st_size > 0 for f in rec.glob("*.rrd")), timeout=30)
         time.sleep(2.0)  # generations go by
         probe.close()
     finally:
