@@ -337,6 +337,24 @@ def test_a_bad_row_is_skipped_by_name_and_the_others_are_listed(tmp_path, caplog
     assert "'cut' (not JSON" in line and "seq 3 (not a JSON object)" in line and "'num' (not a JSON object)" in line
 
 
+def test_a_notebook_that_cannot_be_read_lists_the_runs_read_last(tmp_path, monkeypatch, caplog):
+    import sqlite3
+
+    nb = Notebook(str(tmp_path / "nb.db"))
+    nb.add({"run_id": "r1", "robot": "planar", "method": "cmaes"})
+    assert [e["run_id"] for e in nb.entries()] == ["r1"]
+
+    def locked(self):
+        raise sqlite3.OperationalError("database is locked")
+
+    monkeypatch.setattr(Notebook, "_rows", locked)
+    with caplog.at_level("WARNING", logger="app.training.notebook"):
+        assert [e["run_id"] for e in nb.entries()] == ["r1"]  # the render loop goes on
+        assert [e["run_id"] for e in nb.entries()] == ["r1"]
+    [line] = [r.getMessage() for r in caplog.records]
+    assert "cannot be read (database is locked)" in line
+
+
 def test_a_bad_row_leaves_the_runs_list_working(app):
     """The render loop's Runs list (and the lesson links and replay lists after it) goes on."""
     import sqlite3

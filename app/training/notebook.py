@@ -73,6 +73,8 @@ class Notebook:
             legacy = beside if os.path.basename(self.path) == "notebook.db" else None
         self._lock = threading.Lock()
         self._skipped: list[str] = []
+        self._listed: list[dict] = []  # what entries() read last
+        self._unreadable: str | None = None  # why the last entries() could not read the file
         self._unsaved: dict[str, dict] = {}  # a read-only notebook: the runs added since it was opened, listed only
         self.read_only: str | None = None
         self._check(self.path, sqlite=True)
@@ -233,9 +235,18 @@ class Notebook:
         return self._select("SELECT seq, run_id, entry FROM runs ORDER BY seq")
 
     def entries(self) -> list[dict]:
-        """The runs, oldest first; entries that are not runs are left out (see skipped())."""
+        """The runs, oldest first; entries that are not runs are left out (see skipped()). When the
+        file cannot be read (locked past the timeout, gone, damaged since), the last list, said once."""
+        try:
+            rows = self._rows()
+        except sqlite3.Error as e:
+            if str(e) != self._unreadable:
+                log.warning("notebook %s cannot be read (%s): the runs read last are listed", self.path, e)
+            self._unreadable = str(e)
+            return list(self._listed)
+        self._unreadable = None
         runs, skipped, why = [], [], []
-        for seq, run_id, text in self._rows():
+        for seq, run_id, text in rows:
             try:
                 e = json.loads(text)
             except (TypeError, ValueError) as err:  # not text, not JSON (UnicodeDecodeError is a ValueError)
@@ -253,8 +264,8 @@ class Notebook:
         runs += self._unsaved.values()
         if skipped != self._skipped:
             log.warning("notebook %s: entries skipped, not runs: %s", self.path, ", ".join(why))
-        self._skipped = skipped
-        return runs
+        self._skipped, self._listed = skipped, runs
+        return list(runs)
 
     def skipped(self) -> list[str]:
         """The names of the entries the last entries() left out: repr(run_id), or "seq N"."""
