@@ -229,6 +229,195 @@ def test_malformed_entries_are_skipped_by_name_and_the_others_stay_listed(tmp_pa
         nb.add({"run_id": 7, "robot": "planar", "method": "cmaes"})
 
 
+def _sha(path) -> str:
+    import hashlib
+
+    return hashlib.sha256(open(path, "rb").read()).hexdigest()
+
+
+def _old_notebook(path, entries) -> None:
+    """A notebook.db as earlier versions made it (no application_id, no user_version)."""
+    import sqlite3
+
+    db = sqlite3.connect(path, isolation_level=None)
+    db.execute("PRAGMA journal_mode=WAL")
+    db.execute("CREATE TABLE runs (seq INTEGER PRIMARY KEY AUTOINCREMENT, run_id TEXT UNIQUE, entry TEXT NOT NULL)")
+    db.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)")
+    for e in entries:
+        db.execute("INSERT INTO runs (run_id, entry) VALUES (?, ?)", (e["run_id"], json.dumps(e)))
+    db.close()
+
+
+def test_a_notebook_of_earlier_versions_opens_with_its_entries_and_gets_the_marker(tmp_path):
+    import sqlite3
+
+    from app.training.notebook import APPLICATION_ID, SCHEMA_VERSION
+
+    path = tmp_path / "notebook.db"
+    _old_notebook(path, [{"run_id": "old1", "robot": "planar", "method": "cmaes", "generations": 7}])
+    (tmp_path / "notebook.json").write_text(json.dumps([{"run_id": "js1", "robot": "planar", "method": "neat"}]))
+    nb = Notebook(str(path))
+    assert [e["run_id"] for e in nb.entries()] == ["old1", "js1"]  # the JSON of before: imported once
+    assert nb.read_only is None
+    nb.add({"run_id": "new1", "robot": "planar", "method": "cmaes"})
+    db = sqlite3.connect(path)
+    assert db.execute("PRAGMA application_id").fetchone()[0] == APPLICATION_ID
+    assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
+    db.close()
+    assert [e["run_id"] for e in Notebook(str(path)).entries()] == ["old1", "js1", "new1"]
+    fresh = tmp_path / "fresh.db"
+    Notebook(str(fresh))
+    with open(fresh, "rb") as f:
+        head = f.read(100)
+    assert int.from_bytes(head[68:72], "big") == APPLICATION_ID and int.from_bytes(head[60:64], "big") == SCHEMA_VERSION
+
+
+def test_another_programs_database_is_refused_by_name_and_left_byte_for_byte(tmp_path):
+    """A SQLite file of another program (other tables, another `runs`, another application_id, a
+    newer notebook, a damaged one) is refused, and nothing is written into it or beside it."""
+    import sqlite3
+
+    from app.training.notebook import APPLICATION_ID
+
+    def database(name, *statements, wal=False):
+        path = tmp_path / name
+        db = sqlite3.connect(path, isolation_level=None)
+        if wal:
+            db.execute("PRAGMA journal_mode=WAL")
+        for statement in statements:
+            db.execute(statement)
+        db.close()
+        return path
+
+    cases = [
+        (database("users.db", "CREATE TABLE users (id INTEGER, pw TEXT)", "INSERT INTO users VALUES (1, 'x')"),
+         "a SQLite database with table users"),
+        (database("users-wal.db", "CREATE TABLE users (id INTEGER, pw TEXT)", wal=True),
+         "a SQLite database with table users"),
+        (database("runs.db", "CREATE TABLE runs (id INTEGER PRIMARY KEY, name TEXT)", "INSERT INTO runs VALUES (1, 'a')"),
+         "its table runs has the columns id, name"),
+        (database("both.db", "CREATE TABLE runs (seq INTEGER PRIMARY KEY AUTOINCREMENT, run_id TEXT UNIQUE, entry TEXT NOT NULL)",
+                  "CREATE TABLE users (id INTEGER)"), "a SQLite database with table users"),
+        (database("gpkg.db", "PRAGMA application_id = 1196444487", "CREATE TABLE runs (seq, run_id, entry)"),
+         "another program: application_id 0x47504b47"),
+        (database("newer.db", f"PRAGMA application_id = {APPLICATION_ID}", "PRAGMA user_version = 9"),
+         "a lab notebook of a newer version"),
+        (database("versioned.db", "PRAGMA user_version = 3"), "no tables, user_version 3"),
+    ]
+    damaged = tmp_path / "damaged.db"
+    _old_notebook(damaged, [{"run_id": f"r{k}", "robot": "planar", "method": "cmaes", "pad": "x" * 3000} for k in range(40)])
+    data = bytearray(damaged.read_bytes())
+    data[4096 * 3: 4096 * 3 + 64] = b"\xff" * 64  # a page of the runs table overwritten
+    damaged.write_bytes(bytes(data))
+    cases.append((damaged, "damaged or not a lab notebook \\(SQLite: database disk image is malformed"))
+    for path, what in cases:
+        before, listing = _sha(path), sorted(os.listdir(tmp_path))
+        with pytest.raises(NotebookError, match=f"notebook {re.escape(str(path))} is .*{what}"):
+            Notebook(str(path))
+        assert _sha(path) == before, path
+        assert sorted(os.listdir(tmp_path)) == listing, path  # no -wal, -shm or -journal beside it
+
+
+def test_a_bad_row_is_skipped_by_name_and_the_others_are_listed(tmp_path, caplog):
+    import sqlite3
+
+    path = tmp_path / "nb.db"
+    nb = Notebook(str(path))
+    nb.add({"run_id": "good1", "robot": "planar", "method": "cmaes"})
+    db = sqlite3.connect(path, isolation_level=None)
+    db.execute("INSERT INTO runs (run_id, entry) VALUES ('cut', '{\"run_id\": \"cut\", \"rob')")
+    db.execute("INSERT INTO runs (run_id, entry) VALUES (NULL, '[1, 2]')")
+    db.execute("INSERT INTO runs (run_id, entry) VALUES ('num', '42')")
+    db.execute("INSERT INTO runs (run_id, entry) VALUES ('bytes', X'FFFE00')")
+    db.close()
+    nb.add({"run_id": "good2", "robot": "scara", "method": "neat"})
+    with caplog.at_level("WARNING", logger="app.training.notebook"):
+        assert [e["run_id"] for e in nb.entries()] == ["good1", "good2"]
+        assert [e["run_id"] for e in nb.entries()] == ["good1", "good2"]
+    assert nb.skipped() == ["'cut'", "seq 3", "'num'", "'bytes'"]
+    [line] = [r.getMessage() for r in caplog.records]  # one line, not one per refresh
+    assert "'cut' (not JSON" in line and "seq 3 (not a JSON object)" in line and "'num' (not a JSON object)" in line
+
+
+def test_a_notebook_that_cannot_be_read_lists_the_runs_read_last(tmp_path, monkeypatch, caplog):
+    import sqlite3
+
+    nb = Notebook(str(tmp_path / "nb.db"))
+    nb.add({"run_id": "r1", "robot": "planar", "method": "cmaes"})
+    assert [e["run_id"] for e in nb.entries()] == ["r1"]
+
+    def locked(self):
+        raise sqlite3.OperationalError("database is locked")
+
+    monkeypatch.setattr(Notebook, "_rows", locked)
+    with caplog.at_level("WARNING", logger="app.training.notebook"):
+        assert [e["run_id"] for e in nb.entries()] == ["r1"]  # the render loop goes on
+        assert [e["run_id"] for e in nb.entries()] == ["r1"]
+    [line] = [r.getMessage() for r in caplog.records]
+    assert "cannot be read (database is locked)" in line
+
+
+def test_a_bad_row_leaves_the_runs_list_working(app):
+    """The render loop's Runs list (and the lesson links and replay lists after it) goes on."""
+    import sqlite3
+
+    from app.training.notebook import label
+
+    entry = {"run_id": "listed01", "robot": "planar", "method": "cmaes", "seed": 0}
+    app.state.notebook.add(entry)
+    db = sqlite3.connect(app.state.notebook.path, isolation_level=None)
+    db.execute("INSERT INTO runs (run_id, entry) VALUES ('badrow01', 'not json')")
+    try:
+        app.runs.refresh(force=True)
+        assert label(entry) in app.runs.choice.options
+        assert "'badrow01'" in app.runs.message.content
+    finally:
+        db.execute("DELETE FROM runs WHERE run_id IN ('badrow01', 'listed01')")
+        db.close()
+
+
+def test_the_runs_list_says_the_notebook_is_read_only(app, monkeypatch):
+    monkeypatch.setattr(app.state.notebook, "read_only", "the file is read-only")
+    app.runs.refresh(force=True)
+    assert app.runs.message.content.startswith("Notebook read-only (the file is read-only): new runs are listed")
+    monkeypatch.undo()
+    app.runs.refresh(force=True)
+    assert "read-only" not in app.runs.message.content
+
+
+def test_a_read_only_notebook_is_listed_and_not_written(tmp_path, monkeypatch, caplog):
+    """Tests run as root, whom chmod does not stop: os.access is made to say what it says to a user
+    for a 0444 file (or a read-only folder), and SQLite's own "readonly database" is raised where
+    os.access cannot tell (a read-only mount seen through another user's permissions)."""
+    import sqlite3
+
+    path = tmp_path / "nb.db"
+    Notebook(str(path)).add({"run_id": "kept1", "robot": "planar", "method": "cmaes"})
+    before = _sha(path)
+    real = os.access
+    for locked, why in ((str(path), "the file is read-only"), (str(tmp_path), f"the folder {tmp_path} is read-only")):
+        caplog.clear()
+        monkeypatch.setattr(os, "access", lambda p, mode, **k: False if (os.fspath(p) == locked and mode & os.W_OK)
+                            else real(p, mode, **k))
+        with caplog.at_level("WARNING", logger="app.training.notebook"):
+            nb = Notebook(str(path))
+            assert nb.read_only == why
+            nb.add({"run_id": "session1", "robot": "planar", "method": "neat"})
+            assert [e["run_id"] for e in nb.entries()] == ["kept1", "session1"]  # a run added while read-only: listed
+        [line] = [r.getMessage() for r in caplog.records]  # said once, clearly
+        assert f"notebook {path} is read-only ({why})" in line and "new runs are not written" in line
+        assert _sha(path) == before and sorted(os.listdir(tmp_path)) == ["nb.db"]
+    monkeypatch.setattr(os, "access", real)
+
+    def readonly(self):
+        raise sqlite3.OperationalError("attempt to write a readonly database")
+
+    monkeypatch.setattr(Notebook, "_connect", readonly)
+    nb = Notebook(str(path))
+    assert nb.read_only == "SQLite: attempt to write a readonly database"
+    assert [e["run_id"] for e in nb.entries()] == ["kept1"]
+
+
 def test_two_apps_sharing_a_notebook_lose_no_entry(tmp_path):
     """Two processes add runs to one notebook at once (as two `make app` do): every entry stays."""
     import subprocess
@@ -244,6 +433,36 @@ def test_two_apps_sharing_a_notebook_lose_no_entry(tmp_path):
     assert [p.returncode for p in procs] == [0, 0], errors
     ids = {e["run_id"] for e in Notebook(str(path)).entries()}
     assert ids == {f"{w}{k}" for w in "ab" for k in range(40)}
+
+
+def test_a_race_of_one_method_and_seed_records_two_files(tmp_path, monkeypatch):
+    """Both runs of a race start in the same second; with the same method and seed they still get a
+    recording each, whole, and each notebook entry points at its own."""
+    from datetime import datetime
+
+    import lab.recording.logger as logger_module
+    from app.server import rerun_recorder
+
+    class Frozen(datetime):  # one second for both, however slow the machine
+        @classmethod
+        def now(cls, tz=None):
+            return cls(2026, 12, 4, 11, 5, 0)
+
+    monkeypatch.setattr(logger_module, "datetime", Frozen)
+    from app.training.state import LabState
+    from lab.recording.replay import read_recording
+
+    state = LabState("planar", Notebook(str(tmp_path / "notebook.db")), recorder=rerun_recorder(str(tmp_path / "rec")))
+    config = lab.TrainConfig(robot="planar", method="cmaes", seed=0, generations=15, population=8, targets=10,
+                             test_goals=10)
+    assert state.start(config, partner=config) is None
+    assert state.recording != state.partner.recording
+    assert wait_until(lambda: len(state.notebook.entries()) == 2, 120)
+    entries = state.notebook.entries()
+    assert len({e["recording"] for e in entries}) == 2
+    for e in entries:
+        rec = read_recording(e["recording"])
+        assert (rec.salvaged, rec.last_generation, rec.protocol["run_id"]) == (False, 14, e["run_id"])
 
 
 def test_python_m_app_refuses_bad_paths_and_hosts_before_starting(tmp_path, capsys):
@@ -443,7 +662,8 @@ def test_every_way_of_stopping_the_app_notes_the_run_and_closes_its_recording(tm
         probe = Probe(url).start()
         probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
         probe.click("Start")  # the default planar run: 1000 generations, long enough
-        assert wait_until(lambda: any(rec.glob("*.rrd")), timeout=30)
+        # the writer has started (a name is claimed, empty, at Start; the writer fills it)
+        assert wait_until(lambda: any(f.stat().st_size > 0 for f in rec.glob("*.rrd")), timeout=30)
         time.sleep(2.0)  # generations go by
         probe.close()
     finally:

@@ -251,6 +251,89 @@ def test_default_path_and_a_folder(tmp_path, monkeypatch):
     assert read_recording(logger.path).last_generation is None  # no generation, still a valid file
 
 
+def test_a_default_name_is_claimed_once_in_threads_and_processes(tmp_path):
+    """Loggers that pick a name in the same second (two apps on one folder) each get a file of their
+    own: the name is created (O_EXCL) as it is chosen, the next one gets -2, -3 ..."""
+    import threading
+    from datetime import datetime
+
+    config = lab.TrainConfig(method="cmaes", seed=0, **SHORT)
+    now = datetime(2026, 12, 4, 11, 5, 0)
+    got, start = [], threading.Barrier(6)
+
+    def pick():
+        start.wait()
+        got.append(default_path(config, folder=tmp_path / "rec", now=now))
+
+    threads = [threading.Thread(target=pick) for _ in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(set(got)) == 6 and all(p.is_file() for p in got)
+    code = ("import sys; from datetime import datetime; import lab; from lab.recording.logger import default_path\n"
+            "print(default_path(lab.TrainConfig(method='cmaes', seed=0), folder=sys.argv[1], "
+            "now=datetime(2026, 12, 4, 11, 6, 0)))")
+    procs = [subprocess.Popen([sys.executable, "-c", code, str(tmp_path / "rec")], stdout=subprocess.PIPE, text=True,
+                              cwd=ROOT) for _ in range(2)]
+    paths = [p.communicate(timeout=120)[0].strip() for p in procs]
+    assert [p.returncode for p in procs] == [0, 0]
+    assert len(set(paths)) == 2 and all(Path(p).is_file() for p in paths)
+    assert sorted(Path(p).name for p in paths) == ["planar-cmaes-s0-20261204-110600-2.rrd", "planar-cmaes-s0-20261204-110600.rrd"]
+
+
+def test_two_runs_of_one_method_and_seed_in_one_second_record_two_whole_files(tmp_path, monkeypatch):
+    """As a race of one method and seed (or two apps on one folder) does: two loggers, one folder, one
+    second. Each run is whole in its own file, under its own run id."""
+    import threading
+    from datetime import datetime
+
+    import lab.recording.logger as logger_module
+
+    class Frozen(datetime):
+        @classmethod
+        def now(cls, tz=None):
+            return cls(2026, 12, 4, 11, 5, 0)
+
+    monkeypatch.setattr(logger_module, "datetime", Frozen)
+    config = lab.TrainConfig(method="cmaes", seed=0, **SHORT)
+    runners = [Runner(config) for _ in range(2)]
+    loggers = [RerunLogger(r, path=f"{tmp_path}/rec/") for r in runners]
+    assert loggers[0].path != loggers[1].path
+    for r, g in zip(runners, loggers):
+        r.subscribe(g)
+    threads = [threading.Thread(target=r.run) for r in runners]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for g in loggers:
+        g.close(wait=True)
+    recs = [read_recording(g.path) for g in loggers]
+    assert [(r.salvaged, r.last_generation) for r in recs] == [(False, SHORT["generations"] - 1)] * 2
+    assert {r.protocol["run_id"] for r in recs} == {r.run_id for r in runners}
+
+
+def test_a_logger_that_cannot_start_gives_its_claimed_name_back(tmp_path, monkeypatch):
+    import lab.recording.logger as logger_module
+
+    config = lab.TrainConfig(method="cmaes", **SHORT)
+
+    def no_process(*_a, **_k):
+        raise OSError("no process")
+
+    with monkeypatch.context() as m:
+        m.setattr(logger_module.pipes, "start", no_process)
+        for path in (tmp_path / "run.rrd", f"{tmp_path}/rec/"):
+            with pytest.raises(OSError, match="no process"):
+                RerunLogger(Runner(config), path=path)
+    assert not (tmp_path / "run.rrd").exists() and list((tmp_path / "rec").iterdir()) == []
+    first = RerunLogger(Runner(config), path=tmp_path / "run.rrd")  # an explicit path, claimed too:
+    with pytest.raises(FileExistsError, match="already exists"):  # a second logger is refused
+        RerunLogger(Runner(config), path=tmp_path / "run.rrd")
+    first.close()
+
+
 def test_unwritable_path_is_refused_before_training(tmp_path):
     blocker = tmp_path / "a-file"
     blocker.write_text("not a folder")

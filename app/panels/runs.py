@@ -75,6 +75,9 @@ class RunsPanel:
         entries = self.state.notebook.entries()
         skipped = self.state.notebook.skipped()
         note = f"Notebook entries skipped (not runs): {', '.join(skipped)}" if skipped else ""
+        if self.state.notebook.read_only is not None:  # said here as long as it holds, in the log once
+            note = (f"Notebook read-only ({self.state.notebook.read_only}): new runs are listed until the app "
+                    "stops, not kept." + (f"  \n{note}" if note else ""))
         if note != getattr(self, "_skipped_note", ""):
             self._skipped_note = self.message.content = note
         known = {os.path.realpath(e["recording"]) for e in entries if e.get("recording")}

@@ -68,14 +68,29 @@ FORMAT_VERSION = 1
 
 
 def default_path(config: TrainConfig, folder: str | os.PathLike = "recordings", now: datetime | None = None) -> Path:
-    """recordings/<robot>-<method>-s<seed>-<YYYYmmdd-HHMMSS>.rrd (a -2, -3 ... suffix if taken)."""
+    """recordings/<robot>-<method>-s<seed>-<YYYYmmdd-HHMMSS>.rrd (a -2, -3 ... suffix if taken), claimed:
+    the file is created empty (O_CREAT|O_EXCL) as its name is chosen, so that two loggers started in
+    the same second (two apps on one folder, a race of one method and seed) never share a file.
+    Creates the folder; raises OSError when nothing can be created there."""
     stamp = (now or datetime.now()).strftime("%Y%m%d-%H%M%S")
     stem = Path(folder) / f"{config.robot}-{config.method}-s{config.seed}-{stamp}"
-    path, k = stem.with_suffix(".rrd"), 1
-    while path.exists():
-        k += 1
-        path = Path(f"{stem}-{k}.rrd")
-    return path
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    for k in range(1, 10_000):
+        path = stem.with_suffix(".rrd") if k == 1 else Path(f"{stem}-{k}.rrd")
+        if claim(path):
+            return path
+    raise OSError(f"no free name for {stem}.rrd in {folder}")
+
+
+def claim(path: str | os.PathLike) -> bool:
+    """Create `path` empty if nothing is there, atomically (O_CREAT|O_EXCL): True if this call made
+    it (the name is then this caller's), False if something was there already."""
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except FileExistsError:
+        return False
+    os.close(fd)
+    return True
 
 
 def not_a_folder(folder: str | os.PathLike) -> Path | None:
@@ -97,22 +112,26 @@ def _is_recording(path: Path) -> bool:
 
 
 def prepare_path(path: str | os.PathLike | None, config: TrainConfig, overwrite: bool = False) -> Path:
-    """The file to write (a folder gets a default name); raises OSError/ValueError, naming the
-    path, when it cannot be written, and FileExistsError when it names a file that is already
-    there (unless overwrite). Creates missing folders."""
+    """The file to write, claimed (see default_path; a folder gets a default name); raises
+    OSError/ValueError, naming the path, when it cannot be written, and FileExistsError when it names
+    a file that is already there (unless overwrite). Creates missing folders. Unless overwrite, the
+    file is created empty here, atomically: a second logger given the same path is refused."""
     if path is not None and not str(path).strip():
         raise ValueError("recording path is empty; give a .rrd file or a folder (or leave it out for the default)")
-    if path is None:
-        p = default_path(config)
-    elif Path(path).is_dir() or str(path).endswith(("/", os.sep)):
-        p = default_path(config, folder=path)
-    else:
-        p = Path(path)
+    if path is None or Path(path).is_dir() or str(path).endswith(("/", os.sep)):
+        folder = Path("recordings" if path is None else path)
+        blocker = not_a_folder(folder)
+        if blocker is not None:
+            raise OSError(f"cannot write the recording in {folder}: {blocker} is not a folder")
+        try:
+            return default_path(config, folder=folder)
+        except OSError as e:
+            raise OSError(f"cannot write the recording in {folder}: {e.strerror or e}") from e
+    p = Path(path)
     if p.exists() and not p.is_file():
         raise ValueError(f"recording path {p} exists and is not a file")
     if p.exists() and not overwrite:
-        raise FileExistsError(f"recording {p} already exists and was left as it is; give another path "
-                              "(or overwrite it: --overwrite, RerunLogger(..., overwrite=True))")
+        raise FileExistsError(_exists(p))
     if p.exists() and not _is_recording(p):
         raise FileExistsError(f"{p} is not a Rerun recording and was left as it is: only a recording is "
                               "overwritten; give another path")
@@ -126,9 +145,18 @@ def prepare_path(path: str | os.PathLike | None, config: TrainConfig, overwrite:
         os.unlink(probe)
         if p.exists() and not os.access(p, os.W_OK):
             raise PermissionError("file is read-only")
+        if not overwrite and not claim(p):  # taken since the look above: by another logger
+            raise FileExistsError(_exists(p))
+    except FileExistsError:
+        raise
     except OSError as e:
         raise OSError(f"cannot write the recording {p}: {e.strerror or e}") from e
     return p
+
+
+def _exists(p: Path) -> str:
+    return (f"recording {p} already exists and was left as it is; give another path "
+            "(or overwrite it: --overwrite, RerunLogger(..., overwrite=True))")
 
 
 class RerunLogger:
@@ -147,26 +175,32 @@ class RerunLogger:
         config, problem, run_id = _resolve_source(source, problem)
         if not (isinstance(pose_every, int) and pose_every >= 1):
             raise ValueError(f"pose_every must be an integer >= 1, got {pose_every!r}")
+        replaced = path is not None and overwrite and os.path.isfile(path)  # a file of before, not ours to remove
         self.path = prepare_path(path, config, overwrite)
-        self.config, self.problem, self.pose_every, self.compact = config, problem, pose_every, compact
-        self.block_on_end = block_on_end
-        method = methods.get(config.method)
-        if hyperparameters is None:
-            hyperparameters = method.backend.settings(problem, config)  # builds no backend
-        self._rows = pipes.EventEncoder()
-        self._lock = threading.Lock()
-        self._closed = False
-        self._error: str | None = None
-        self._failure: str | None = None  # failure()'s line, once made
-        self._said = False
-        # Rerun's own log lines off (unless RUST_LOG says otherwise): a failure is one line of ours (failure())
-        self._proc = pipes.start("lab.recording.writer", env={"RUST_LOG": "off"})
-        self._fd = self._proc.stdin.fileno()
-        pipes.grow(self._fd)
-        self._send(("start", {
-            "path": str(self.path), "config": config.to_dict(), "method": {k: getattr(method, k) for k in METHOD_VIEW}, "run_id": run_id, "robot": problem.arm.name,
-            "train_goals": np.asarray(problem.train_goals), "goal_seed": problem.goal_seed,
-            "hyperparameters": hyperparameters, "pose_every": pose_every, "compact": compact}))
+        try:
+            self.config, self.problem, self.pose_every, self.compact = config, problem, pose_every, compact
+            self.block_on_end = block_on_end
+            method = methods.get(config.method)
+            if hyperparameters is None:
+                hyperparameters = method.backend.settings(problem, config)  # builds no backend
+            self._rows = pipes.EventEncoder()
+            self._lock = threading.Lock()
+            self._closed = False
+            self._error: str | None = None
+            self._failure: str | None = None  # failure()'s line, once made
+            self._said = False
+            # Rerun's own log lines off (unless RUST_LOG says otherwise): a failure is one line of ours (failure())
+            self._proc = pipes.start("lab.recording.writer", env={"RUST_LOG": "off"})
+            self._fd = self._proc.stdin.fileno()
+            pipes.grow(self._fd)
+            self._send(("start", {
+                "path": str(self.path), "config": config.to_dict(), "method": {k: getattr(method, k) for k in METHOD_VIEW}, "run_id": run_id, "robot": problem.arm.name,
+                "train_goals": np.asarray(problem.train_goals), "goal_seed": problem.goal_seed,
+                "hyperparameters": hyperparameters, "pose_every": pose_every, "compact": compact}))
+        except BaseException:  # nothing started: the claimed name is given back
+            if not replaced and self.path.is_file() and self.path.stat().st_size == 0:
+                self.path.unlink(missing_ok=True)
+            raise
         atexit.register(_close_at_exit, weakref.ref(self))
 
     @property
