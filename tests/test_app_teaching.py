@@ -209,7 +209,8 @@ def test_each_lesson_link_opens_its_state_and_its_text_in_that_tab(app, tab, nam
         shown = other.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == markdown["uuid"]
                                and "_markdown" in m["updates"])["updates"]["_markdown"]
         lines = text.strip().splitlines()
-        assert lines[0] in shown and lines[-1] in shown and "## What the class should see" in shown
+        assert lines[0] in shown and lines[-1] in shown and "#### What the class should see" in shown
+        assert lesson.link(app.url) in shown and lesson.link() not in shown  # the link as this tab reached the lab
         # the panel is in the lesson's state: robot, method, settings, race partner, views
         panel = app.panel
         assert wait_until(lambda: lesson_params(panel) == params, 10), (lesson_params(panel), params)

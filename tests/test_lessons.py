@@ -89,3 +89,10 @@ def test_a_viewer_gets_the_lessons_text_and_views_but_not_its_settings(tmp_path)
             viewer.close()
     finally:
         app.stop()
+
+
+def test_the_panel_shows_headings_smaller_and_code_as_written():
+    from app.classroom.lesson import panel_headings
+
+    text = "## What to set\ntext\n```python\n# a comment, not a heading\n```\n### More\n"
+    assert panel_headings(text) == "#### What to set\ntext\n```python\n# a comment, not a heading\n```\n##### More\n"

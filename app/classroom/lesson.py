@@ -187,8 +187,13 @@ def open_lesson(app, session, params: dict, client, presenter: bool) -> str | No
 
 def show_lesson_text(session, name: str, title: str, text: str) -> None:
     """The lesson's text in the tab's own panel: a folder at its top with a close button
-    (session.lesson_view: the folder, or None once closed)."""
+    (session.lesson_view: the folder, or None once closed). The lesson's own link in it is written
+    for the address the tab used (session.page_url)."""
     gui = session.client.gui
+    page_url = getattr(session, "page_url", "")
+    if name in LESSONS and page_url:  # the page's link as this tab reached the lab, not the default address
+        text = text.replace(LESSONS[name].link(), LESSONS[name].link(page_url))
+    text = panel_headings(text)
     old = getattr(session, "lesson_view", None)
     if old is not None:
         old.remove()
@@ -203,6 +208,15 @@ def show_lesson_text(session, name: str, title: str, text: str) -> None:
 
     close.on_click(closed)
     session.lesson_view = folder
+
+
+def panel_headings(text: str) -> str:
+    """Markdown headings two levels smaller (a page's "##" is too large for the panel), code blocks
+    left as they are."""
+    parts = re.split(r"(^```.*?^```)", text, flags=re.M | re.S)
+    return "".join(part if part.startswith("```") else
+                   re.sub(r"^(#{1,4}) ", lambda m: "#" * (len(m.group(1)) + 2) + " ", part, flags=re.M)
+                   for part in parts)
 
 
 def apply_lesson(app, params: dict, client=None) -> str | None:
