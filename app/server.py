@@ -30,7 +30,7 @@ import viser
 import lab.running.worker as lab_worker
 
 from app.classroom.access import Access, is_loopback
-from app.classroom.lesson import apply_lesson, lesson_link, lesson_params
+from app.classroom.lesson import lesson_link, lesson_params, open_lesson
 from app.classroom.limits import limits_for
 from app.panels.runs import RunsPanel
 from app.panels.train import TrainingPanel, notify
@@ -213,11 +213,8 @@ class LabApp:
             session.close()
             self.access.disconnected(client.client_id)
             return
-        if presenter:  # a lesson changes the shared settings: the presenter's to do
-            apply_lesson(self, query, client)
-        elif query.get("lesson") == "1":
-            self._tell(client.client_id, "this lesson link's settings were not applied: the presenter controls "
-                                         "the run (open the link on a lab of your own to train them)")
+        # a lesson changes the shared settings (the presenter's to do); its text goes to any tab
+        open_lesson(self, session, query, client, presenter)
         self._write_lesson_links([session])
 
     def _write_lesson_links(self, sessions) -> None:

@@ -186,3 +186,66 @@ def test_a_lesson_link_opens_a_tab_with_its_settings(app, tab):
         other.close()
         panel.race.enabled.value = False
         panel.method.value = "CMA-ES"
+
+
+def lesson_ws(link: str) -> str:
+    from urllib.parse import unquote
+
+    return unquote(link.split("?websocket=", 1)[1]).replace("ws://", "http://")
+
+
+@pytest.mark.parametrize("name", ["fitness-without-targets", "cmaes-vs-neat", "hidden-units", "real-arm-and-snake",
+                                  "gradient-vs-evolution"])
+def test_each_lesson_link_opens_its_state_and_its_text_in_that_tab(app, tab, name):
+    from app.classroom.lesson import LESSONS, TAB_VIEWS, lesson_params, lesson_text, lesson_views
+
+    lesson = LESSONS[name]
+    params = {"lesson": "1", **{k: v for k, v in lesson.params.items() if k != "views"}}
+    title, text = lesson_text(name)
+    other = Probe(lesson_ws(lesson.link(app.url))).start()
+    try:
+        folder = other.wait_for(lambda m: m["type"] == "GuiFolderMessage" and m["props"]["label"] == f"Lesson: {title}")
+        markdown = other.wait_for(lambda m: m["type"] == "GuiMarkdownMessage" and m["container_uuid"] == folder["uuid"])
+        shown = other.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == markdown["uuid"]
+                               and "_markdown" in m["updates"])["updates"]["_markdown"]
+        lines = text.strip().splitlines()
+        assert lines[0] in shown and lines[-1] in shown and "#### What the class should see" in shown
+        assert lesson.link(app.url) in shown and lesson.link() not in shown  # the link as this tab reached the lab
+        # the panel is in the lesson's state: robot, method, settings, race partner, views
+        panel = app.panel
+        assert wait_until(lambda: lesson_params(panel) == params, 10), (lesson_params(panel), params)
+        assert app.state.arm.name == lesson.params["robot"]
+        views = lesson_views(lesson.params)
+        session = session_of(app, other)
+        assert {v: getattr(session, attr).value for v, attr in TAB_VIEWS.items()} == \
+            {v: views[v] for v in TAB_VIEWS}
+        assert app.show_map.value == views["map"]
+        # the text is that tab's own: the first tab has no such folder
+        assert not any(m["type"] == "GuiFolderMessage" and m["props"]["label"].startswith("Lesson:")
+                       for _t, m in tab.messages)
+        other.click("Close the lesson")
+        other.wait_for(lambda m: m["type"] == "GuiRemoveMessage" and m["uuid"] == folder["uuid"])
+        assert wait_until(lambda: session.lesson_view is None, 5)
+    finally:
+        other.close()
+        app.show_map.value = True
+        app.panel.race.enabled.value = False
+        app.switch_robot("planar")
+        app.panel.method.value = "CMA-ES"
+
+
+def test_an_unknown_lesson_is_refused_by_name_and_changes_nothing(app, tab):
+    from app.classroom.lesson import LESSONS, lesson_params
+
+    before = lesson_params(app.panel)
+    link = LESSONS["cmaes-vs-neat"].link(app.url).replace("cmaes-vs-neat", "no-such-lesson")
+    bad = Probe(lesson_ws(link)).start()
+    try:
+        bad.wait_for(lambda m: m["type"] == "NotificationShowMessage" and "no-such-lesson" in str(m)
+                     and "cmaes-vs-neat" in str(m))  # it names the lesson and the lessons there are
+        time.sleep(0.3)
+        assert lesson_params(app.panel) == before
+        assert not any(m["type"] == "GuiFolderMessage" and m["props"]["label"].startswith("Lesson:")
+                       for _t, m in bad.messages)
+    finally:
+        bad.close()

@@ -1,5 +1,5 @@
 """Share a lesson: a link that opens the app with the current settings (robot, method, population,
-hidden units, seed, and a race partner's method, population, hidden units and seed).
+generations, hidden units, seed, and a race partner's method, population, hidden units and seed).
 
     params = lesson_params(panel)               # {"robot": "planar", "method": "cmaes", ...}
     link = lesson_link("http://host:8080", params)
@@ -11,23 +11,76 @@ reaches into viser). Opened in another browser, the link's tab sets the training
 lesson's settings, unless a run is going (then the tab is told and nothing changes). A lesson that
 does not make a valid run (an unknown robot or method, a population below the method's minimum)
 is refused by name and changes nothing.
+
+A lesson of docs/lessons/ (docs/lessons/index.md lists them) is the same link with `lesson=<name>`
+instead of `lesson=1`, and `views=` the views it turns on: the tab that opens it shows the lesson's
+text in its own panel (client.gui: a folder with a close button), in any tab, presenter or viewer;
+a presenter's link also sets the shared settings. The text is docs/lessons/<name>.md, read from
+the source tree beside this package (a checkout, or `pip install -e .`; a wheel ships no docs/, and
+a lesson's name is then refused with the folder it looked in). An unknown lesson name is refused by
+name and changes nothing.
+
+    python -m app.classroom.lesson --list [--url http://host:8080]   # each shipped lesson's link
 """
 
 from __future__ import annotations
+
+import argparse
+import re
+from dataclasses import dataclass
+from pathlib import Path
 
 import lab
 from lab import methods
 
 from app.viser_private import websocket_link
 
-FIELDS = ("robot", "method", "population", "hidden", "seed")
+FIELDS = ("robot", "method", "population", "generations", "hidden", "seed")
 PARTNER = ("partner", "partner_population", "partner_hidden", "partner_seed")
+DEFAULT_URL = "http://127.0.0.1:8080"  # where `python -m app` serves by default
+# the lessons' texts: docs/lessons/ of the source tree this package is in
+LESSONS_DIR = Path(__file__).resolve().parents[2] / "docs" / "lessons"
+NAME = re.compile(r"[a-z0-9][a-z0-9-]{0,63}")
+# views a lesson turns on (`views=ik.population`; those left out are turned off; `none`: all off):
+# each tab's own toggles (app/tab/goals.py), and the error map, shared (a presenter's link sets it)
+TAB_VIEWS = {"ik": "show_ik", "population": "show_population", "faint": "faint_arms", "species": "by_species"}
+VIEWS = (*TAB_VIEWS, "map")
+
+
+@dataclass(frozen=True)
+class Lesson:
+    """A shipped lesson: its text is LESSONS_DIR/<name>.md, its state these link parameters."""
+
+    name: str
+    params: dict
+
+    def link(self, page_url: str = DEFAULT_URL) -> str:
+        return lesson_link(page_url, {"lesson": self.name, **self.params})
+
+
+def _lesson(name: str, views: str, **params) -> Lesson:
+    return Lesson(name, {k: str(v) for k, v in {**params, "views": views}.items()})
+
+
+LESSONS = {lesson.name: lesson for lesson in (
+    _lesson("fitness-without-targets", "ik.population.map", robot="planar", method="cmaes", population=50,
+            generations=300, hidden=5, seed=0),
+    _lesson("cmaes-vs-neat", "population.species.map", robot="planar", method="neat", population=50,
+            generations=300, hidden=0, seed=0, partner="cmaes", partner_population=50, partner_hidden=5,
+            partner_seed=0),
+    _lesson("hidden-units", "ik.map", robot="planar", method="cmaes", population=50, generations=1000, hidden=5,
+            seed=0, partner="cmaes", partner_population=50, partner_hidden=20, partner_seed=0),
+    _lesson("real-arm-and-snake", "ik.population.faint", robot="planar-20", method="cmaes", population=50,
+            generations=500, hidden=5, seed=0),
+    _lesson("gradient-vs-evolution", "ik.map", robot="planar-10", method="cmaes", population=50, generations=1000,
+            hidden=5, seed=0, partner="gradient", partner_population=1, partner_hidden=5, partner_seed=0),
+)}
 
 
 def lesson_params(panel) -> dict:
     """The panel's settings as a lesson's parameters (values as text)."""
     params = {"lesson": "1", "robot": panel.robot.value, "method": panel._method_name()}
-    for name in ("population", "hidden", "seed"):
+    for name in ("population", "generations", "hidden", "seed"):
         params[name] = _whole(getattr(panel, name).value)
     race = panel.race
     if race.enabled.value:
@@ -44,6 +97,42 @@ def _whole(v) -> str:
     return str(int(v)) if isinstance(v, (int, float)) and float(v).is_integer() else str(v)
 
 
+def is_lesson(params: dict) -> bool:
+    """A query that carries a lesson (`lesson=1`: settings only; `lesson=<name>`: with its text)."""
+    return bool(params.get("lesson"))
+
+
+def lesson_text(name: str) -> tuple[str, str]:
+    """(title, markdown body) of docs/lessons/<name>.md; ValueError naming the lesson when there is none."""
+    path = LESSONS_DIR / f"{name}.md"
+    if not NAME.fullmatch(name) or name == "index" or not path.is_file():
+        known = ", ".join(lesson_names()) or f"none: no lessons in {LESSONS_DIR}"
+        raise ValueError(f"no lesson named {name!r} (lessons: {known})")
+    text = path.read_text(encoding="utf-8")
+    first, _, rest = text.partition("\n")
+    if first.startswith("# "):
+        return first[2:].strip(), rest.lstrip("\n")
+    return name, text
+
+
+def lesson_names() -> list[str]:
+    """The lessons whose text is in LESSONS_DIR (index.md is the list, not a lesson)."""
+    if not LESSONS_DIR.is_dir():
+        return []
+    return sorted(p.stem for p in LESSONS_DIR.glob("*.md") if p.stem != "index" and NAME.fullmatch(p.stem))
+
+
+def lesson_views(params: dict) -> dict[str, bool] | None:
+    """{view: on} of a lesson's `views=` (None when it sets none); ValueError naming an unknown view."""
+    if "views" not in params:
+        return None
+    wanted = [] if params["views"] in ("", "none") else params["views"].split(".")
+    unknown = [v for v in wanted if v not in VIEWS]
+    if unknown:
+        raise ValueError(f"unknown view {unknown[0]!r} in views= (views: {', '.join(VIEWS)})")
+    return {v: v in wanted for v in VIEWS}
+
+
 def lesson_configs(params: dict) -> tuple[lab.TrainConfig, lab.TrainConfig | None]:
     """The run (and race partner) a lesson describes; ValueError naming what is wrong."""
     def whole(name: str) -> int:
@@ -53,7 +142,7 @@ def lesson_configs(params: dict) -> tuple[lab.TrainConfig, lab.TrainConfig | Non
             raise ValueError(f"lesson {name} must be a whole number, got {params[name]!r}") from None
 
     main = lab.TrainConfig.preset(robot=params.get("robot", "planar"), method=params.get("method", methods.DEFAULT_METHOD),
-                                  **{k: whole(k) for k in ("population", "hidden", "seed") if k in params})
+                                  **{k: whole(k) for k in ("population", "generations", "hidden", "seed") if k in params})
     if "partner" not in params:
         return main, None
     partner = lab.TrainConfig.preset(
@@ -62,14 +151,82 @@ def lesson_configs(params: dict) -> tuple[lab.TrainConfig, lab.TrainConfig | Non
     return main, partner
 
 
+def check_lesson(params: dict):
+    """(main, partner, views, (title, text) or None) of a lesson's query; ValueError naming what is wrong."""
+    name = params.get("lesson", "1")
+    text = None if name == "1" else lesson_text(name)
+    views = lesson_views(params)
+    main, partner = lesson_configs(params)
+    return main, partner, views, text
+
+
+def open_lesson(app, session, params: dict, client, presenter: bool) -> str | None:
+    """What a tab that connected with `params` gets: a presenter's link sets the shared settings
+    (apply_lesson), a viewer is told that they are the presenter's; either tab gets the lesson's
+    text and views in its own panel. A message (and nothing changed) when refused; None when the
+    query holds no lesson."""
+    if not is_lesson(params):
+        return None
+    try:
+        _, _, views, text = check_lesson(params)
+    except ValueError as e:
+        return _tell(client, f"refused: this lesson link does not make a run: {e}", error=True)
+    if presenter:
+        refused = apply_lesson(app, params, client)
+    else:
+        refused = _tell(client, "this lesson link's settings were not applied: the presenter controls the run "
+                                "(open the link on a lab of your own to train them)", error=True)
+    if session is not None:
+        if views is not None:
+            for view, attr in TAB_VIEWS.items():
+                getattr(session, attr).value = views[view]
+        if text is not None:
+            show_lesson_text(session, params["lesson"], *text)
+    return refused
+
+
+def show_lesson_text(session, name: str, title: str, text: str) -> None:
+    """The lesson's text in the tab's own panel: a folder at its top with a close button
+    (session.lesson_view: the folder, or None once closed). The lesson's own link in it is written
+    for the address the tab used (session.page_url)."""
+    gui = session.client.gui
+    page_url = getattr(session, "page_url", "")
+    if name in LESSONS and page_url:  # the page's link as this tab reached the lab, not the default address
+        text = text.replace(LESSONS[name].link(), LESSONS[name].link(page_url))
+    text = panel_headings(text)
+    old = getattr(session, "lesson_view", None)
+    if old is not None:
+        old.remove()
+    folder = gui.add_folder(f"Lesson: {title}", order=-1)
+    with folder:
+        close = gui.add_button("Close the lesson", hint=f"docs/lessons/{name}.md")
+        gui.add_markdown(text)
+
+    def closed(_event) -> None:
+        folder.remove()
+        session.lesson_view = None
+
+    close.on_click(closed)
+    session.lesson_view = folder
+
+
+def panel_headings(text: str) -> str:
+    """Markdown headings two levels smaller (a page's "##" is too large for the panel), code blocks
+    left as they are."""
+    parts = re.split(r"(^```.*?^```)", text, flags=re.M | re.S)
+    return "".join(part if part.startswith("```") else
+                   re.sub(r"^(#{1,4}) ", lambda m: "#" * (len(m.group(1)) + 2) + " ", part, flags=re.M)
+                   for part in parts)
+
+
 def apply_lesson(app, params: dict, client=None) -> str | None:
-    """Set the training panel to a lesson's settings; a message (and nothing changed) when refused.
-    A query without lesson parameters is no lesson (None, nothing done)."""
-    if params.get("lesson") != "1":
+    """Set the training panel (and the shared error map) to a lesson's settings; a message (and
+    nothing changed) when refused. A query without lesson parameters is no lesson (None, nothing done)."""
+    if not is_lesson(params):
         return None
     panel = app.panel
     try:
-        main, partner = lesson_configs(params)
+        main, partner, views, _text = check_lesson(params)
     except ValueError as e:
         return _tell(client, f"refused: this lesson link does not make a run: {e}", error=True)
     if app.state.running:
@@ -79,16 +236,18 @@ def apply_lesson(app, params: dict, client=None) -> str | None:
     if msg:
         return _tell(client, msg, error=True)
     panel.method.value = methods.get(main.method).label  # fills that method's defaults
-    panel.population.value, panel.hidden.value, panel.seed.value = float(main.population), float(main.hidden), \
-        float(main.seed)
+    panel.population.value, panel.generations.value, panel.hidden.value, panel.seed.value = \
+        float(main.population), float(main.generations), float(main.hidden), float(main.seed)
     race = panel.race
     race.enabled.value = partner is not None
     if partner is not None:
         race.method.value = methods.get(partner.method).label
         race.population.value, race.hidden.value, race.seed.value = float(partner.population), \
             float(partner.hidden), float(partner.seed)
+    if views is not None and hasattr(app, "show_map"):
+        app.show_map.value = views["map"]
     _tell(client, f"lesson: {main.robot}, {methods.get(main.method).label}, population {main.population}, "
-                  f"{main.hidden} hidden, seed {main.seed}"
+                  f"{main.generations} generations, {main.hidden} hidden, seed {main.seed}"
                   + (f"; race against {methods.get(partner.method).label}, seed {partner.seed}" if partner else ""),
           error=False)
     return None
@@ -98,3 +257,19 @@ def _tell(client, text: str, error: bool) -> str | None:
     if client is not None:
         client.add_notification("Lesson", text, auto_close_seconds=8.0, color="red" if error else "green")
     return text if error else None
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(prog="python -m app.classroom.lesson",
+                                description="The lessons of docs/lessons/ and the link that opens each.")
+    p.add_argument("--list", action="store_true", help="print each lesson's name, title and link (the default)")
+    p.add_argument("--url", default=DEFAULT_URL,
+                   help=f"the lab's address (default {DEFAULT_URL}; a classroom server prints its own)")
+    args = p.parse_args(argv)
+    for lesson in LESSONS.values():
+        title = lesson_text(lesson.name)[0] if lesson.name in lesson_names() else "(no text found)"
+        print(f"{lesson.name}: {title}\n  {lesson.link(args.url)}")
+
+
+if __name__ == "__main__":
+    main()
