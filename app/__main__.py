@@ -105,6 +105,15 @@ def _cannot_listen_on(host: str) -> str | None:
 def main(argv=None) -> int:
     args = parse(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    from lab import methods
+    from lab.problem import environment
+
+    try:  # every LAB_* variable, and the modules of LAB_METHODS imported, before the server starts
+        environment.check_all()
+        methods.names()
+    except environment.SettingError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     import robots
 
     if args.robot not in robots.names():

@@ -19,6 +19,7 @@ Nothing here knows about the GUI.
 
 from lab import methods
 from lab.methods import Backend, Method, Options, StepResult
+from lab.problem.environment import SettingError
 from lab.problem.controllers import Controller, GraphController, MLPController, controller_from_dict
 from lab.running.config import TrainConfig
 from lab.running.evolve import Run, evolve
@@ -26,7 +27,7 @@ from lab.running.runner import GenerationEvent, Runner, RunSummary
 
 __all__ = [
     "Backend", "Controller", "GenerationEvent", "GraphController", "MLPController", "Method", "Options",
-    "ProcessRunner", "RerunLogger", "Run", "RunSummary", "Runner", "StepResult", "TrainConfig", "controller_from_dict",
+    "ProcessRunner", "RerunLogger", "Run", "RunSummary", "Runner", "SettingError", "StepResult", "TrainConfig", "controller_from_dict",
     "evolve", "load_controller", "methods", "read_recording",
 ]
 

@@ -14,6 +14,7 @@ import robots  # noqa: E402
 
 from lab import methods  # noqa: E402
 from lab.experiments import cli as experiments_cli  # noqa: E402
+from lab.problem import environment  # noqa: E402
 from lab.problem.encoding import FEATURES  # noqa: E402
 from lab.running.config import TrainConfig  # noqa: E402
 
@@ -183,6 +184,16 @@ def _interrupt(signum, _frame):
 
 
 def main(argv=None) -> int:
+    """The command; a LAB_* environment variable that is not accepted: one line and exit status 2."""
+    try:
+        environment.check_all()  # before any work: a worker thread would only see it after the start
+        return _main(argv)
+    except environment.SettingError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+
+
+def _main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m lab", description="Neuro-IK Lab: evolve neuro-controllers.")
     sub = parser.add_subparsers(dest="command", required=True)
     _train_parser(sub)

@@ -140,8 +140,14 @@ class Arm:
         return self.lower + (self.upper - self.lower) * rng.random((int(n), self.nq))
 
     def sample_goals(self, n: int, seed: int | None = None) -> np.ndarray:
-        """(n, len(task_axes)) reachable goals: end-effector positions of uniformly drawn joint vectors."""
-        return self.reach(self.sample_q(n, seed))
+        """(n, len(task_axes)) reachable goals: end-effector positions of uniformly drawn joint vectors.
+        ValueError, never NaN goals, when the kinematics give non-finite positions."""
+        goals = self.reach(self.sample_q(n, seed))
+        if not np.isfinite(goals).all():
+            bad = int((~np.isfinite(goals)).any(axis=-1).sum())
+            raise ValueError(f"{self.name}: {bad} of {len(goals)} sampled goals are not finite numbers "
+                             f"(joint limits {list(zip(self.lower.tolist(), self.upper.tolist()))})")
+        return goals
 
     @functools.cached_property
     def workspace_bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -294,6 +300,11 @@ def _find_frame(model: pin.Model, ee_frame: str, name: str, urdf_path: str) -> i
     return (bodies or matches)[0]
 
 
+MAX_REVOLUTE_LIMIT = 1e3  # rad: |limit| of a revolute joint beyond this is a broken file (~160 turns)
+MAX_PRISMATIC_LIMIT = 1e3  # m (or the paper's units): |limit| of a prismatic joint beyond this is refused
+# (limits of +-1e308 passed as finite, and drew NaN joint values: upper - lower overflows)
+
+
 def _limits(model, chain, overrides, name) -> tuple[np.ndarray, np.ndarray]:
     names = [model.names[int(j)] for j in chain.joint_ids]
     unknown = sorted(set(overrides) - set(names))
@@ -320,6 +331,13 @@ def _limits(model, chain, overrides, name) -> tuple[np.ndarray, np.ndarray]:
             if chain.kind[k] == PRISMATIC:
                 raise ValueError(f"{name}: prismatic joint {jname!r} has no finite limits")
             lower[k], upper[k] = -np.pi, np.pi
+        bound, unit = ((MAX_PRISMATIC_LIMIT, "m") if chain.kind[k] == PRISMATIC else (MAX_REVOLUTE_LIMIT, "rad"))
+        if max(abs(lower[k]), abs(upper[k])) > bound:
+            kind = "prismatic" if chain.kind[k] == PRISMATIC else "revolute"
+            where = "given in limits=" if jname in overrides else "in the URDF"
+            fix = "" if jname in overrides else "; fix the file or override them with limits="
+            raise ValueError(f"{name}: {kind} joint {jname!r} has absurd limits {where} ({lower[k]:g}, {upper[k]:g}): "
+                             f"a {kind} joint's limits must be within +-{bound:g} {unit}{fix}")
     return lower, upper
 
 

@@ -133,17 +133,46 @@ def test_a_time_limit_stops_a_run():
         TimeLimit(runner, 0.0)
 
 
+def _stored_claim(spec) -> dict:
+    """A stored claims run with every number the report reads (made up)."""
+    return {"spec": asdict(spec), "config": spec.config().to_dict(), "seed": spec.seed, "train_mse": 0.5,
+            "test_mse": 0.6, "held_out": 12.0, "generations": 30, "evaluations": 240, "seconds": 1.0,
+            "checkpoints": {"evaluations": [8, 240], "seconds": [0.1, 1.0], "error": [float("inf"), 12.0]}}
+
+
 def test_a_stored_run_with_another_time_limit_is_refused(tmp_path):
     spec = C.ClaimSpec("planar", C.METHODS[0], 0, generations=30, population=None, targets=None, kind="seconds",
                        budget=100, seconds=1.0)
     store = RunStore(tmp_path)
-    store.save(spec, {"spec": asdict(spec), "config": spec.config().to_dict()})
+    store.save(spec, _stored_claim(spec))
     assert store.load(spec) is not None
     other = C.ClaimSpec(**{**asdict(spec), "seconds": 2.0})
     with pytest.raises(ConfigMismatch, match="seconds"):
         store.load(other)
     assert store.load(other, overwrite=True) is None
 
+
+
+@pytest.mark.parametrize("field, value, why", [
+    ("held_out", float("nan"), "held_out is nan"), ("train_mse", "a", "train_mse is 'a'"),
+    ("evaluations", None, "evaluations is missing"),
+    ("checkpoints", {"evaluations": [8], "seconds": [0.1], "error": ["x"]}, "checkpoints is"),
+    ("checkpoints", {"evaluations": [8, 9], "seconds": [0.1], "error": [1.0]}, "of one length")])
+def test_a_stored_claims_run_with_bad_numbers_is_named_and_done_again(tmp_path, capsys, field, value, why):
+    """`lab claims` resumed over a run whose held-out error is NaN, or whose numbers are missing or of
+    the wrong type: its file and what is wrong are named, and it is run again (not a crash, not a blank)."""
+    spec = C.ClaimSpec("planar", C.METHODS[0], 0, generations=30, population=None, targets=None,
+                       kind="evaluations", budget=240)
+    store = RunStore(tmp_path)
+    stored = _stored_claim(spec)
+    if value is None:
+        del stored[field]
+    else:
+        stored[field] = value
+    store.save(spec, stored)
+    assert store.load(spec) is None
+    err = capsys.readouterr().err
+    assert f"{store.path(spec)} is damaged" in err and why in err and "done again" in err, err
 
 def test_ray_local_instance(tmp_path):
     """--ray: the same runs on a local Ray instance; an equal-budget run is the same, number for

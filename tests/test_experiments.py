@@ -49,6 +49,12 @@ def broken_seed1_train(spec):
     return train_run(spec)
 
 
+def nan_seed1_train(spec):
+    """Seed 1's result has a NaN training MSE (as a diverged run would); the others train."""
+    result = train_run(spec)
+    return {**result, "train_mse": float("nan")} if spec.seed == 1 else result
+
+
 def crash_once_train(spec):
     """The worker process dies (no exception) at the first attempt of seed 0."""
     first = Path(os.environ["LAB_TEST_MARKERS"]) / f"crash-{spec.name}"
@@ -253,6 +259,50 @@ def test_a_damaged_stored_run_is_named_and_done_again(tmp_path, content, capsys)
     assert store.load(spec) is None
     err = capsys.readouterr().err
     assert str(store.path(spec)) in err and "done again" in err
+
+
+@pytest.mark.parametrize("field, value, why", [
+    ("train_mse", "a", "train_mse is 'a'"), ("train_mse", float("nan"), "train_mse is nan"),
+    ("test_mse", float("inf"), "test_mse is inf"), ("history", [0.5, "x"], "history"),
+    ("seed", 1.5, "seed is 1.5"), ("seconds", None, "seconds is missing"),
+    ("spec", "planar", "spec is 'planar'")])
+def test_a_stored_run_with_wrong_or_missing_fields_is_named_and_done_again(tmp_path, markers, capsys, field,
+                                                                             value, why):
+    """A stored run whose numbers are of the wrong type, missing or not finite (a NaN training MSE) is
+    named (its file and what is wrong) and run again; the experiment goes on and its tables show
+    every run. Such a run stopped the experiment ("could not convert string to float: 'a'", no file
+    named), or a NaN run was shown as "—" and counted as nothing."""
+    small = dict(runs=2, generations=5, population=8, test_goals=100, methods=("cmaes",), robots=("planar",),
+                 progress=False, recording=False)
+    first = reproduce(ReproduceConfig(out=tmp_path, **small))
+    path = tmp_path / "runs" / "planar-cmaes-s001.json"
+    stored = json.loads(path.read_text())
+    if value is None:
+        del stored[field]
+    else:
+        stored[field] = value
+    path.write_text(json.dumps(stored))
+    capsys.readouterr()
+    again = reproduce(ReproduceConfig(out=tmp_path, **small), train=counting_train)
+    err = capsys.readouterr().err
+    assert f"{path} is damaged" in err and why in err and "done again" in err, err
+    assert (again.executed, again.resumed, ran(markers), again.failures) == (1, 1, 1, [])
+    assert again.results["planar-cmaes-s001"]["history"] == first.results["planar-cmaes-s001"]["history"]
+    rows = list(csv.DictReader(open(tmp_path / "table3.csv")))
+    assert len([r for r in rows[:-2] if r["planar_cmaes"]]) == 2 and "—" not in (tmp_path / "table3.md").read_text()
+
+
+def test_a_run_whose_result_is_nan_is_a_failure_not_a_blank(tmp_path, markers):
+    """A run that returns a NaN training MSE is retried, then reported as failed (never stored as a
+    result, never a silent "—" in the tables)."""
+    small = dict(runs=2, generations=5, population=8, test_goals=100, methods=("cmaes",), robots=("planar",),
+                 progress=False, recording=False)
+    exp = reproduce(ReproduceConfig(out=tmp_path, **small), train=nan_seed1_train)
+    assert list(exp.results) == ["planar-cmaes-s000"] and [f["name"] for f in exp.failures] == ["planar-cmaes-s001"]
+    assert "train_mse is nan" in exp.failures[0]["error"]
+    assert not (tmp_path / "runs" / "planar-cmaes-s001.json").exists()
+    report = (tmp_path / "report.md").read_text()
+    assert "planar-cmaes-s001 failed 2 times" in report and "train_mse is nan" in report
 
 
 def _children(pid: int) -> list[int]:

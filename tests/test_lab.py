@@ -1024,3 +1024,71 @@ def test_continuous_joints_span_two_turns_and_the_fitness_equals_the_controllers
         assert f == pytest.approx(prob.controller_mse(c), rel=1e-9, abs=1e-12)
     again = Encoding.from_dict(json.loads(json.dumps(enc.to_dict())))
     assert again.wrap.tolist() == enc.wrap.tolist()
+
+
+# ---------------------------------------------------------------- environment variables
+BAD_ENVIRONMENT = [("LAB_THREADS", "0", "an integer >= 1"), ("LAB_THREADS", "-1", "an integer >= 1"),
+                   ("LAB_THREADS", "abc", "an integer >= 1"),
+                   ("LAB_METHODS", "no.such.module", "importable modules"),
+                   ("LAB_METHODS", "not a module", "module names separated by commas"),
+                   ("LAB_RECORDING_RESERVE", "lots", "an integer >= 0")]
+
+
+def _env_run(args, var, value, cwd, timeout=60):
+    env = {k: v for k, v in os.environ.items() if not k.startswith("LAB_")}
+    env.update({var: value, "PYTHONPATH": os.pathsep.join(filter(None, [os.path.dirname(os.path.dirname(
+        os.path.abspath(lab.__file__))), os.environ.get("PYTHONPATH")]))})
+    try:
+        return subprocess.run([sys.executable, *args], env=env, cwd=cwd, capture_output=True, text=True,
+                              timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"{' '.join(args)} with {var}={value} did not stop within {timeout} s (it went on to work)")
+
+
+@pytest.mark.parametrize("var, value, accepted", BAD_ENVIRONMENT)
+def test_a_bad_environment_variable_is_one_line_and_status_2_in_lab_train(tmp_path, var, value, accepted):
+    """LAB_THREADS=0/-1/abc, LAB_METHODS naming no module, LAB_RECORDING_RESERVE not bytes: `python -m
+    lab train` says so in one line naming the variable, the value and what is accepted, and exits 2
+    before any work (it ended in a traceback, status 1)."""
+    proc = _env_run(["-m", "lab", "train", "--generations", "2", "--population", "8", "--quiet"], var, value,
+                    tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert proc.stderr.startswith(f"error: {var} must be") and proc.stderr.count("\n") == 1, proc.stderr
+    assert repr(value) in proc.stderr and accepted in proc.stderr
+    assert not (tmp_path / "recordings").exists()  # nothing was started
+
+
+@pytest.mark.parametrize("args", [["replay", "missing.rrd"], ["reproduce", "--runs", "1", "--generations", "2"],
+                                  ["claims", "--runs", "1", "--generations", "2"]])
+def test_every_lab_command_refuses_a_bad_environment_variable(tmp_path, args):
+    for var, value, _ in (BAD_ENVIRONMENT[2], BAD_ENVIRONMENT[3]):
+        proc = _env_run(["-m", "lab", *args], var, value, tmp_path)
+        assert proc.returncode == 2 and proc.stderr.startswith(f"error: {var} must be"), proc.stderr
+        assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "results").exists()
+
+
+@pytest.mark.parametrize("var, value, accepted", [BAD_ENVIRONMENT[2], BAD_ENVIRONMENT[3], BAD_ENVIRONMENT[5]])
+def test_the_app_refuses_a_bad_environment_variable_before_serving(tmp_path, var, value, accepted):
+    """`python -m app`: LAB_THREADS=abc started the server (and failed in a thread), LAB_METHODS
+    naming no module ended in a traceback; now one line and status 2, and no server."""
+    proc = _env_run(["-m", "app", "--port", "0", "--no-record", "--notebook", str(tmp_path / "nb.db")], var, value,
+                    tmp_path)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr and "ready" not in proc.stdout
+    assert proc.stderr.startswith(f"error: {var} must be") and accepted in proc.stderr, proc.stderr
+
+
+def test_methods_named_in_lab_methods_are_loaded_when_the_registry_is_first_asked(tmp_path):
+    """A module of LAB_METHODS registers its method (and may ask the registry while it is imported)."""
+    (tmp_path / "my_methods.py").write_text(
+        "from lab import methods\n"
+        "from lab.methods import cmaes\n"
+        "import dataclasses\n"
+        "assert 'cmaes' in methods.names()  # the registry asked while this module is imported\n"
+        "methods.register(dataclasses.replace(methods.get('cmaes'), name='mine', label='Mine'))\n")
+    proc = _env_run(["-c", "from lab import methods; print(','.join(methods.names()))"], "LAB_METHODS",
+                    "my_methods", tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split()[-1].split(",")[-1] == "mine"

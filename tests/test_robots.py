@@ -658,3 +658,32 @@ def test_inverted_limits_bad_task_axes_and_non_utf8_files_are_refused_by_name(tm
     latin.write_bytes(text.replace("planar", "plan\xe4r").encode("latin-1"))
     with pytest.raises(ValueError, match="not UTF-8"):
         robots.from_urdf(latin, "ee", task_axes=(0, 1))
+
+
+@pytest.mark.parametrize("lower, upper", [("-1e308", "1e308"), ("-1e4", "0.5"), ("0", "1001")])
+def test_absurd_joint_limits_are_refused_by_joint_name(tmp_path, lower, upper):
+    """A revolute joint's limits beyond +-1e3 rad (a prismatic one's beyond +-1e3 m), from the URDF or
+    from limits=, are refused naming the joint: +-1e308 once loaded and sampled all-NaN goals."""
+    text = open(PLANAR_URDF, encoding="utf-8").read()
+    absurd = re.sub(r'lower="([^"]+)" upper="([^"]+)"', f'lower="{lower}" upper="{upper}"', text, count=1)
+    assert absurd != text
+    path = tmp_path / "absurd.urdf"
+    path.write_text(absurd)
+    with pytest.raises(ValueError, match=r"revolute joint 'theta1' has absurd limits in the URDF .*within \+-1000 rad"):
+        robots.from_urdf(path, "ee", task_axes=(0, 1))
+    assert robots.from_urdf(path, "ee", task_axes=(0, 1), limits={"theta1": (-1.0, 1.0)}).lower[0] == -1.0
+    with pytest.raises(ValueError, match=r"revolute joint 'theta2' has absurd limits given in limits="):
+        robots.from_urdf(PLANAR_URDF, "ee", task_axes=(0, 1), limits={"theta2": (float(lower), float(upper))})
+    with pytest.raises(ValueError, match=r"prismatic joint 'd4' has absurd limits given in limits=.*within \+-1000 m"):
+        robots.from_urdf(os.path.join(os.path.dirname(robots.__file__), "urdf", "scara.urdf"), "ee",
+                         limits={"d4": (float(lower), float(upper))})
+
+
+def test_sample_goals_never_returns_nan_silently():
+    import dataclasses
+
+    arm = robots.load("planar")
+    broken = dataclasses.replace(arm, upper=np.array([1e308, 1.0, 1.0]), lower=np.array([-1e308, 0.0, 0.0]))
+    with np.errstate(over="ignore", invalid="ignore"), pytest.raises(ValueError, match="sampled goals are not finite"):
+        broken.sample_goals(5, seed=0)
+    assert np.isfinite(arm.sample_goals(5, seed=0)).all()

@@ -42,7 +42,7 @@ from lab.experiments.claims_design import (  # noqa: F401 (the design, named her
     BUDGETS, CAP, CHECKPOINTS, DEFAULT_GENERATIONS, DEFAULT_RUNS, FIRST_CHECKPOINT, METHODS, POOR_FACTOR, POOR_REACH,
     RESAMPLE_ROBOTS, ROBOTS, SECONDS_PER_GENERATION, TARGET_REACH, generations_for, stuck,
 )
-from lab.experiments.runs import RunSpec
+from lab.experiments.runs import RunSpec, series_ok
 from lab.recording.logger import not_a_folder
 
 
@@ -59,6 +59,21 @@ class ClaimSpec(RunSpec):
     @property
     def name(self) -> str:
         return f"{self.robot}-{self.method}-{self.kind}-s{self.seed:03d}"
+
+    RESULT_FIELDS = {"seed": "count", "train_mse": "value", "test_mse": "value", "held_out": "value",
+                     "generations": "count", "evaluations": "count", "seconds": "value"}  # train_claim's, as read
+    CHECKPOINTS = ("evaluations", "seconds", "error")
+
+    def damage(self, result) -> str | None:
+        why = super().damage(result)
+        if why is not None:
+            return why
+        cp = result.get("checkpoints")
+        if not (isinstance(cp, dict) and all(series_ok(cp.get(k)) for k in self.CHECKPOINTS)
+                and len({len(cp[k]) for k in self.CHECKPOINTS}) == 1):
+            return (f"checkpoints is {str(cp)[:80]}, not lists of numbers >= 0 (no NaN) of one length under "
+                    f"{', '.join(self.CHECKPOINTS)}")
+        return None
 
     def config(self):
         from lab.running.config import TrainConfig

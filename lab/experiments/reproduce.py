@@ -139,6 +139,8 @@ def _execute(exp: Experiment, pending: list[RunSpec], executor, train, store: Ru
         for fut in done:
             spec = inflight.pop(fut)
             out = _outcome(fut)
+            if out["ok"] and (why := spec.damage(out["result"])) is not None:  # e.g. a NaN MSE: never a blank
+                out = {"ok": False, "error": f"its result cannot be reported: {why}", "traceback": ""}
             errors = attempts[spec]
             if out["ok"]:
                 result = dict(out["result"], attempts=len(errors) + 1, errors=errors)

@@ -7,13 +7,16 @@
     store.load(spec)                # the stored dict, or None when the run has not finished
 
 A run is finished when its JSON exists and its stored config equals spec.config() (and its stored
-spec the spec): a rerun with the same settings skips it. A run that failed twice is kept as
+spec the spec): a rerun with the same settings skips it. A stored run that cannot be read, or whose
+numbers the reports read are missing, of the wrong type or not finite (RunSpec.damage), is named
+and done again; a new result with such numbers counts as a failed attempt (retried, then reported). A run that failed twice is kept as
 runs/<name>.failed.json (error and traceback) until a later attempt succeeds.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import platform
 import sys
@@ -48,11 +51,67 @@ class RunSpec:
         longest runs first."""
         return methods.get(self.method).cost * robots.load(self.robot).nq
 
+    RESULT_FIELDS = {"seed": "count", "train_mse": "value", "test_mse": "value", "history": "series",
+                     "seconds": "value", "evaluations": "count"}  # what the reports read (train_run's result)
+    OPTIONAL_FIELDS = {"wall_seconds": "value", "cpu_seconds": "value"}
+
+    def damage(self, result) -> str | None:
+        """What is wrong with a result of this run for the reports (a field missing, of the wrong type,
+        NaN or infinite), or None."""
+        if not isinstance(result, dict):
+            return f"not a stored run but {type(result).__name__}"
+        return damage(result, self.RESULT_FIELDS, self.OPTIONAL_FIELDS)
+
     def config(self) -> TrainConfig:
         """The TrainConfig lab.evolve builds for this run (validated)."""
         return TrainConfig.preset(paper=self.paper, robot=self.robot, method=self.method,
                                   generations=self.generations, population=self.population,
                                   targets=self.targets, seed=self.seed, test_goals=self.test_goals)
+
+
+def _real(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _count(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
+
+
+def _value(v) -> bool:
+    return _real(v) and math.isfinite(v) and v >= 0
+
+
+def series_ok(v) -> bool:
+    """A non-empty list of numbers >= 0 (inf allowed: a generation with no finite error; NaN not)."""
+    return isinstance(v, list) and len(v) > 0 and all(_real(x) and x >= 0 for x in v)
+
+
+_KINDS = {  # what a field of a result must be, and how it is said
+    "count": (_count, "a whole number >= 0"),
+    "value": (_value, "a finite number >= 0"),
+    "series": (series_ok, "a non-empty list of numbers >= 0 (no NaN)"),
+}
+
+
+def damage(data: dict, fields: dict[str, str], optional: dict[str, str] | None = None) -> str | None:
+    """What is wrong with `data` (a run's result): its fields of `fields` (name -> a kind of _KINDS)
+    missing or not of their kind, or those of `optional` present and not of their kind; None if nothing."""
+    problems = []
+    for name, kind in [*fields.items(), *(optional or {}).items()]:
+        ok, what = _KINDS[kind]
+        if name not in data:
+            if name in fields:
+                problems.append(f"{name} is missing")
+        elif not ok(data[name]):
+            v = data[name]
+            shown = repr(v) if not isinstance(v, list) else f"a list with {_first_bad(v)}"
+            problems.append(f"{name} is {shown}, not {what}")
+    return "; ".join(problems[:3]) + ("; ..." if len(problems) > 3 else "") if problems else None
+
+
+def _first_bad(v: list) -> str:
+    bad = [x for x in v if not (_real(x) and x >= 0)]
+    return f"{bad[0]!r} in it" if bad else "nothing in it"
 
 
 def train_run(spec: RunSpec) -> dict:
@@ -138,8 +197,11 @@ class RunStore:
         except (OSError, ValueError) as e:
             print(f"note: {path} is damaged ({type(e).__name__}: {e}); the run is done again", file=sys.stderr)
             return None
-        if not isinstance(data, dict) or not isinstance(data.get("config"), dict):
-            print(f"note: {path} is damaged (not a stored run); the run is done again", file=sys.stderr)
+        if not isinstance(data, dict) or not isinstance(data.get("config"), dict) or \
+                not isinstance(data.get("spec", {}), dict):
+            why = "not a stored run" if not isinstance(data, dict) or not isinstance(data.get("config"), dict) \
+                else f"spec is {data['spec']!r}, not a dict"
+            print(f"note: {path} is damaged ({why}); the run is done again", file=sys.stderr)
             return None
         expected = spec.config().to_dict()
         # a spec may hold more than its config (claims.ClaimSpec: a time limit): both must match
@@ -151,6 +213,10 @@ class RunStore:
             diff = {k: (stored.get(k), v) for k, v in {**asked_spec, **expected}.items() if stored.get(k) != v}
             raise ConfigMismatch(f"{self.path(spec)} was made with other settings "
                                  f"(stored vs asked: {diff}); use another --out or --overwrite")
+        why = spec.damage(data)
+        if why is not None:
+            print(f"note: {path} is damaged ({why}); the run is done again", file=sys.stderr)
+            return None
         return data
 
     def save(self, spec: RunSpec, result: dict) -> None:

@@ -16,8 +16,6 @@
 
 from __future__ import annotations
 
-import os
-
 from lab.methods.base import Backend, Options, Population, RunSettings, StepResult, option
 from lab.methods.registry import DEFAULT_METHOD, LivePlot, Method, all_methods, get, load_plugins, names, register, unregister
 
@@ -29,7 +27,8 @@ def make_backend(problem, config: RunSettings) -> Backend:
 
 from lab.methods import cmaes, gradient, neat  # noqa: E402,F401  (each registers itself)
 
-load_plugins(os.environ.get("LAB_METHODS"))
+# the modules of LAB_METHODS and the installed entry points are imported when the registry is first
+# asked (registry._load_environment): a module that cannot be imported is then a SettingError
 
 __all__ = ["Backend", "DEFAULT_METHOD", "LivePlot", "Method", "Population", "Options", "RunSettings", "StepResult",
            "all_methods", "get", "load_plugins", "make_backend", "names", "option", "register", "unregister"]

@@ -9,16 +9,20 @@
 A method is one module that declares itself once with `register(Method(...))`. Built-in
 methods are lab/methods/cmaes.py and neat.py; others load from the modules named in the
 environment variable LAB_METHODS (comma-separated, so that worker processes load them too)
-and from the entry points of group `neuro_ik_lab.methods` of installed packages.
+and from the entry points of group `neuro_ik_lab.methods` of installed packages, when the registry
+is first asked (get, names, all_methods): a LAB_METHODS module that cannot be imported raises
+lab.problem.environment.SettingError there, which `python -m lab` and `python -m app` print in one line.
 """
 
 from __future__ import annotations
 
 import importlib
+import threading
 from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
 from lab.methods.base import Backend, Options
+from lab.problem import environment
 
 DEFAULT_METHOD = "cmaes"
 _REGISTRY: dict[str, "Method"] = {}
@@ -165,25 +169,59 @@ def unregister(name: str) -> None:
 
 def get(name: str) -> Method:
     """The method of that name; ValueError naming the known ones otherwise."""
+    _load_environment()
     if isinstance(name, str) and name in _REGISTRY:
         return _REGISTRY[name]
     raise ValueError(f"unknown method {name!r}; known methods: {', '.join(_REGISTRY)}")
 
 
 def names() -> tuple[str, ...]:
+    _load_environment()
     return tuple(_REGISTRY)
 
 
 def all_methods() -> tuple[Method, ...]:
+    _load_environment()
     return tuple(_REGISTRY.values())
 
 
 def load_plugins(spec: str | None) -> None:
-    """Import the modules named in `spec` (comma-separated; LAB_METHODS) and the installed
-    entry points of group `neuro_ik_lab.methods`: each registers its methods on import."""
+    """Import the modules named in `spec` (comma-separated) and the installed entry points of group
+    `neuro_ik_lab.methods`: each registers its methods on import."""
     for module in filter(None, (s.strip() for s in (spec or "").split(","))):
         importlib.import_module(module)
+    _load_entry_points()
+
+
+def _load_entry_points() -> None:
     from importlib.metadata import entry_points
 
     for ep in entry_points(group="neuro_ik_lab.methods"):
         ep.load()
+
+
+_environment_state = "not loaded"  # -> "loading" (in the thread that imports) -> "loaded"
+_environment_lock = threading.RLock()  # a module being imported may ask the registry itself
+
+
+def _load_environment() -> None:
+    """Once per process: the modules of LAB_METHODS and the installed entry points. A module that
+    cannot be imported: SettingError naming LAB_METHODS and the module (raised again at the next ask)."""
+    global _environment_state
+    if _environment_state == "loaded":
+        return
+    with _environment_lock:
+        if _environment_state != "not loaded":  # loaded meanwhile, or asked by a module being imported
+            return
+        _environment_state = "loading"
+        try:
+            for module in environment.method_modules():
+                try:
+                    importlib.import_module(module)
+                except Exception as e:
+                    raise environment.cannot_import(module, e) from e
+            _load_entry_points()
+        except BaseException:
+            _environment_state = "not loaded"
+            raise
+        _environment_state = "loaded"

@@ -4,7 +4,8 @@
 - controllers.py: the paper's MLP and NEAT's graphs as controllers goal -> q, their layout;
 - kernels.py: the compiled, batched network + forward kinematics + error of a whole population;
 - fitness.py: `Problem`, an arm with its fixed training and held-out goals and the fitness;
-- checks.py: field checks shared by the settings dataclasses.
+- checks.py: field checks shared by the settings dataclasses;
+- environment.py: the LAB_* environment variables, read and checked (SettingError).
 
 Nothing here knows which method trains the networks.
 """

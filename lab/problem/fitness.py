@@ -28,13 +28,13 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 import robots
-from lab.problem import kernels
+from lab.problem import environment, kernels
 from lab.problem.controllers import Controller, compile_programs
 from lab.problem.encoding import Encoding
 
 TEST_SEED_OFFSET = 1_000_003  # held-out goals come from another stream than the training goals
 RESAMPLE_STREAM = 2_000_003  # resampled training goals: yet another stream
-THREADS_VAR = "LAB_THREADS"
+THREADS_VAR = environment.THREADS
 MAX_THREADS = 4  # 50 candidates of a few hundred goals: more slices cost more than they save
 _MIN_SLICE = 4_000  # network-goal evaluations per slice below which a thread is not worth its hand-off
 # (the paper's 50 x 70 stay in one thread; a real arm's 50 x 300 go to two)
@@ -44,15 +44,10 @@ _pools_lock = threading.Lock()
 
 
 def default_threads() -> int:
-    """LAB_THREADS if set (an integer >= 1), else the cores this process may use, at most MAX_THREADS."""
-    raw = os.environ.get(THREADS_VAR)
-    if raw is not None:
-        try:
-            n = int(raw)
-        except ValueError:
-            n = 0
-        if n < 1:
-            raise ValueError(f"{THREADS_VAR} must be an integer >= 1, got {raw!r}")
+    """LAB_THREADS if set (an integer >= 1; lab.problem.environment.SettingError otherwise), else the
+    cores this process may use, at most MAX_THREADS."""
+    n = environment.threads()
+    if n is not None:
         return n
     return max(1, min(MAX_THREADS, len(os.sched_getaffinity(0))))
 

@@ -31,6 +31,7 @@ import rerun as rr
 
 import robots
 
+from lab.problem import environment
 from lab.recording import views
 from lab.recording.population import mse_colors, species_colors
 from lab.running.decimation import display_goal, long_run, population_logged
@@ -52,8 +53,9 @@ RESERVE_MAX = 256 * 2**20  # bytes kept free: 2 % of the filesystem, at most thi
 
 def reserve(path: str) -> int:
     """Bytes the recording leaves free on its filesystem: when less is free, it stops, closed and readable."""
-    if os.environ.get("LAB_RECORDING_RESERVE"):
-        return int(os.environ["LAB_RECORDING_RESERVE"])
+    given = environment.recording_reserve()  # SettingError naming LAB_RECORDING_RESERVE when not bytes
+    if given is not None:
+        return given
     total = shutil.disk_usage(os.path.dirname(os.path.abspath(path))).total
     return min(RESERVE_MAX, total // 50)
 
