@@ -26,6 +26,7 @@ name and changes nothing.
 from __future__ import annotations
 
 import argparse
+import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,23 +59,17 @@ class Lesson:
         return lesson_link(page_url, {"lesson": self.name, **self.params})
 
 
-def _lesson(name: str, views: str, **params) -> Lesson:
-    return Lesson(name, {k: str(v) for k, v in {**params, "views": views}.items()})
+def _load_lessons() -> dict:
+    """The shipped lessons' states: LESSONS_DIR/lessons.json, one object of link parameters per
+    lesson (content beside the lessons' texts, like a link: none when the folder is not there)."""
+    path = LESSONS_DIR / "lessons.json"
+    if not path.is_file():
+        return {}
+    return {name: Lesson(name, {k: str(v) for k, v in params.items()})
+            for name, params in json.loads(path.read_text(encoding="utf-8")).items()}
 
 
-LESSONS = {lesson.name: lesson for lesson in (
-    _lesson("fitness-without-targets", "ik.population.map", robot="planar", method="cmaes", population=50,
-            generations=300, hidden=5, seed=0),
-    _lesson("cmaes-vs-neat", "population.species.map", robot="planar", method="neat", population=50,
-            generations=300, hidden=0, seed=0, partner="cmaes", partner_population=50, partner_hidden=5,
-            partner_seed=0),
-    _lesson("hidden-units", "ik.map", robot="planar", method="cmaes", population=50, generations=1000, hidden=5,
-            seed=0, partner="cmaes", partner_population=50, partner_hidden=20, partner_seed=0),
-    _lesson("real-arm-and-snake", "ik.population.faint", robot="planar-20", method="cmaes", population=50,
-            generations=500, hidden=5, seed=0),
-    _lesson("gradient-vs-evolution", "ik.map", robot="planar-10", method="cmaes", population=50, generations=1000,
-            hidden=5, seed=0, partner="gradient", partner_population=1, partner_hidden=5, partner_seed=0),
-)}
+LESSONS = _load_lessons()
 
 
 def lesson_params(panel) -> dict:
