@@ -147,6 +147,19 @@ class ChainKinematics:
                              "use tree_arrays (each joint's parent, each effector's joint)")
         return self.rot, self.pos, self.kind, self.identity, self._ee_pos
 
+    def path(self, e: int) -> np.ndarray:
+        """Indices k of the joints that move effector e, root first: its serial chain within the tree."""
+        return np.flatnonzero(self.on_path[e])
+
+    def effector_arrays(self, e: int) -> tuple:
+        """(rot, pos, kind, identity, ee_pos) of effector e's own serial chain, the joints path(e) in
+        order: what `arrays` is for a serial arm. Each joint's fixed placement is folded relative to
+        its parent, which is the previous joint on the path, so composing these joint after joint on
+        q[..., path(e)] gives effector e (the lab's chain kernels can take a tree one effector at a time)."""
+        k = self.path(e)
+        return (np.ascontiguousarray(self.rot[k]), np.ascontiguousarray(self.pos[k]), np.ascontiguousarray(self.kind[k]),
+                np.ascontiguousarray(self.identity[k]), np.ascontiguousarray(self.effector_pos[e]))
+
     @property
     def tree_arrays(self) -> tuple:
         """(rot, pos, kind, identity, parent, ee_joint, effector_pos): the arguments `tree_points`

@@ -138,6 +138,29 @@ def test_fk_and_jacobian_of_any_tree_equal_pinocchio_and_finite_differences(seed
         np.testing.assert_allclose(alone.fk(q[:, cols]), arm.fk(q)[:, e], rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("name", TREES)
+def test_each_effectors_own_chain_composes_to_its_position(name):
+    """chain.effector_arrays(e): the serial chain (rot, pos, kind, identity, ee_pos) of effector e,
+    as a serial arm's chain.arrays, composed here joint after joint on q[:, path(e)]."""
+    arm = robots.load(name)
+    q = arm.sample_q(50, seed=8)
+    for e in range(arm.n_effectors):
+        rot, pos, kind, identity, ee_pos = arm.chain.effector_arrays(e)
+        path = arm.chain.path(e)
+        assert list(path) == sorted(path) and len(rot) == len(path) == arm.chain.on_path[e].sum()
+        R, p = np.broadcast_to(np.eye(3), (len(q), 3, 3)), np.zeros((len(q), 3))
+        for k in range(len(path)):
+            p = p + R @ pos[k]
+            R = R if identity[k] else R @ rot[k]
+            x = q[:, path[k], None]
+            if kind[k] == 0:
+                c, s = np.cos(x), np.sin(x)
+                R = np.stack([c * R[:, :, 0] + s * R[:, :, 1], c * R[:, :, 1] - s * R[:, :, 0], R[:, :, 2]], axis=2)
+            else:
+                p = p + x * R[:, :, 2]
+        np.testing.assert_allclose(p + R @ ee_pos, arm.fk(q)[:, e], rtol=0, atol=1e-12)
+
+
 def test_one_frame_in_a_sequence_is_a_serial_arm(tmp_path):
     path = tmp_path / "tree.urdf"
     path.write_text(random_tree_urdf(0))
