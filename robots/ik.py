@@ -244,10 +244,11 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
 
     J the translational rows of Pinocchio's frame Jacobian (LOCAL_WORLD_ALIGNED, end-effector
     frame) on the task axes (a tree of E effectors: their errors and Jacobians stacked, goals
-    (n, E, len(task_axes)), and no turn: no one joint turns every effector); lambda = damping x workspace_size (a small damping: near the
-    solution a Gauss-Newton step converges quadratically, the damping only guards singular
-    poses). Two safeguards make a step count from a seed tens of millimetres off: a joint the
-    step would push past its limit stops there and the others take up the rest of the error
+    (n, E, len(task_axes)), and no turn: no one joint turns every effector); lambda = damping x
+    workspace_size (a small damping: near the solution a Gauss-Newton step converges
+    quadratically, the damping only guards singular poses). Two safeguards make a step count
+    from a seed tens of millimetres off: a joint the step would push past its limit stops there
+    and the others take up the rest of the error
     (clipping it instead left many more goals unsolved: docs/log.md), and the step length
     is halved while the full step does not lower the error (each halving costs one forward
     kinematics, not a Jacobian). A goal stops once its error is below tol (default 1e-4 x

@@ -157,8 +157,9 @@ class ChainKinematics:
         its parent, which is the previous joint on the path, so composing these joint after joint on
         q[..., path(e)] gives effector e (the lab's chain kernels can take a tree one effector at a time)."""
         k = self.path(e)
-        return (np.ascontiguousarray(self.rot[k]), np.ascontiguousarray(self.pos[k]), np.ascontiguousarray(self.kind[k]),
-                np.ascontiguousarray(self.identity[k]), np.ascontiguousarray(self.effector_pos[e]))
+        return (np.ascontiguousarray(self.rot[k]), np.ascontiguousarray(self.pos[k]),
+                np.ascontiguousarray(self.kind[k]), np.ascontiguousarray(self.identity[k]),
+                np.ascontiguousarray(self.effector_pos[e]))
 
     @property
     def tree_arrays(self) -> tuple:
