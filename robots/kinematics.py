@@ -226,34 +226,37 @@ _NO_JOINTS = np.empty((0, 0, 3))
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def tree_points(q, i, rot, pos, kind, identity, parent, ee_joint, effector_pos, F, out, joints, axes=None):
-    """End-effector positions of configuration q[i] into out[i] (E, 3) (compiled; for use in other kernels).
+def tree_points(q, i, rot, pos, kind, identity, parent, ee_joint, effector_pos, F, out, o, joints, axes=None):
+    """End-effector positions of configuration q[i] into out[o] (E, 3) (compiled; for use in other kernels).
 
-    Joints in order (parents first); joint k starts from its parent's frame F[parent[k]] (the
-    identity for a joint on the root): p += R pos[k];  R = R rot[k];  then a revolute joint mixes
-    columns 0 and 1 of R by (cos q, sin q), a prismatic one adds q R[:, 2] to p; its frame goes to
-    F[k] = (R row by row, p) (F: scratch of shape (n, 12)). Effector e is p + R effector_pos[e] of
-    its joint's frame. A serial chain takes its running R and p from the previous joint: the same
-    operations, in the same order, as a walk that keeps them in registers (the lab's kernels).
+    Joints in order (parents first); joint k starts from its parent's frame (the identity for a
+    joint on the root; F[parent[k]] unless the parent is joint k - 1, whose frame is still at
+    hand): p += R pos[k];  R = R rot[k];  then a revolute joint mixes columns 0 and 1 of R by
+    (cos q, sin q), a prismatic one adds q R[:, 2] to p; its frame goes to F[k] = (R row by row,
+    p) (F: scratch of shape (n, 12)). Effector e is p + R effector_pos[e] of
+    its joint's frame. A serial chain keeps its running R and p from joint to joint: the same
+    operations, in the same order, as the lab's kernels, which compose a serial chain.
     If joints has rows, the origin of each joint (before its own motion) is written to
-    joints[i, k + 1]; if axes is given, each joint's axis in the base frame (R[:, 2] once its fixed
-    placement is applied) to axes[k].
+    joints[o, k + 1]; if axes is given, each joint's axis in the base frame (R[:, 2] once its fixed
+    placement is applied) to axes[k]. o: the row of out and joints (i, or 0 for scratch of one row).
     """
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+    px, py, pz = 0.0, 0.0, 0.0
     for k in range(rot.shape[0]):
         b = parent[k]
         if b < 0:
             r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
             px, py, pz = 0.0, 0.0, 0.0
-        else:
+        elif b != k - 1:  # a branch: the parent's frame, kept; else the previous joint's, still at hand
             r00, r01, r02, r10, r11, r12 = F[b, 0], F[b, 1], F[b, 2], F[b, 3], F[b, 4], F[b, 5]
             r20, r21, r22, px, py, pz = F[b, 6], F[b, 7], F[b, 8], F[b, 9], F[b, 10], F[b, 11]
         px += r00 * pos[k, 0] + r01 * pos[k, 1] + r02 * pos[k, 2]
         py += r10 * pos[k, 0] + r11 * pos[k, 1] + r12 * pos[k, 2]
         pz += r20 * pos[k, 0] + r21 * pos[k, 1] + r22 * pos[k, 2]
         if joints.shape[0] > 0:
-            joints[i, k + 1, 0] = px
-            joints[i, k + 1, 1] = py
-            joints[i, k + 1, 2] = pz
+            joints[o, k + 1, 0] = px
+            joints[o, k + 1, 1] = py
+            joints[o, k + 1, 2] = pz
         if not identity[k]:
             m = rot[k]
             a00 = r00 * m[0, 0] + r01 * m[1, 0] + r02 * m[2, 0]
@@ -285,11 +288,11 @@ def tree_points(q, i, rot, pos, kind, identity, parent, ee_joint, effector_pos, 
         j = ee_joint[e]
         ex, ey, ez = effector_pos[e, 0], effector_pos[e, 1], effector_pos[e, 2]
         if j < 0:  # a frame on the root (from_urdf refuses it as an effector)
-            out[i, e, 0], out[i, e, 1], out[i, e, 2] = ex, ey, ez
+            out[o, e, 0], out[o, e, 1], out[o, e, 2] = ex, ey, ez
         else:
-            out[i, e, 0] = F[j, 9] + F[j, 0] * ex + F[j, 1] * ey + F[j, 2] * ez
-            out[i, e, 1] = F[j, 10] + F[j, 3] * ex + F[j, 4] * ey + F[j, 5] * ez
-            out[i, e, 2] = F[j, 11] + F[j, 6] * ex + F[j, 7] * ey + F[j, 8] * ez
+            out[o, e, 0] = F[j, 9] + F[j, 0] * ex + F[j, 1] * ey + F[j, 2] * ez
+            out[o, e, 1] = F[j, 10] + F[j, 3] * ex + F[j, 4] * ey + F[j, 5] * ez
+            out[o, e, 2] = F[j, 11] + F[j, 6] * ex + F[j, 7] * ey + F[j, 8] * ez
 
 
 @numba.njit(cache=True, nogil=True)
@@ -297,7 +300,7 @@ def _tree_kernel(q, rot, pos, kind, identity, parent, ee_joint, effector_pos, ou
     """tree_points for every row of q, into out (N, E, 3); joint origins into joints if it has rows."""
     F = np.empty((rot.shape[0], 12))
     for i in range(q.shape[0]):
-        tree_points(q, i, rot, pos, kind, identity, parent, ee_joint, effector_pos, F, out, joints)
+        tree_points(q, i, rot, pos, kind, identity, parent, ee_joint, effector_pos, F, out, i, joints)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -312,20 +315,20 @@ def _jacobian_kernel(q, rot, pos, kind, identity, parent, ee_joint, effector_pos
     n = rot.shape[0]
     E = ee_joint.shape[0]
     axes = np.empty((n, 3))
-    origins = np.empty((q.shape[0], n + 1, 3))
+    origins = np.empty((1, n + 1, 3))  # scratch of one row: it stays in cache
     F = np.empty((n, 12))
-    p = np.empty((q.shape[0], E, 3))
+    p = np.empty((1, E, 3))
     for i in range(q.shape[0]):
-        tree_points(q, i, rot, pos, kind, identity, parent, ee_joint, effector_pos, F, p, origins, axes)
+        tree_points(q, i, rot, pos, kind, identity, parent, ee_joint, effector_pos, F, p, 0, origins, axes)
         for e in range(E):
-            ex, ey, ez = p[i, e, 0], p[i, e, 1], p[i, e, 2]
+            ex, ey, ez = p[0, e, 0], p[0, e, 1], p[0, e, 2]
             for k in range(n):
                 if not on_path[e, k]:
                     J[i, e, 0, k], J[i, e, 1, k], J[i, e, 2, k] = 0.0, 0.0, 0.0
                     continue
                 ax, ay, az = axes[k, 0], axes[k, 1], axes[k, 2]
                 if kind[k] == 0:
-                    dx, dy, dz = ex - origins[i, k + 1, 0], ey - origins[i, k + 1, 1], ez - origins[i, k + 1, 2]
+                    dx, dy, dz = ex - origins[0, k + 1, 0], ey - origins[0, k + 1, 1], ez - origins[0, k + 1, 2]
                     J[i, e, 0, k] = ay * dz - az * dy
                     J[i, e, 1, k] = az * dx - ax * dz
                     J[i, e, 2, k] = ax * dy - ay * dx
