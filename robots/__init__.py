@@ -1,13 +1,15 @@
-"""Robots: Pinocchio models of serial arms with batched forward kinematics.
+"""Robots: Pinocchio models of serial arms and trees, with batched forward kinematics.
 
     import robots
-    robots.names()                  # every name load() accepts
+    robots.names()                  # the serial arms load() accepts; names(trees=True): the trees too
     arm = robots.load("planar")     # also "scara", "ur5", "panda", ...
     arm.fk(q)                       # (..., nq) -> (..., 3) end-effector positions
     arm.jacobian(q)                 # (..., nq) -> (..., 3, nq) positional Jacobian of fk
     arm.sample_goals(70, seed=0)    # (70, len(arm.task_axes)) reachable goals
     robots.kind("ur5")              # "paper" (the paper's arms, its units), "snake" (planar-10/-20,
-                                    # the paper's units) or "real" (metres)
+                                    # the paper's units), "real" (metres) or "tree" (metres)
+    tree = robots.load("g1")        # several end effectors (tree.effectors): fk (..., E, 3),
+                                    # jacobian (..., E, 3, nq), goals (n, E, len(task_axes))
 
 Nothing here knows about networks or evolution.
 """

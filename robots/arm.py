@@ -1,8 +1,11 @@
-"""`Arm`: one serial arm as a Pinocchio model of its chain, with batched kinematics.
+"""`Arm`: one serial arm, or a tree of several end effectors, as a Pinocchio model with batched kinematics.
 
-An arm is built from a URDF and the name of its end-effector frame. Joints that are
-not on the path from the root to that frame (grippers, fingers) are locked at a
-reference posture, so `model` holds the arm's chain only, with a fixed base.
+An arm is built from a URDF and the name of its end-effector frame, or the names of several
+(a tree: the feet of a legged robot, the fingertips of a hand). Joints that are not on a path
+from the root to an end-effector frame (grippers, fingers, a head) are locked at a reference
+posture, so `model` holds those paths only, with a fixed base: the URDF's root link fixed in space.
+With E end effectors, a goal is one position per effector: fk gives (..., 3) for one, (..., E, 3)
+for several.
 
 Joint coordinates are angles [rad] and lengths [URDF units], one per joint: a
 continuous joint is a single angle in [-pi, pi] (Pinocchio stores it as cos/sin).
@@ -23,17 +26,20 @@ from robots.kinematics import PRISMATIC, ChainKinematics
 
 @dataclass(frozen=True, eq=False)
 class Arm:
-    """A serial arm: Pinocchio model, joint limits, task axes and batched kinematics.
+    """A serial arm or a tree: Pinocchio model, joint limits, task axes and batched kinematics.
 
     Attributes:
-        name       registry name ("planar", "ur5", ...)
-        model      pinocchio.Model of the chain only (fixed base, other joints locked)
+        name       registry name ("planar", "ur5", "g1", ...)
+        model      pinocchio.Model of the paths to the end effectors only (fixed base, other joints
+                   locked); its joints are ordered as q
         nq         number of joint coordinates (angles / lengths)
         lower      (nq,) lower joint limits
         upper      (nq,) upper joint limits
         task_axes  end-effector coordinates that make a goal: (0, 1) planar, (0, 1, 2) others
-        ee_frame   name of the end-effector frame in `model`
-        ee_frame_id  its index in model.frames
+                   (for a tree: the same axes of every effector)
+        effectors  names of the end-effector frames in `model`, in order (one for a serial arm)
+        effector_ids  their indices in model.frames
+        ee_frame, ee_frame_id  the one end-effector frame's name and index (a serial arm only)
         urdf_path  the URDF it was built from
         package_dirs  directories that resolve package:// mesh paths
         joint_names   (nq,) names of the chain's joints, root first
@@ -45,8 +51,8 @@ class Arm:
     lower: np.ndarray
     upper: np.ndarray
     task_axes: tuple[int, ...]
-    ee_frame: str
-    ee_frame_id: int
+    effectors: tuple[str, ...]
+    effector_ids: tuple[int, ...]
     urdf_path: str
     package_dirs: tuple[str, ...]
     joint_names: tuple[str, ...]
@@ -58,6 +64,37 @@ class Arm:
     @property
     def nq(self) -> int:
         return self.chain.n
+
+    @property
+    def n_effectors(self) -> int:
+        """E, the number of end effectors: 1 for a serial arm."""
+        return len(self.effectors)
+
+    @property
+    def is_tree(self) -> bool:
+        """True for several end effectors: goals are (..., E, len(task_axes)), fk (..., E, 3)."""
+        return len(self.effectors) > 1
+
+    @property
+    def ee_frame(self) -> str:
+        """The end-effector frame's name (a serial arm; a tree has `effectors`)."""
+        if self.is_tree:
+            raise AttributeError(f"{self.name} has {self.n_effectors} end effectors "
+                                 f"({', '.join(self.effectors)}): use arm.effectors")
+        return self.effectors[0]
+
+    @property
+    def ee_frame_id(self) -> int:
+        """The end-effector frame's index in model.frames (a serial arm; a tree has `effector_ids`)."""
+        if self.is_tree:
+            raise AttributeError(f"{self.name} has {self.n_effectors} end effectors "
+                                 f"({', '.join(self.effectors)}): use arm.effector_ids")
+        return self.effector_ids[0]
+
+    @property
+    def _effector_shape(self) -> tuple[int, ...]:
+        """() for a serial arm, (E,) for a tree: the axis fk, reach and goals have per effector."""
+        return (len(self.effectors),) if len(self.effectors) > 1 else ()
 
     @property
     def is_prismatic(self) -> np.ndarray:
@@ -82,25 +119,37 @@ class Arm:
         return np.ascontiguousarray(q.reshape(-1, self.nq)), batch
 
     def fk(self, q) -> np.ndarray:
-        """End-effector positions: q (..., nq) -> (..., 3), in the base frame."""
+        """End-effector positions in the base frame: q (..., nq) -> (..., 3) for a serial arm,
+        (..., E, 3) for a tree (effectors in the order of `effectors`)."""
         flat, batch = self._as_batch(q)
-        return self.chain.positions(flat).reshape(*batch, 3)
+        return self.chain.positions(flat).reshape(*batch, *self._effector_shape, 3)
 
     def jacobian(self, q) -> np.ndarray:
-        """Positional Jacobian of `fk`: q (..., nq) -> (..., 3, nq), d p_ee / d q in the base frame.
+        """Positional Jacobian of `fk`: q (..., nq) -> (..., 3, nq), d p_ee / d q in the base frame;
+        (..., E, 3, nq) for a tree (reshape to (..., 3E, nq) for the stacked Jacobian).
         Column k: a_k x (p_ee - o_k) for a revolute joint (axis a_k through o_k; a continuous
-        joint's coordinate is its angle), a_k for a prismatic one. Equals Pinocchio's
-        computeFrameJacobian(..., ee, LOCAL_WORLD_ALIGNED)[:3] (the chain has nv == nq)."""
+        joint's coordinate is its angle), a_k for a prismatic one, zero for a joint that does not
+        move that effector. Equals Pinocchio's computeFrameJacobian(..., ee, LOCAL_WORLD_ALIGNED)[:3]
+        (the model has nv == nq)."""
         flat, batch = self._as_batch(q)
-        return self.chain.jacobian(flat).reshape(*batch, 3, self.nq)
+        return self.chain.jacobian(flat).reshape(*batch, *self._effector_shape, 3, self.nq)
 
     def joint_positions(self, q) -> np.ndarray:
-        """Base, joint and end-effector origins: q (..., nq) -> (..., nq + 2, 3); a polyline of the arm."""
+        """Base, joint and end-effector origins: q (..., nq) -> (..., 1 + nq + E, 3) (the base, the
+        joints in the order of q, the effectors); a serial arm's (..., nq + 2, 3) is a polyline,
+        a tree's segments join each point to its `point_parents` entry."""
         flat, batch = self._as_batch(q)
-        return self.chain.joint_positions(flat).reshape(*batch, self.nq + 2, 3)
+        return self.chain.joint_positions(flat).reshape(*batch, self.nq + 1 + self.n_effectors, 3)
+
+    @property
+    def point_parents(self) -> np.ndarray:
+        """(1 + nq + E,) the point of `joint_positions` each point hangs from (-1 for the base):
+        [-1, 0, 1, ..., nq] for a serial arm."""
+        return self.chain.point_parents
 
     def reach(self, q) -> np.ndarray:
-        """The goal coordinates reached by q: (..., nq) -> (..., len(task_axes))."""
+        """The goal coordinates reached by q: (..., nq) -> (..., len(task_axes)), or
+        (..., E, len(task_axes)) for a tree."""
         return self.fk(q)[..., list(self.task_axes)]
 
     def to_3d(self, points) -> np.ndarray:
@@ -140,18 +189,20 @@ class Arm:
         return self.lower + (self.upper - self.lower) * rng.random((int(n), self.nq))
 
     def sample_goals(self, n: int, seed: int | None = None) -> np.ndarray:
-        """(n, len(task_axes)) reachable goals: end-effector positions of uniformly drawn joint vectors.
-        ValueError, never NaN goals, when the kinematics give non-finite positions."""
+        """(n, len(task_axes)) reachable goals, (n, E, len(task_axes)) for a tree: end-effector
+        positions of uniformly drawn joint vectors. ValueError, never NaN goals, when the kinematics
+        give non-finite positions."""
         goals = self.reach(self.sample_q(n, seed))
         if not np.isfinite(goals).all():
-            bad = int((~np.isfinite(goals)).any(axis=-1).sum())
+            bad = int((~np.isfinite(goals)).reshape(len(goals), -1).any(axis=-1).sum())
             raise ValueError(f"{self.name}: {bad} of {len(goals)} sampled goals are not finite numbers "
                              f"(joint limits {list(zip(self.lower.tolist(), self.upper.tolist()))})")
         return goals
 
     @functools.cached_property
     def workspace_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """(lo, hi) of the task coordinates over 20,000 uniform joint samples (a fixed seed)."""
+        """(lo, hi) of the task coordinates over 20,000 uniform joint samples (a fixed seed); each
+        (len(task_axes),), or (E, len(task_axes)) for a tree (one box per effector)."""
         goals = self.sample_goals(20_000, seed=12345)
         lo, hi = goals.min(axis=0), goals.max(axis=0)
         flat = hi - lo < 1e-9  # a coordinate that never moves: give it a unit range
@@ -162,9 +213,19 @@ class Arm:
         """How far the end effector gets from the base origin [length]: the largest distance over
         20,000 uniform joint samples (a fixed seed) and the rest posture. Errors are reported in %
         of it. The rest posture counts because uniform samples rarely stretch out a many-jointed
-        arm: a 20-link snake's farthest sample falls 9% short, its rest posture (straight) is exact."""
+        arm: a 20-link snake's farthest sample falls 9% short, its rest posture (straight) is exact.
+        For a tree: the largest of `effector_reach`."""
+        return float(self.effector_reach.max())
+
+    @functools.cached_property
+    def effector_reach(self) -> np.ndarray:
+        """(E,) how far each end effector gets from the base origin [length], as `reach_radius`
+        measures it (20,000 uniform joint samples, a fixed seed, and the rest posture)."""
         q = np.concatenate([self.sample_q(20_000, seed=1), self.rest[None]])
-        return float(np.linalg.norm(self.fk(q), axis=-1).max())
+        p = self.chain.positions(q)  # (N, E, 3)
+        reach = np.linalg.norm(p, axis=-1).max(axis=0)
+        reach.flags.writeable = False
+        return reach
 
     @functools.cached_property
     def base_axis(self) -> tuple[np.ndarray, np.ndarray]:
@@ -193,6 +254,8 @@ class Arm:
         return _visual_cache(self)
 
     def __repr__(self) -> str:
+        if self.is_tree:
+            return f"Arm({self.name!r}, nq={self.nq}, effectors={self.effectors!r}, task_axes={self.task_axes})"
         return f"Arm({self.name!r}, nq={self.nq}, ee={self.ee_frame!r}, task_axes={self.task_axes})"
 
 
@@ -203,7 +266,7 @@ def _visual_cache(arm: Arm) -> pin.GeometryModel:
 
 def from_urdf(
     urdf_path: str | os.PathLike,
-    ee_frame: str,
+    ee_frame: str | Sequence[str],
     *,
     name: str | None = None,
     task_axes: Sequence[int] = (0, 1, 2),
@@ -212,13 +275,20 @@ def from_urdf(
     reference: np.ndarray | None = None,
     limits: dict[str, tuple[float, float]] | None = None,
     srdf: tuple[str, str] | None = None,
+    posture: dict[str, float] | None = None,
 ) -> Arm:
-    """Build an `Arm` from a URDF file and the name of its end-effector frame.
+    """Build an `Arm` from a URDF file and the name of its end-effector frame, or a sequence of names
+    (a tree of several end effectors: feet, fingertips, hands; one name, or a sequence of one, is a
+    serial arm). The URDF's root link is fixed in space (no free-flyer); joints on no path from the
+    root to an effector are locked. Refused by name: a frame the URDF lacks, a frame given twice, two
+    frames on one link (moved by the same joint), a frame on the root link (no joint moves it).
 
     xml_replace: text substitutions applied to the URDF before parsing (name fixes).
     reference:   Pinocchio configuration of the full model at which off-chain joints are locked.
     limits:      overrides of joint limits by joint name.
     srdf:        (SRDF path, posture name) giving the reference posture, when `reference` is None.
+    posture:     joint values by joint name set over the reference posture (a URDF without an SRDF
+                 posture: a humanoid's bent knees); the rest posture follows it.
     """
     urdf_path = os.path.realpath(os.fspath(urdf_path))
     name = name or os.path.splitext(os.path.basename(urdf_path))[0]
@@ -239,28 +309,28 @@ def from_urdf(
         full = pin.buildModelFromXML(xml)
     except Exception as e:  # Pinocchio raises ValueError/RuntimeError with its parser's text
         raise ValueError(f"{name}: {urdf_path} is not a valid URDF: {e}") from e
-    frame_id = _find_frame(full, ee_frame, name, urdf_path)
+    frames = _effector_names(ee_frame, name)
+    frame_ids = _effector_frames(full, frames, name, urdf_path)
 
-    on_chain = set(full.supports[full.frames[frame_id].parentJoint])
+    on_chain = set().union(*(full.supports[full.frames[f].parentJoint] for f in frame_ids))
     locked = [j for j in range(1, full.njoints) if j not in on_chain]
-    q_full = _reference(full, reference, srdf, name)
+    q_full = _with_posture(full, _reference(full, reference, srdf, name), posture or {}, name)
     model = pin.buildReducedModel(full, locked, q_full) if locked else full
-    frame_id = _find_frame(model, ee_frame, name, urdf_path)
-    chain = ChainKinematics(model, frame_id)
-    if chain.n == 0:
-        raise ValueError(f"{name}: frame {ee_frame!r} in {urdf_path} is not moved by any joint")
+    frame_ids = tuple(_find_frame(model, f, name, urdf_path) for f in frames)
+    chain = ChainKinematics(model, frame_ids)
 
     joint_names = tuple(model.names[int(j)] for j in chain.joint_ids)
     mimics = _mimic_joints(xml) & set(joint_names)
     if mimics:
-        raise ValueError(f"{name}: joint(s) {', '.join(sorted(mimics))} on the chain to {ee_frame!r} mimic "
+        to = ("chain to " if len(frames) == 1 else "chains to ") + ", ".join(map(repr, frames))
+        raise ValueError(f"{name}: joint(s) {', '.join(sorted(mimics))} on the {to} mimic "
                          "another joint; mimic joints are supported only off the chain (locked)")
     lower, upper = _limits(model, chain, limits or {}, name)
     q_ref = pin.neutral(model)
     arm_q_ref = _reduce_reference(full, model, q_full)
     rest = _within(chain.from_pinocchio(arm_q_ref)[None], lower, upper, chain.continuous)[0]
     dirs = tuple(package_dirs)
-    ee_name = model.frames[frame_id].name
+    ee_names = tuple(model.frames[f].name for f in frame_ids)
 
     def build_visual() -> pin.GeometryModel:
         vis_full = pin.buildGeomFromUrdfString(full, xml, pin.GeometryType.VISUAL, package_dirs=list(dirs))
@@ -273,7 +343,7 @@ def from_urdf(
         a.flags.writeable = False
     return Arm(
         name=name, model=model, lower=lower, upper=upper, task_axes=tuple(int(a) for a in task_axes),
-        ee_frame=ee_name, ee_frame_id=frame_id, urdf_path=urdf_path, package_dirs=dirs, joint_names=joint_names,
+        effectors=ee_names, effector_ids=frame_ids, urdf_path=urdf_path, package_dirs=dirs, joint_names=joint_names,
         rest=rest, q_ref=q_ref, chain=chain, _visual_builder=build_visual,
     )
 
@@ -286,6 +356,44 @@ def _within(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, continuous: np.
     q = q.copy()
     q[:, continuous] = np.where((x >= lo) & (x < lo + 2 * np.pi), x, lo + np.mod(x - lo, 2 * np.pi))
     return np.clip(q, lower, upper)
+
+
+def _effector_names(ee_frame, name: str) -> tuple[str, ...]:
+    """from_urdf's ee_frame as a tuple of names: one name, or a non-empty sequence of names."""
+    frames = (ee_frame,) if isinstance(ee_frame, str) else ee_frame
+    try:
+        frames = tuple(frames)
+    except TypeError:
+        frames = ()
+    if not frames or not all(isinstance(f, str) for f in frames):
+        raise ValueError(f"{name}: the end effector must be a frame name or a non-empty sequence of frame names, "
+                         f"got {ee_frame!r}")
+    return frames
+
+
+def _effector_frames(full: pin.Model, frames: tuple[str, ...], name: str, urdf_path: str) -> tuple[int, ...]:
+    """The frame index of each effector in the full model; refused by name: a frame given twice, two
+    frames on one link (moved by the same joint: their positions are tied), a frame no joint moves."""
+    ids, by_joint = [], {}
+    for f in frames:
+        fid = _find_frame(full, f, name, urdf_path)
+        if fid in ids:
+            raise ValueError(f"{name}: end-effector frame {f!r} is given twice")
+        joint = full.frames[fid].parentJoint
+        if joint == 0:
+            root = next((fr.name for fr in full.frames if fr.type == pin.FrameType.BODY and fr.parentJoint == 0),
+                        "the root")
+            raise ValueError(f"{name}: frame {f!r} in {urdf_path} is not moved by any joint (it is on the root "
+                             f"link {root!r}): an end effector needs a joint between it and the root")
+        if joint in by_joint:
+            link = next((fr.name for fr in full.frames if fr.type == pin.FrameType.BODY and fr.parentJoint == joint),
+                        full.names[joint])
+            raise ValueError(f"{name}: end-effector frames {by_joint[joint]!r} and {f!r} are on one link ({link!r}, "
+                             f"moved by joint {full.names[joint]!r}): their positions are tied; give one effector "
+                             "per link")
+        ids.append(fid)
+        by_joint[joint] = f
+    return tuple(ids)
 
 
 def _find_frame(model: pin.Model, ee_frame: str, name: str, urdf_path: str) -> int:
@@ -357,6 +465,23 @@ def _reference(full: pin.Model, reference, srdf, name: str) -> np.ndarray:
         known = ", ".join(sorted(entry.key() for entry in full.referenceConfigurations)) or "none"
         raise ValueError(f"{name}: posture {srdf[1]!r} is not in {srdf[0]} (postures: {known})")
     return np.array(full.referenceConfigurations[srdf[1]])
+
+
+def _with_posture(full: pin.Model, q: np.ndarray, posture: dict, name: str) -> np.ndarray:
+    """q with the joints named in `posture` set to their values (a continuous joint as cos, sin)."""
+    q = np.array(q, dtype=np.float64)
+    for jname, value in posture.items():
+        if not isinstance(jname, str) or not full.existJointName(jname):
+            raise ValueError(f"{name}: posture for {jname!r}, which is not a joint of the URDF")
+        jm = full.joints[full.getJointId(jname)]
+        value = float(value)
+        if jm.nv != 1 or not np.isfinite(value):
+            raise ValueError(f"{name}: posture of {jname!r} must be one finite value of a one-axis joint, got {value}")
+        if jm.nq == 2:
+            q[jm.idx_q], q[jm.idx_q + 1] = np.cos(value), np.sin(value)
+        else:
+            q[jm.idx_q] = value
+    return q
 
 
 def _mimic_joints(xml: str) -> set[str]:

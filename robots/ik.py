@@ -8,7 +8,10 @@ One query iterates, from the rest pose q_0 = arm.rest,
     dq_k = J# e_k + (I - J# J_k) b_k                    b_k: a posture term toward mid-range
     q_{k+1} = q_k + dq_k                                within the limits (arm.within_limits)
 
-J_p comes from `pinocchio.computeFrameJacobian` (LOCAL_WORLD_ALIGNED, end-effector frame).
+J_p comes from `pinocchio.computeFrameJacobian` (LOCAL_WORLD_ALIGNED, end-effector frame). A tree of E
+end effectors (Arm.effectors) is the same iteration on stacked vectors: e_k the E effectors' errors one
+after the other (3E rows with three task axes), J_k their Jacobians stacked (3E x nq; a joint that does
+not move an effector has zeros in its rows), ||e|| the norm of the whole stack.
 The arm's chain has one velocity per coordinate (nv == nq), so dq is a step in the arm's own
 coordinates. Safeguards a textbook DLS needs here: no coordinate moves more than max_step per
 iteration; a joint the step would take past a limit stops at it and the others solve for the
@@ -58,6 +61,26 @@ def _limited(dq: np.ndarray, max_step: float) -> np.ndarray:
     return dq * min(1.0, max_step / max(float(np.max(np.abs(dq))), 1e-300))
 
 
+def _task_error(arm: Arm, data: pin.Data, goal: np.ndarray, axes: list) -> np.ndarray:
+    """goal - the effectors' task coordinates, stacked (E len(axes),), after forwardKinematics."""
+    model, fids = arm.model, arm.effector_ids
+    if len(fids) == 1:
+        pin.updateFramePlacement(model, data, fids[0])
+        return goal - data.oMf[fids[0]].translation[axes]
+    for fid in fids:
+        pin.updateFramePlacement(model, data, fid)
+    return goal - np.concatenate([data.oMf[fid].translation[axes] for fid in fids])
+
+
+def _task_jacobian(arm: Arm, data: pin.Data, q_pin: np.ndarray, axes: list) -> np.ndarray:
+    """The effectors' positional frame Jacobians on the task axes, stacked: (E len(axes), nq)."""
+    model, fids = arm.model, arm.effector_ids
+    if len(fids) == 1:
+        return pin.computeFrameJacobian(model, data, q_pin, fids[0], pin.LOCAL_WORLD_ALIGNED)[:3][axes]
+    return np.concatenate([pin.computeFrameJacobian(model, data, q_pin, fid, pin.LOCAL_WORLD_ALIGNED)[:3][axes]
+                           for fid in fids])
+
+
 def _data(arm: Arm) -> pin.Data:
     """This thread's pin.Data of the arm's model; dropped with the arm (an id could be reused)."""
     cache = getattr(_local, "data", None)
@@ -79,18 +102,24 @@ def dls_ik(arm: Arm, goal, q0=None, *, damping: float = 0.02, tol: float | None 
            max_iter: int = 100, max_step: float = 0.5, posture: float = 0.1) -> IKResult:
     """Solve reach(q) = goal by damped least squares, from q0 (arm.rest by default; moved into the limits).
 
-    goal: (len(task_axes),) task coordinates; damping: lambda as a fraction of workspace_size;
-    tol: error threshold [length] (default 1e-4 * workspace_size).
+    goal: (len(task_axes),) task coordinates, (E, len(task_axes)) for a tree of E effectors;
+    damping: lambda as a fraction of workspace_size; tol: error threshold [length] (default
+    1e-4 * workspace_size) on ||e||, all effectors' errors stacked.
     """
     t0 = time.perf_counter()
-    goal = np.asarray(goal, dtype=np.float64).reshape(-1)
+    goal = np.asarray(goal, dtype=np.float64)
+    shape = goal.shape
+    goal = goal.reshape(-1)
     axes = list(arm.task_axes)
-    if goal.shape != (len(axes),):
+    if arm.is_tree and shape != (arm.n_effectors, len(axes)):
+        raise ValueError(f"{arm.name}: goal must have shape ({arm.n_effectors}, {len(axes)}) (one position per "
+                         f"effector: {', '.join(arm.effectors)}), got shape {shape}")
+    if goal.shape != (len(axes) * arm.n_effectors,):
         raise ValueError(f"{arm.name}: goal must have {len(axes)} coordinates, got shape {goal.shape}")
     size = workspace_size(arm)
     lam2 = (damping * size) ** 2
     tol = 1e-4 * size if tol is None else float(tol)
-    model, data, fid = arm.model, _data(arm), arm.ee_frame_id
+    model, data = arm.model, _data(arm)
     q = arm.rest.copy() if q0 is None else arm.within_limits(np.asarray(q0, dtype=np.float64).reshape(-1))
     cont = arm.chain.continuous.astype(bool)
     lower, upper = arm.lower, arm.upper
@@ -102,8 +131,7 @@ def dls_ik(arm: Arm, goal, q0=None, *, damping: float = 0.02, tol: float | None 
     for it in range(max_iter + 1):
         q_pin = q if direct else arm.to_pinocchio(q)
         pin.forwardKinematics(model, data, q_pin)
-        pin.updateFramePlacement(model, data, fid)
-        e = goal - data.oMf[fid].translation[axes]
+        e = _task_error(arm, data, goal, axes)
         err = float(np.sqrt(e @ e))  # np.linalg.norm, bit for bit, without its overhead (IK per drag)
         if err < best[1]:
             best, since_best = (q, err), 0
@@ -111,7 +139,7 @@ def dls_ik(arm: Arm, goal, q0=None, *, damping: float = 0.02, tol: float | None 
             since_best += 1
         if err < tol or it == max_iter or since_best >= patience:
             break
-        J = pin.computeFrameJacobian(model, data, q_pin, fid, pin.LOCAL_WORLD_ALIGNED)[:3][axes]  # (m, nq)
+        J = _task_jacobian(arm, data, q_pin, axes)  # (m, nq), m = E len(axes)
         # toward mid-range, fading with the error and the iterations: it takes the arm off the rest
         # pose's singularity, then vanishes (also for a goal out of reach)
         bias = np.where(cont, 0.0, posture * min(1.0, err / (0.05 * size)) * 0.85**it * (mid - q))
@@ -135,8 +163,8 @@ def dls_ik(arm: Arm, goal, q0=None, *, damping: float = 0.02, tol: float | None 
 
 @dataclass(frozen=True)
 class RefineResult:
-    """q (n, nq) within the limits; error (n,) = ||g - reach(q)|| [length]; steps (n,) taken;
-    seconds of wall time for the whole batch."""
+    """q (n, nq) within the limits; error (n,) = ||g - reach(q)|| [length] (a tree: all effectors'
+    errors stacked); steps (n,) taken; seconds of wall time for the whole batch."""
 
     q: np.ndarray
     error: np.ndarray
@@ -215,10 +243,12 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
         q_{k+1} = turned(q_k + a_k dq_k),  a_k the first of 1, 1/2, 1/4, ... (halvings) that lowers the error
 
     J the translational rows of Pinocchio's frame Jacobian (LOCAL_WORLD_ALIGNED, end-effector
-    frame) on the task axes; lambda = damping x workspace_size (a small damping: near the
-    solution a Gauss-Newton step converges quadratically, the damping only guards singular
-    poses). Two safeguards make a step count from a seed tens of millimetres off: a joint the
-    step would push past its limit stops there and the others take up the rest of the error
+    frame) on the task axes (a tree of E effectors: their errors and Jacobians stacked, goals
+    (n, E, len(task_axes)), and no turn: no one joint turns every effector); lambda = damping x
+    workspace_size (a small damping: near the solution a Gauss-Newton step converges
+    quadratically, the damping only guards singular poses). Two safeguards make a step count
+    from a seed tens of millimetres off: a joint the step would push past its limit stops there
+    and the others take up the rest of the error
     (clipping it instead left many more goals unsolved: docs/log.md), and the step length
     is halved while the full step does not lower the error (each halving costs one forward
     kinematics, not a Jacobian). A goal stops once its error is below tol (default 1e-4 x
@@ -241,28 +271,30 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     goals within tolerance for a little more time; the figures: docs/results/real-arms.md,
     docs/log.md). turn=False: Gauss-Newton steps only."""
     t0 = time.perf_counter()
-    goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
+    goals = np.asarray(goals, dtype=np.float64)
+    goals = goals[None] if goals.ndim == (2 if arm.is_tree else 1) else goals
     q = np.asarray(q0, dtype=np.float64)
     q = arm.within_limits(q if q.ndim == 3 else np.atleast_2d(q)[None])  # (k, n, nq)
     axes = list(arm.task_axes)
-    if goals.ndim != 2 or goals.shape[1] != len(axes) or q.shape[1:] != (len(goals), arm.nq) or not len(q):
-        raise ValueError(f"{arm.name}: goals must be (n, {len(axes)}) and q0 (n, {arm.nq}) or (k, n, {arm.nq}), "
-                         f"got {goals.shape} and {np.shape(q0)}")
+    goal_shape = (*arm._effector_shape, len(axes))
+    if goals.shape[1:] != goal_shape or q.shape[1:] != (len(goals), arm.nq) or not len(q):
+        raise ValueError(f"{arm.name}: goals must be (n, {', '.join(map(str, goal_shape))}) and q0 (n, {arm.nq}) "
+                         f"or (k, n, {arm.nq}), got {goals.shape} and {np.shape(q0)}")
+    goals = goals.reshape(len(goals), -1)  # a tree's goal: its effectors' coordinates one after the other
     size = workspace_size(arm)
-    lam2_eye = (damping * size) ** 2 * np.eye(len(axes))
+    lam2_eye = (damping * size) ** 2 * np.eye(goals.shape[1])
     tol = 1e-4 * size if tol is None else float(tol)
-    model, data, fid = arm.model, _data(arm), arm.ee_frame_id
+    model, data = arm.model, _data(arm)
     direct = model.nq == arm.nq
     limited = ~arm.chain.continuous.astype(bool)
     lower, upper = arm.lower, arm.upper
 
     def error(qi, goal):
         pin.forwardKinematics(model, data, qi if direct else arm.to_pinocchio(qi))
-        pin.updateFramePlacement(model, data, fid)
-        e = goal - data.oMf[fid].translation[axes]
+        e = _task_error(arm, data, goal, axes)
         return e, float(np.sqrt(e @ e))
 
-    bearing = _bearing(arm) if turn else None
+    bearing = _bearing(arm) if turn and not arm.is_tree else None
     continuous0 = bool(arm.chain.continuous[0])
 
     def start(qi, goal, e=None, err=None):
@@ -281,8 +313,7 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
         out of reach)."""
         k = 0
         while err >= tol and k < most:
-            J = pin.computeFrameJacobian(model, data, qi if direct else arm.to_pinocchio(qi), fid,
-                                         pin.LOCAL_WORLD_ALIGNED)[:3][axes]  # (m, nq)
+            J = _task_jacobian(arm, data, qi if direct else arm.to_pinocchio(qi), axes)  # (m, nq)
             dq = _held_step(J, e, qi, lower, upper, limited, lam2_eye)
             k += 1
             for h in range(halvings + 1):

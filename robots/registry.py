@@ -1,6 +1,8 @@
-"""The arms `robots.load` knows: the paper's two arms, two planar snakes and serial arms of example-robot-data.
+"""The robots `robots.load` knows: the paper's two arms, two planar snakes, serial arms of
+example-robot-data, and trees of several end effectors of example-robot-data (legged robots and a
+humanoid with their root link fixed in space, a hand).
 
-Each entry names where the URDF comes from, the end-effector frame and the task axes.
+Each entry names where the URDF comes from, the end-effector frame (or frames) and the task axes.
 example-robot-data URDFs are located without building their (slow) mesh models:
 the loader classes of `example_robot_data` give the file's path.
 """
@@ -19,15 +21,17 @@ URDF_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "urdf")
 
 @dataclass(frozen=True)
 class ArmSpec:
-    """How to build one named arm."""
+    """How to build one named arm (or tree: ee_frame a tuple of frame names)."""
 
-    ee_frame: str
+    ee_frame: str | tuple[str, ...]
     urdf: str | None = None  # a file under robots/urdf/
     erd: str | None = None  # an example-robot-data name
     task_axes: tuple[int, ...] = (0, 1, 2)
     kind: str = "real"  # "paper": the paper's arms, in its units; "real": a real arm, in metres;
-    # "snake": a hyper-redundant planar arm of equal links (robots/snake.py), in the paper's units
+    # "snake": a hyper-redundant planar arm of equal links (robots/snake.py), in the paper's units;
+    # "tree": a real robot with several end effectors, in metres
     xml_replace: tuple[tuple[str, str], ...] = ()
+    posture: tuple[tuple[str, float], ...] = ()  # joint values over the reference posture (from_urdf's posture)
     description: str = ""
     extra: dict = field(default_factory=dict)
 
@@ -54,18 +58,36 @@ SPECS: dict[str, ArmSpec] = {
     "xarm7": ArmSpec("link_eef", erd="xarm7", description="UFactory xArm7, 7 DoF"),
     "kinova": ArmSpec("j2s6s200_end_effector", erd="kinova",
                       description="Kinova Jaco j2s6s200, 6 DoF (3 continuous joints)"),
+    # trees: several end effectors on one kinematic tree, the URDF read without a free-flyer (its root
+    # link fixed in space); the joints on no path to an effector (Talos' torso, arms and head) locked
+    "talos-legs": ArmSpec(("left_sole_link", "right_sole_link"), erd="talos_legs", kind="tree",
+                          description="PAL Talos' legs, 12 DoF, two feet (base_link fixed; the rest of Talos "
+                                      "locked at half_sitting)"),
+    "solo12": ArmSpec(("FL_FOOT", "FR_FOOT", "HL_FOOT", "HR_FOOT"), erd="solo12", kind="tree",
+                      description="ODRI Solo-12 quadruped, 12 DoF, four feet (base_link fixed)"),
+    "allegro": ArmSpec(("link_3.0_tip", "link_7.0_tip", "link_11.0_tip", "link_15.0_tip"), erd="allegro_right_hand",
+                       kind="tree", description="Wonik Allegro right hand, 16 DoF, four fingertips (palm fixed)"),
+    "g1": ArmSpec(("left_rubber_hand", "right_rubber_hand", "left_ankle_roll_link", "right_ankle_roll_link"),
+                  erd="g1", kind="tree",
+                  # no SRDF: the rest posture is Unitree's standing one (unitree_rl_gym's G1 default joint
+                  # angles), knees bent; straight legs (neutral) are a singular start for dls_ik
+                  posture=tuple((f"{side}_{joint}_joint", v) for side in ("left", "right")
+                                for joint, v in (("hip_pitch", -0.1), ("knee", 0.3), ("ankle_pitch", -0.2))),
+                  description="Unitree G1 humanoid, 29 DoF, two hands and two feet (pelvis fixed)"),
 }
 
 
-def names() -> tuple[str, ...]:
-    """Every name `load` accepts."""
-    return tuple(SPECS)
+def names(trees: bool = False) -> tuple[str, ...]:
+    """The serial arms `load` accepts, the ones the lab trains on; trees=True: every name `load`
+    accepts, the trees of several end effectors (kind "tree") included."""
+    return tuple(n for n, spec in SPECS.items() if trees or spec.kind != "tree")
 
 
 def kind(name: str) -> str:
     """What kind of arm a name is: "paper" (the paper's two arms, in its units), "snake" (a
     hyper-redundant planar arm of robots/snake.py, in the paper's units), "real" (a real arm, in
-    metres), or "custom" (an arm made with from_urdf under another name)."""
+    metres), "tree" (a real robot with several end effectors, in metres), or "custom" (an arm made
+    with from_urdf under another name)."""
     spec = SPECS.get(name) if isinstance(name, str) else None
     return spec.kind if spec is not None else "custom"
 
@@ -79,7 +101,7 @@ def in_metres(name: str) -> bool:
 def load(name: str) -> Arm:
     """The arm registered under `name` (see `names()`); built once, then shared."""
     if not isinstance(name, str) or name not in SPECS:
-        raise ValueError(f"unknown robot {name!r}; known robots: {', '.join(names())}")
+        raise ValueError(f"unknown robot {name!r}; known robots: {', '.join(names(trees=True))}")
     return _build(name)
 
 
@@ -91,7 +113,8 @@ def _build(name: str) -> Arm:
                          task_axes=spec.task_axes)
     path, share, srdf = _erd_paths(spec.erd)
     return from_urdf(path, spec.ee_frame, name=name, task_axes=spec.task_axes,
-                     package_dirs=(share,), xml_replace=spec.xml_replace, srdf=srdf)
+                     package_dirs=(share,), xml_replace=spec.xml_replace, srdf=srdf,
+                     posture=dict(spec.posture) or None)
 
 
 def _erd_paths(erd_name: str) -> tuple[str, str, tuple[str, str] | None]:
