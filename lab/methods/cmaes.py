@@ -227,7 +227,7 @@ def budget_defaults(arm, seconds: float) -> dict:
     """The settings CMA-ES runs with on an arm with a time budget of `seconds` s of optimizer time
     (TrainConfig.seconds) when none are given: for now defaults(arm) without its generations (the
     budget ends the run; the heads and network of an arm's defaults were measured for about four
-    minutes). The settings measured best per budget and arm are issue #33's next step (docs/log.md)."""
+    minutes). The settings best for each budget and arm are not measured yet (first figures: docs/log.md)."""
     return {k: v for k, v in defaults(arm).items() if k != "generations"}
 
 
