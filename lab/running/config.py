@@ -50,7 +50,7 @@ class TrainConfig:
 
     robot: str = "planar"
     method: str = methods.DEFAULT_METHOD
-    generations: int | None = None  # None: the method's default for the arm, else 1000
+    generations: int | None = None  # None: the method's default for the arm, else 1000 (with seconds: UNBOUNDED)
     population: int | None = None  # None: the method's default for the arm, else 50
     targets: int | None = None  # fixed training goals (None: the method's default for the arm, else 70)
     seed: int = 0
