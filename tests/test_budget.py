@@ -202,3 +202,15 @@ def test_the_panels_time_budget_starts_a_budgeted_run(app):
         state.reset()
         panel.budget.value = 0.0
         panel.population.value, panel.generations.value = 50.0, before
+
+
+def test_a_recording_holds_the_budget(tmp_path):
+    runner = lab.Runner(lab.TrainConfig(seconds=0.3, **SMALL))
+    logger = lab.RerunLogger(runner, path=tmp_path / "budget.rrd")
+    runner.subscribe(logger)
+    s = runner.run()
+    logger.close(wait=True)
+    rec = lab.read_recording(tmp_path / "budget.rrd")
+    config = rec.protocol["config"]
+    assert config["seconds"] == 0.3 and config["generations"] == UNBOUNDED
+    assert len(rec.generations) == s.generations and s.ended_by == "seconds"
