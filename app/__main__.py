@@ -82,7 +82,8 @@ def parse(argv=None) -> argparse.Namespace:
                    help=f"read the presenter token from this file (its first line); or set {TOKEN_ENV}")
     p.add_argument("--limit", action="append", default=[], metavar="NAME=N",
                    help="raise (or set) a bound on the settings this server accepts: population, hidden, goals, "
-                        "generations (beyond loopback: 200, 64, 1000, 100000 unless raised); repeatable")
+                        "generations, seconds (a time budget; beyond loopback: 200, 64, 1000, 100000, 600 unless "
+                        "raised); repeatable")
     p.add_argument("--speed", type=float, default=WATCHING_SPEED, metavar="GENERATIONS_PER_S",
                    help=f"how fast runs go at first, so that an audience can follow (default {WATCHING_SPEED:g} "
                         "generations a second; 0: as fast as the machine goes); the Speed menu changes it")

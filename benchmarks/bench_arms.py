@@ -19,6 +19,7 @@ TRAC-IK, 99.2 % success on the UR5 at 0.37 ms per solve (full 6-D pose, Beeson a
     .venv/bin/python benchmarks/bench_arms.py --timing 1500            # seconds a default budget takes here
     .venv/bin/python benchmarks/bench_arms.py --robots kinova --seeds 0,1 --write-pretrained   # best of 2 seeds
     .venv/bin/python benchmarks/bench_arms.py --robots ur5 --seeds 0,1,2 --reuse-shipped --write-pretrained
+    .venv/bin/python benchmarks/bench_arms.py --robots ur5 --set seconds=30   # a time budget (TrainConfig.seconds)
 
 --seeds 0,1,2 trains each arm once per seed and keeps the run whose refined success (then median
 error) is best on 2,000 *validation* goals (goal seed VALIDATION: other random joint vectors than the
@@ -218,6 +219,8 @@ def main() -> None:
             seeds = [int(x) for x in args.seeds.split(",")] if args.seeds else [args.seed]
             run, selection = best_of(name, seeds, args.reuse_shipped, dict(parse_setting(x) for x in args.set))
             controller, settings, seconds = run.controller, run.config.to_dict(), run.seconds
+            if run.config.seconds is not None and len(run.history):  # --set seconds=S: the generations it ran
+                settings = {**settings, "generations": len(run.history)}
             if args.write_pretrained:
                 from app.startup import write_pretrained
 

@@ -4,6 +4,7 @@
     run = lab.evolve(robot="planar", method="cmaes", generations=1000, population=50, targets=70, seed=0)
     run.controller(goals)        # (n, len(task_axes)) -> (n, nq) within the joint limits
     run.train_mse, run.test_mse  # final best on the training and held-out goals
+    lab.evolve("ur5", seconds=60)  # a time budget: 60 s of optimizer time, then its best controller
     lab.load_controller("recordings/....rrd", generation=None)  # a controller back from a Rerun recording
     lab.Runner(config) / lab.ProcessRunner(config)  # a run in a background thread / in a worker process
     lab.methods.names(), lab.methods.register(...)  # the methods (examples/custom_method.py adds one)

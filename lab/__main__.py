@@ -16,7 +16,7 @@ from lab import methods  # noqa: E402
 from lab.experiments import cli as experiments_cli  # noqa: E402
 from lab.problem import environment  # noqa: E402
 from lab.problem.encoding import FEATURES  # noqa: E402
-from lab.running.config import TrainConfig  # noqa: E402
+from lab.running.config import UNBOUNDED, TrainConfig  # noqa: E402
 
 
 def method_options() -> dict:
@@ -52,6 +52,10 @@ def _train_parser(sub) -> None:
     p.add_argument("--method", default=methods.DEFAULT_METHOD,
                    help="; ".join(f"{m.name}: {m.summary}" for m in methods.all_methods()))
     p.add_argument("--generations", type=int, default=None, help="default: the method's for the arm (the paper: 1000)")
+    p.add_argument("--seconds", type=float, default=None, metavar="S",
+                   help="a time budget: the run ends after S seconds of optimizer time, with its best controller "
+                        "(with --generations too: whichever comes first; without: generations unbounded, the "
+                        "method's defaults for that budget)")
     p.add_argument("--population", type=int, default=None, help="default: the method's for the arm (the paper: 50)")
     p.add_argument("--targets", type=int, default=None,
                    help="number of fixed training goals (default: the method's for the arm; the paper: 70)")
@@ -128,7 +132,7 @@ def train(args) -> int:
             paper=args.paper, robot=args.robot, method=args.method, generations=args.generations,
             population=args.population, targets=args.targets, seed=args.seed, hidden=args.hidden,
             heads=args.heads, features=args.features, margin=args.margin, test_goals=args.test_goals, resample=args.resample,
-            **given_options(args))
+            seconds=args.seconds, **given_options(args))
     except (ValueError, TypeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -143,13 +147,15 @@ def train(args) -> int:
             print(f"error: {e}", file=sys.stderr)
             return 2
         runner.subscribe(logger)
-    bar = tqdm(total=config.generations, unit="gen", disable=args.quiet, dynamic_ncols=True,
+    unbounded = config.seconds is not None and config.generations == UNBOUNDED
+    bar = tqdm(total=None if unbounded else config.generations, unit="gen", disable=args.quiet, dynamic_ncols=True,
                desc=f"{config.robot} {config.method}")
 
     def progress(event) -> None:
         bar.update(1)
         if event.index % 10 == 0 or event.index == config.generations - 1:
-            bar.set_postfix(best=f"{event.best:.4g}", median=f"{event.median:.4g}", refresh=False)
+            left = {} if config.seconds is None else {"left": f"{max(config.seconds - event.seconds, 0):.1f}s"}
+            bar.set_postfix(best=f"{event.best:.4g}", median=f"{event.median:.4g}", **left, refresh=False)
 
     runner.subscribe(progress)
     try:  # the run in its own thread: Ctrl-C reaches this one, which stops the run after its generation
@@ -171,7 +177,9 @@ def train(args) -> int:
     run = Run.from_summary(summary)
     print(f"robot {config.robot}  method {config.method}{' (paper preset)' if config.paper else ''}  "
           f"seed {config.seed}  generations {summary.generations}  evaluations {run.evaluations}  "
-          f"parameters {run.n_params}  time {run.seconds:.1f} s")
+          f"parameters {run.n_params}  time {run.seconds:.1f} s"
+          + (f" (budget {config.seconds:g} s{', spent' if summary.ended_by == 'seconds' else ''})"
+             if config.seconds is not None else ""))
     print(f"training MSE  {run.train_mse:.6g}  ({config.targets} goals)")
     print(f"held-out MSE  {run.test_mse:.6g}  ({config.test_goals} goals)")
     if logger is not None and logger.failure() is None:

@@ -230,6 +230,8 @@ def apply_lesson(app, params: dict, client=None) -> str | None:
     msg = app.switch_robot(main.robot)
     if msg:
         return _tell(client, msg, error=True)
+    if panel.budget.value:  # a lesson's settings have no time budget (its link carries none)
+        panel.budget.value = 0.0
     panel.method.value = methods.get(main.method).label  # fills that method's defaults
     panel.population.value, panel.generations.value, panel.hidden.value, panel.seed.value = \
         float(main.population), float(main.generations), float(main.hidden), float(main.seed)

@@ -4,7 +4,9 @@ The lab's own bounds (lab.running.config.LIMITS: population 10,000, hidden 256, 
 keep one run within one machine, not a class's server beside it (what a run at those bounds costs:
 docs/classroom.md). A server reachable beyond loopback (`--host 0.0.0.0`) accepts at most CLASSROOM
 instead, which every arm's and method's defaults fit (the real arms: 32 hidden units, 300 goals,
-40,000 generations); `python -m app --limit population=1000` raises one at start.
+40,000 generations). A run with a time budget (TrainConfig.seconds) is bounded by its seconds
+instead of its generations (UNBOUNDED, 10^9, unless given). `python -m app --limit population=1000`
+raises one at start.
 """
 
 from __future__ import annotations
@@ -12,10 +14,11 @@ from __future__ import annotations
 import lab.running.config as config_mod
 
 # name -> the TrainConfig field it bounds, and its classroom value
-CLASSROOM = {"population": 200, "hidden": 64, "goals": 1000, "generations": 100_000}
-FIELD = {"population": "population", "hidden": "hidden", "goals": "targets", "generations": "generations"}
+CLASSROOM = {"population": 200, "hidden": 64, "goals": 1000, "generations": 100_000, "seconds": 600}
+FIELD = {"population": "population", "hidden": "hidden", "goals": "targets", "generations": "generations",
+         "seconds": "seconds"}
 LAB = {"population": config_mod.LIMITS["population"], "hidden": config_mod.LIMITS["hidden"],
-       "goals": config_mod.LIMITS["goals"], "generations": 10**9}
+       "goals": config_mod.LIMITS["goals"], "generations": 10**9, "seconds": 10**9}
 
 
 def parse_limit(text: str) -> tuple[str, int]:
@@ -45,10 +48,14 @@ def refusal(config, limits: dict[str, int] | None) -> str | None:
     """Why this server does not accept config (None: it does)."""
     if not limits:
         return None
+    budgeted = getattr(config, "seconds", None) is not None
     for name, most in limits.items():
+        if name == "generations" and budgeted:  # the time budget bounds the run (checked as "seconds")
+            continue
         value = getattr(config, FIELD[name], None)
         if value is not None and value > most:
-            label = "training goals" if name == "goals" else name
-            return (f"{label} must be at most {most:,} on this shared server, got {value:,} "
+            label = {"goals": "training goals", "seconds": "a time budget (seconds)"}.get(name, name)
+            shown = f"{value:,}" if isinstance(value, int) else f"{value:g}"
+            return (f"{label} must be at most {most:,} on this shared server, got {shown} "
                     f"(start it with --limit {name}=N to raise it)")
     return None

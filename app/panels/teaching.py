@@ -149,7 +149,7 @@ class RaceFields:
         self.population.value, self.hidden.value = float(d.population), float(d.hidden)
 
     def config(self, main: lab.TrainConfig) -> lab.TrainConfig | None:
-        """The partner's TrainConfig (None without a race): main's arm, goals and generations."""
+        """The partner's TrainConfig (None without a race): main's arm, goals, generations and time budget."""
         if not self.enabled.value:
             return None
         values = {}
@@ -159,4 +159,4 @@ class RaceFields:
                 raise ValueError(f"{name} must be a whole number, got {v!r}")
             values[name] = int(v)
         return lab.TrainConfig.preset(robot=main.robot, method=self._method_name(), generations=main.generations,
-                                      targets=main.targets, goal_seed=main.goal_seed, **values)
+                                      targets=main.targets, goal_seed=main.goal_seed, seconds=main.seconds, **values)

@@ -4,7 +4,10 @@ The method menu and the method's option fields come from the methods registry (l
 a method registered there appears here with its options, and picking a robot or a method fills
 the fields with that pair's defaults. Settings are validated by lab.TrainConfig as they change: an invalid value is put back to
 the last valid one and the reason is shown (in the panel and as a notification in the tab
-that typed it). Start while a run is going is refused the same way. Buttons only call
+that typed it). Start while a run is going is refused the same way. A time budget (Settings, "Time
+budget (s)"; 0 or empty: none) ends the run after that many seconds of optimizer time; typing one
+fills the fields with the method's defaults for that budget (generations unbounded,
+lab.running.config.UNBOUNDED, unless typed after), and the status line shows the time left. Buttons only call
 LabState; the render loop calls `refresh` to show progress.
 """
 
@@ -19,6 +22,7 @@ import viser.uplot
 import lab
 import robots
 from lab import methods
+from lab.running.config import UNBOUNDED
 
 from app.classroom.limits import refusal as limits_refusal
 from app.panels.teaching import RaceFields, Watching
@@ -77,6 +81,11 @@ class TrainingPanel:
             # of being truncated by viser's int cast
             self.population = gui.add_number("Population", float(d.population), step=1)
             self.generations = gui.add_number("Generations", float(d.generations), step=1)
+            self.budget = gui.add_number(
+                "Time budget (s)", 0.0, step=1,
+                hint="end the run after this many seconds of optimizer time, with its best network (0: no "
+                     "budget); typing one sets the method's defaults for it, generations unbounded "
+                     f"({UNBOUNDED:,}) unless you type fewer: whichever comes first ends the run")
             self.hidden = gui.add_number("Hidden units", float(d.hidden), step=1)
             self.seed = gui.add_number("Seed", float(d.seed), step=1)
             self.options_folder = gui.add_folder("Method options", expand_by_default=False)
@@ -89,12 +98,12 @@ class TrainingPanel:
         self._show_buttons()
         self._valid = {id(h): h.value for h in self._fields()}
         self._reverting = False
-        for h in (self.robot, self.method, self.population, self.generations, self.hidden, self.seed):
+        for h in (self.robot, self.method, self.population, self.generations, self.budget, self.hidden, self.seed):
             h.on_update(self._on_field)
         self._shown_gen = -1
 
     def _fields(self):
-        return (self.robot, self.method, self.population, self.generations, self.hidden, self.seed,
+        return (self.robot, self.method, self.population, self.generations, self.budget, self.hidden, self.seed,
                 *self.options.values())
 
     def _build_options(self, config: lab.TrainConfig) -> None:
@@ -124,7 +133,12 @@ class TrainingPanel:
     def _fill_defaults(self) -> None:
         """The selected robot's and method's defaults into the fields (our own writes, not checked)."""
         with self._options_lock:
-            d = lab.TrainConfig.preset(robot=self.robot.value, method=self._method_name(), seed=int(self.seed.value))
+            try:
+                seconds = self.seconds()
+            except ValueError:
+                seconds = None
+            d = lab.TrainConfig.preset(robot=self.robot.value, method=self._method_name(), seed=int(self.seed.value),
+                                       seconds=seconds)
             self._reverting = True
             try:
                 for name in SHARED:
@@ -135,6 +149,16 @@ class TrainingPanel:
             self._valid = {id(h): h.value for h in self._fields()}
 
     # ------------------------------------------------------------------ settings
+    def seconds(self) -> float | None:
+        """The time budget field: None for 0 or empty (no budget), else its seconds; ValueError
+        naming the field when it is not a positive number."""
+        v = self.budget.value
+        if v is None or v == "" or (isinstance(v, (int, float)) and not isinstance(v, bool) and v == 0):
+            return None
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v) or v < 0:
+            raise ValueError(f"time budget (s) must be a positive number of seconds (0: none), got {v!r}")
+        return float(v)
+
     def config(self) -> lab.TrainConfig:
         """The TrainConfig of the fields; ValueError (with the reason) when they are invalid."""
         values = {}
@@ -154,7 +178,8 @@ class TrainingPanel:
                     raise ValueError(f"{handle.label.lower()} must be a whole number, got {v!r}")
                 v = int(v)
             options[name] = v
-        config = lab.TrainConfig.preset(robot=self.robot.value, method=method.name, **values, **options)
+        config = lab.TrainConfig.preset(robot=self.robot.value, method=method.name, seconds=self.seconds(), **values,
+                                        **options)
         if (why := limits_refusal(config, self.state.limits)) is not None:
             raise ValueError(why)
         return config
@@ -165,6 +190,18 @@ class TrainingPanel:
         handle = event.target
         if handle is self.method and self.method.value != self._valid[id(self.method)]:
             self._fill_defaults()  # each method's own defaults (its hidden size, its options)
+            return
+        if handle is self.budget:  # the method's defaults for the new budget (or for none), checked first
+            try:
+                d = lab.TrainConfig.preset(robot=self.robot.value, method=self._method_name(), seconds=self.seconds())
+                if (why := limits_refusal(d, self.state.limits)) is not None:
+                    raise ValueError(why)
+            except (ValueError, TypeError) as e:
+                self.refuse(event.client, f"{handle.label}: {e}")
+                self._revert(handle)
+                return
+            self._fill_defaults()
+            self.message.content = ""
             return
         try:
             self.config()
@@ -311,7 +348,10 @@ class TrainingPanel:
         if n == self._shown_gen and not force and not going:
             return
         self._shown_gen = n
-        self.progress_bar.value = 100.0 * n / p["total"] if p["total"] else 0.0
+        done = n / p["total"] if p["total"] else 0.0
+        if p["budget"]:  # a time budget: whichever of the two ends the run is nearer its end
+            done = max(done, min(p["seconds"] / p["budget"], 1.0))
+        self.progress_bar.value = 100.0 * done
         self._build_curves(racing=partner is not None)
         self.watching.build_live()
         # the app keeps a bounded, thinned history per run (app/training/state.py, app/training/live.py):
@@ -328,7 +368,9 @@ class TrainingPanel:
         self.plot.data = tuple(columns) if m else EMPTY_PLOT + ((np.full(2, np.nan),) * 2 if partner else ())
         best_s = f"{p['best'][-1]:.4g}" if n else "-"
         rec = f"  \nRecording: `{p['recording']}`" if p["recording"] else ""
-        status = (f"**{p['state'].capitalize()}**: generation {n} / {p['total']}, "
+        total = "" if p["budget"] and p["total"] >= UNBOUNDED else f" / {p['total']}"
+        left = (f", {max(p['budget'] - p['seconds'], 0.0):.1f} s of {p['budget']:g} s left" if p["budget"] else "")
+        status = (f"**{p['state'].capitalize()}**: generation {n}{total}{left}, "
                   f"best MSE {best_s}, {p['evals_per_s']:,.0f} evaluations/s{rec}")
         if partner is not None:
             status += (f"  \nPartner ({partner.label}): **{partner.runner.state}**, generation {len(partner.track)}"

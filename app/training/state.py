@@ -148,6 +148,7 @@ class LabState:
                 state=r.state if r else "idle", best=best, median=median, generations=gens + 1,
                 evals_per_s=self._evals / self._seconds if self._seconds > 0 else 0.0,
                 recording=self.recording, run_id=r.run_id if r else None,
+                seconds=self._seconds, budget=r.config.seconds if r else None,  # optimizer s so far; the time budget
             )
 
     # ------------------------------------------------------------------ changing what is shown

@@ -71,6 +71,11 @@ class Method:
     options: its Options dataclass; defaults(arm) -> dict: the settings it runs with on an arm
         when none are given, TrainConfig fields (features, margin, hidden, generations,
         population, targets) and option values alike; so defaults can differ per arm class.
+    budget_defaults(arm, seconds) -> dict: optional, the settings for a run with a time budget of
+        `seconds` s of optimizer time (TrainConfig.seconds), same keys as defaults: a method may
+        choose its schedule from the budget. A `generations` it gives bounds the run besides the
+        budget (whichever comes first); without one the run's generations are unbounded
+        (TrainConfig's UNBOUNDED). None: defaults(arm) without its generations (for_budget).
     paper: the paper's literal settings (same keys), or None when the paper has no such method.
     controller: what its networks are, "mlp" (the paper's fixed MLP) or "graph" (NEAT-like);
         recordings and the app draw them accordingly.
@@ -107,6 +112,7 @@ class Method:
     ablations: tuple[str, ...] = ()
     reference: SpeedReference | None = field(default=None, compare=False)
     live_plots: tuple[LivePlot, ...] = ()
+    budget_defaults: Callable[..., Mapping] | None = field(default=None, compare=False)
 
     def __post_init__(self):
         if not (isinstance(self.name, str) and self.name.isidentifier() and self.name.islower()):
@@ -125,6 +131,16 @@ class Method:
             object.__setattr__(self, "backend_class", cls)
         return self.backend_class
 
+    def defaults_for(self, arm, seconds: float | None = None) -> dict:
+        """The settings the method runs with on `arm` when none are given: defaults(arm) without a
+        time budget (seconds None); with one, budget_defaults(arm, seconds), or where the method has
+        none, defaults(arm) less its generations (those were chosen for a run without a budget)."""
+        if seconds is None:
+            return dict(self.defaults(arm))
+        if self.budget_defaults is not None:
+            return dict(self.budget_defaults(arm, seconds))
+        return {k: v for k, v in self.defaults(arm).items() if k != "generations"}
+
     def evaluations_per_step(self, arm, config) -> int:
         """Evaluations one step (generation) of this method counts on arm with config."""
         return int(self.step_evaluations(arm, config)) if self.step_evaluations else int(config.population)
@@ -142,14 +158,15 @@ class Method:
                              f"{', '.join(self.options.names()) or 'none'}")
         return given
 
-    def options_for(self, arm, given: Mapping | Options | None = None) -> Options:
-        """The method's options on `arm`: its defaults there, with `given` values over them."""
+    def options_for(self, arm, given: Mapping | Options | None = None, seconds: float | None = None) -> Options:
+        """The method's options on `arm` (with a time budget of `seconds`: defaults_for): its
+        defaults there, with `given` values over them."""
         if isinstance(given, self.options):
             return given
         if isinstance(given, Options):
             raise ValueError(f"options of {type(given).__name__} given to method {self.name}")
         given = self.known_options(given)
-        base = {k: v for k, v in self.defaults(arm).items() if k in self.options.names()}
+        base = {k: v for k, v in self.defaults_for(arm, seconds).items() if k in self.options.names()}
         return self.options(**{**base, **given})
 
 

@@ -162,9 +162,14 @@ def _eye(geo: Geometry) -> rrb.EyeControls3D:
 def about(config: dict, method: MethodView) -> str:
     """The recording's /about text; config: TrainConfig.to_dict()."""
     graph = method.controller == "graph"
+    if config.get("seconds") is None:
+        budget = f"{config['generations']} generations of {config['population']}"
+    else:  # a time budget (lab.running.config: generations UNBOUNDED, 10^9, unless given)
+        budget = (f"a time budget of {config['seconds']:g} s of optimizer time, at most {config['generations']:,} "
+                  f"generations of {config['population']}")
     return f"""# {config["robot"]} arm, {method.label}, seed {config["seed"]}
 
-Evolution of a neural inverse-kinematics controller ({config["generations"]} generations of {config["population"]}).
+Evolution of a neural inverse-kinematics controller ({budget}).
 
 - **3D view**: the arm's meshes at the best controller's joint values for the first training goal,
   the arm as lines for every training goal (grey), the goals (green), the points reached (blue)

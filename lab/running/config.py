@@ -8,6 +8,10 @@
 The fields every method shares are TrainConfig's; each method's own settings are its Options
 dataclass (lab.methods), in `options`. to_dict() writes them flat, beside the shared fields
 (the format of earlier recordings), and from_dict/preset/replace take them by name.
+`seconds` is a time budget: the run ends when its optimizer time (pauses excluded) reaches it,
+state "finished", with its best controller; with generations too, whichever comes first; without
+them, its generations are UNBOUNDED. Its defaults are then the method's for that budget
+(Method.defaults_for(arm, seconds): a method may choose its schedule from the budget).
 `preset(paper=...)` gives the two settings the project compares:
 - paper=True: the paper's method literally (the method's `paper` settings in its declaration);
 - paper=False (the default): this project's choices per method and arm (the method's
@@ -32,6 +36,10 @@ from lab.problem.encoding import FEATURES
 LIMITS = {"population": 10_000, "goals": 1_000_000, "hidden": 256}
 # the paper's protocol: what a field left at None becomes when the method's defaults say nothing
 PROTOCOL = {"generations": 1000, "population": 50, "targets": 70, "heads": 1}
+# the generations of a run with a time budget and no generation bound: the most a run may have (10^9;
+# the recordings and the app's history thin long runs already), so that every reader of
+# config.generations keeps an int
+UNBOUNDED = 10**9
 _PER_METHOD = ("generations", "population", "targets", "features", "margin", "hidden", "heads")
 
 
@@ -42,7 +50,7 @@ class TrainConfig:
 
     robot: str = "planar"
     method: str = methods.DEFAULT_METHOD
-    generations: int | None = None  # None: the method's default for the arm, else 1000
+    generations: int | None = None  # None: the method's default for the arm, else 1000 (with seconds: UNBOUNDED)
     population: int | None = None  # None: the method's default for the arm, else 50
     targets: int | None = None  # fixed training goals (None: the method's default for the arm, else 70)
     seed: int = 0
@@ -55,12 +63,14 @@ class TrainConfig:
     options: Options | dict | None = None  # the method's own settings (a dict is checked and converted)
     paper: bool = False  # record that this is the paper's literal method (see preset)
     resample: bool = False  # new training goals every generation (the paper: fixed; lab.problem.fitness)
+    seconds: float | None = None  # time budget: s of optimizer time (None: none; generations then default to UNBOUNDED)
 
     def __init__(self, robot: str = "planar", method: str = methods.DEFAULT_METHOD, generations: int | None = None,
                  population: int | None = None, targets: int | None = None, seed: int = 0, test_goals: int = 1000,
                  goal_seed: int = 0, features: str | None = None, margin: float | None = None,
                  hidden: int | None = None, options: Options | dict | None = None, paper: bool = False,
-                 resample: bool = False, heads: int | None = None, **option_values):
+                 resample: bool = False, heads: int | None = None, seconds: float | None = None,
+                 **option_values):
         if option_values:
             base = options.to_dict() if isinstance(options, Options) else dict(options or {})
             options = {**base, **option_values}
@@ -68,7 +78,7 @@ class TrainConfig:
                             ("population", population), ("targets", targets), ("seed", seed),
                             ("test_goals", test_goals), ("goal_seed", goal_seed), ("features", features),
                             ("margin", margin), ("hidden", hidden), ("options", options), ("paper", paper),
-                            ("resample", resample), ("heads", heads)):
+                            ("resample", resample), ("heads", heads), ("seconds", seconds)):
             object.__setattr__(self, name, value)
         self.__post_init__()
 
@@ -78,11 +88,12 @@ class TrainConfig:
             raise ValueError(f"unknown robot {self.robot!r}; known robots: {', '.join(robots.names())}")
         self._check(method)  # what was given, before any arm is loaded
         arm = robots.load(self.robot)
-        defaults = {**PROTOCOL, **method.defaults(arm)}
+        budget = {} if self.seconds is None else {"generations": UNBOUNDED}
+        defaults = {**PROTOCOL, **budget, **method.defaults_for(arm, self.seconds)}
         for name in _PER_METHOD:
             if getattr(self, name) is None:
                 object.__setattr__(self, name, defaults[name])
-        object.__setattr__(self, "options", method.options_for(arm, self.options))
+        object.__setattr__(self, "options", method.options_for(arm, self.options, self.seconds))
         self._check(method)  # and the defaults filled in
 
     def _check(self, method) -> None:
@@ -109,6 +120,9 @@ class TrainConfig:
             real(self, "margin", 0, 10, "a number in [0, 10)", closed_above=False)
         flag(self, "paper")
         flag(self, "resample")
+        if self.seconds is not None:
+            real(self, "seconds", 0, float("inf"), "a positive finite number of seconds (optimizer time) or None",
+                 closed_below=False)
         if isinstance(self.options, dict):  # the given values, checked by the method's own dataclass
             method.options(**method.known_options(self.options))
 
@@ -162,4 +176,6 @@ class TrainConfig:
             del d["resample"]  # stored runs, recordings and notebooks made earlier still compare equal
         if d["heads"] == 1:  # one head: likewise, as before heads existed
             del d["heads"]
+        if d["seconds"] is None:  # no time budget: likewise, as before budgets existed
+            del d["seconds"]
         return {**d, **self.options.to_dict()}

@@ -43,18 +43,23 @@ class Run:
 
 def evolve(robot: str = "planar", method: str = DEFAULT_METHOD, generations: int | None = None,
            population: int | None = None, targets: int | None = None, seed: int = 0, *, paper: bool = False,
-           subscribers: Iterable[Callable] = (), **options) -> Run:
+           seconds: float | None = None, subscribers: Iterable[Callable] = (), **options) -> Run:
     """Evolve a neuro-controller for `robot` with `method` (lab.methods.names()); blocks until done.
 
     generations, population, targets: None is the method's default for the arm (the paper's
     protocol, 1000, 50 and 70, unless the method declares others for that arm).
+    seconds: a time budget, s of optimizer time: the run ends when it is spent (state "finished",
+    with its best controller so far); with generations too, whichever comes first; without them,
+    generations are unbounded, and the method's defaults are its defaults for that budget
+    (lab.methods.Method.defaults_for). None: no budget.
     paper=True uses the paper's literal method (the method's paper preset); options override
     single settings: TrainConfig's (hidden, features, margin, test_goals, goal_seed) and the
     method's own options by name (CMA-ES: sigma0, diagonal, restarts; NEAT: mutation_power, ...).
     subscribers get every GenerationEvent (see lab.running.runner).
     """
     config = TrainConfig.preset(paper=paper, robot=robot, method=method, generations=generations,
-                                population=population, targets=targets, seed=seed, **options)
+                                population=population, targets=targets, seed=seed, seconds=seconds,
+                                **options)
     runner = Runner(config)
     for s in subscribers:
         runner.subscribe(s)

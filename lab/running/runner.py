@@ -12,7 +12,10 @@ Subscribers run in the runner's thread, in subscription order, after each genera
 them fast or hand work to a thread of their own (the Rerun logger does). A subscriber that
 raises is reported and unsubscribed; the run goes on. A subscriber may also have an
 `on_end(summary)` method, called once when the run ends (finished, stopped or failed).
-stop() returns within one generation. NumPy's BLAS is limited to one thread while a run goes
+stop() returns within one generation. A run with a time budget (TrainConfig.seconds) ends
+"finished" after the generation whose optimizer time (pauses, speed-cap waits and subscribers
+excluded) reaches it; with generations too, whichever comes first (RunSummary.ended_by says which).
+NumPy's BLAS is limited to one thread while a run goes
 (pycma slows threefold when threaded BLAS meets another busy process on two cores).
 """
 
@@ -91,6 +94,9 @@ class RunSummary:
     history: np.ndarray
     median_history: np.ndarray
     error: str | None = None
+    # what ended a finished run: "generations" (all of them ran) or "seconds" (its time budget was
+    # spent); None for a stopped or failed one
+    ended_by: str | None = None
 
     def numbers(self) -> dict:
         """The summary's JSON-ready numbers (what recordings and the notebook store)."""
@@ -187,7 +193,8 @@ class RunBase:
                 log.exception("subscriber %r failed; unsubscribed", callback)
                 self.unsubscribe(callback)
 
-    def _summarize(self, state: str, controller: Controller | None, error: str | None = None) -> RunSummary:
+    def _summarize(self, state: str, controller: Controller | None, error: str | None = None,
+                   ended_by: str | None = None) -> RunSummary:
         """The run's summary, the one way every runner makes it: the numbers of the last
         generation published, the final controller scored on the training and held-out goals."""
         p = self.problem
@@ -201,7 +208,8 @@ class RunBase:
             seconds=seconds, controller=controller,
             train_mse=p.controller_mse(controller) if scored else float("inf"),
             test_mse=p.controller_mse(controller, p.test_goals) if scored else float("inf"),
-            history=history, median_history=median, error=error)
+            history=history, median_history=median, error=error,
+            ended_by=ended_by if state == "finished" else None)
 
     def _conclude(self, summary: RunSummary) -> None:
         """The run has ended: keep its summary, call every subscriber's on_end, release join()."""
@@ -223,7 +231,10 @@ class TimeLimit:
     """A subscriber that stops a run once its run time (event.seconds: optimizer time, pauses and
     subscribers excluded) reaches `seconds`: runner.subscribe(TimeLimit(runner, 3.0)). The run
     then ends "stopped" after the generation that crossed the limit; how many generations that is
-    depends on the machine's speed and load."""
+    depends on the machine's speed and load. A run's own time budget is TrainConfig.seconds (the
+    same rule, checked by the runner itself, the run then "finished" and its defaults chosen for
+    the budget); this subscriber stays for the claims experiment, whose equal-time runs keep the
+    equal-budget runs' settings."""
 
     def __init__(self, runner: "RunBase", seconds: float):
         if not seconds > 0:
@@ -263,6 +274,7 @@ class Runner(RunBase):
         self._thread: threading.Thread | None = None
         self._population_sent = -float("inf")
         self._generations_done = 0
+        self._ended_by: str | None = None  # "generations" or "seconds" once the run has run out of either
         self.on_hold = None  # callable(generations done), in the run's thread, each time it starts holding
         self._display = display_goal(self.problem.arm)[None]
 
@@ -374,6 +386,7 @@ class Runner(RunBase):
 
     def _loop(self) -> None:
         backend = self.backend
+        budget = self.config.seconds
         t_run, last_start = 0.0, -float("inf")
         for index in range(self.config.generations):
             if not self._go(last_start):
@@ -384,20 +397,27 @@ class Runner(RunBase):
             t_run += time.perf_counter() - t0
             self._generations_done = index + 1
             f = result.fitness
-            population = self._population(index) if self._subscribers else None
+            spent = budget is not None and t_run >= budget
+            last = spent or index == self.config.generations - 1
+            population = self._population(index, last) if self._subscribers else None
             self._publish(GenerationEvent(
                 run_id=self.run_id, index=index, best=backend.best_mse, gen_best=float(np.min(f)),
                 median=float(np.median(f)), worst=float(np.max(f)), evaluations=backend.evaluations,
                 seconds=t_run, controller=backend.best, improved=backend.best_mse < before, extras=result.extras,
                 population=population,
             ))
+            if spent:
+                self._ended_by = "seconds"
+                return
+        self._ended_by = "generations"
 
-    def _population(self, index: int) -> Population | None:
+    def _population(self, index: int, last: bool) -> Population | None:
         """The population to send with this generation's event (see GenerationEvent.population):
-        its controllers when the last went out POPULATION_PERIOD ago or the run holds after it."""
+        its controllers when the last went out POPULATION_PERIOD ago or the run holds after it (or
+        ends: `last`)."""
         now = time.perf_counter()
         live = (now - self._population_sent >= POPULATION_PERIOD or self._state == "paused"
-                or self._stop.is_set() or index == self.config.generations - 1)
+                or self._stop.is_set() or last)
         if not (live or population_logged(index)):
             return None
         population = self.backend.candidates(controllers=live)
@@ -409,4 +429,4 @@ class Runner(RunBase):
         return dataclasses.replace(population, points=points)
 
     def _finish(self, state: str, error: str | None) -> None:
-        self._conclude(self._summarize(state, self.backend.best, error))
+        self._conclude(self._summarize(state, self.backend.best, error, self._ended_by))
