@@ -341,10 +341,10 @@ class TabSession(TabExtras):
                 return drew
             if shown.arm is not self.arm:
                 self.build()
-            self.version = shown.version
             controller = shown.controller if shown.arm is self.arm else None  # one snapshot for all
             for g in self.goals:
                 g.update(controller, moved=False)
+            self.version = shown.version  # after the poses: a reader that sees it sees them
             self.write_table(shown)
             self.table_dirty = False
         self.last_draw = now
