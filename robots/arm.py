@@ -78,18 +78,19 @@ class Arm:
     @property
     def ee_frame(self) -> str:
         """The end-effector frame's name (a serial arm; a tree has `effectors`)."""
-        if self.is_tree:
-            raise AttributeError(f"{self.name} has {self.n_effectors} end effectors "
-                                 f"({', '.join(self.effectors)}): use arm.effectors")
-        return self.effectors[0]
+        return self._only_effector("effectors")
 
     @property
     def ee_frame_id(self) -> int:
         """The end-effector frame's index in model.frames (a serial arm; a tree has `effector_ids`)."""
+        return self._only_effector("effector_ids")
+
+    def _only_effector(self, plural: str):
+        """The one entry of `plural` (effectors, effector_ids) of a serial arm; a tree has several."""
         if self.is_tree:
             raise AttributeError(f"{self.name} has {self.n_effectors} end effectors "
-                                 f"({', '.join(self.effectors)}): use arm.effector_ids")
-        return self.effector_ids[0]
+                                 f"({', '.join(self.effectors)}): use arm.{plural}")
+        return getattr(self, plural)[0]
 
     @property
     def _effector_shape(self) -> tuple[int, ...]:

@@ -5,6 +5,7 @@ import shutil
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import lab
@@ -101,3 +102,23 @@ def tab(app):
     probe = open_tab(app)
     yield probe
     probe.close()
+
+
+def fmt_xyz(v) -> str:
+    return " ".join(f"{x:.6f}" for x in v)
+
+
+def random_joints(rng, parents) -> tuple[list, list]:
+    """URDF links and joints of a random kinematic tree: joint k moves link l{k} of parent link
+    parents[k], revolute, continuous or prismatic in turn, about a random (unaligned) axis at a random
+    origin and rpy; the base link first."""
+    links, joints = ['<link name="base"/>'], []
+    for k, parent in enumerate(parents):
+        kind = ("revolute", "continuous", "prismatic")[k % 3]
+        axis = rng.normal(size=3)
+        limit = '<limit lower="-1.5" upper="2.0" effort="1" velocity="1"/>' if kind != "continuous" else ""
+        joints.append(f'<joint name="j{k}" type="{kind}"><parent link="{parent}"/><child link="l{k}"/>'
+                      f'<origin xyz="{fmt_xyz(rng.uniform(-1, 1, 3))}" rpy="{fmt_xyz(rng.uniform(-3, 3, 3))}"/>'
+                      f'<axis xyz="{fmt_xyz(axis / np.linalg.norm(axis))}"/>{limit}</joint>')
+        links.append(f'<link name="l{k}"/>')
+    return links, joints

@@ -8,6 +8,7 @@ import pinocchio as pin
 import pytest
 
 import robots
+from conftest import fmt_xyz, random_joints
 
 ALL = robots.names()
 
@@ -44,19 +45,8 @@ def random_chain_urdf(seed: int) -> str:
     (unaligned) axis, at a random origin and rpy, with a side branch (a locked "finger")
     and the end-effector frame behind a fixed joint."""
     rng = np.random.default_rng(seed)
-    fmt = lambda v: " ".join(f"{x:.6f}" for x in v)  # noqa: E731
-    links = ['<link name="base"/>']
-    joints = []
-    parent = "base"
-    for k in range(7):
-        kind = ("revolute", "continuous", "prismatic")[k % 3]
-        axis = rng.normal(size=3)
-        limit = '<limit lower="-1.5" upper="2.0" effort="1" velocity="1"/>' if kind != "continuous" else ""
-        joints.append(f'<joint name="j{k}" type="{kind}"><parent link="{parent}"/><child link="l{k}"/>'
-                      f'<origin xyz="{fmt(rng.uniform(-1, 1, 3))}" rpy="{fmt(rng.uniform(-3, 3, 3))}"/>'
-                      f'<axis xyz="{fmt(axis / np.linalg.norm(axis))}"/>{limit}</joint>')
-        links.append(f'<link name="l{k}"/>')
-        parent = f"l{k}"
+    fmt = fmt_xyz
+    links, joints = random_joints(rng, ["base"] + [f"l{k}" for k in range(6)])
     joints.append('<joint name="finger" type="revolute"><parent link="l3"/><child link="f"/>'
                   '<axis xyz="0 0 1"/><limit lower="0" upper="1" effort="1" velocity="1"/></joint>')
     joints.append(f'<joint name="tool" type="fixed"><parent link="l6"/><child link="tip"/>'

@@ -12,6 +12,7 @@ import pinocchio as pin
 import pytest
 
 import robots
+from conftest import fmt_xyz, random_joints
 from robots.ik import _data, _task_jacobian, dls_ik, refine, workspace_size
 
 TREES = {  # name: (joints, effector frames)
@@ -39,17 +40,9 @@ def random_tree_urdf(seed: int) -> str:
     placements), each joint's parent link drawn among the earlier links, a locked branch ("finger",
     no effector on it) and a fixed tip link behind each of three leaves."""
     rng = np.random.default_rng(seed)
-    fmt = lambda v: " ".join(f"{x:.6f}" for x in v)  # noqa: E731
-    links, joints = ['<link name="base"/>'], []
+    fmt = fmt_xyz
     parents = ["base", "base", "l0", "l1", "l2", "l2", "l3", "l4", "l5"]  # leaves: l6, l7, l8
-    for k, parent in enumerate(parents):
-        kind = ("revolute", "continuous", "prismatic")[k % 3]
-        axis = rng.normal(size=3)
-        limit = '<limit lower="-1.5" upper="2.0" effort="1" velocity="1"/>' if kind != "continuous" else ""
-        joints.append(f'<joint name="j{k}" type="{kind}"><parent link="{parent}"/><child link="l{k}"/>'
-                      f'<origin xyz="{fmt(rng.uniform(-1, 1, 3))}" rpy="{fmt(rng.uniform(-3, 3, 3))}"/>'
-                      f'<axis xyz="{fmt(axis / np.linalg.norm(axis))}"/>{limit}</joint>')
-        links.append(f'<link name="l{k}"/>')
+    links, joints = random_joints(rng, parents)
     joints.append('<joint name="finger" type="revolute"><parent link="l3"/><child link="f"/>'
                   '<axis xyz="0 0 1"/><limit lower="0" upper="1" effort="1" velocity="1"/></joint>')
     links.append('<link name="f"/>')
