@@ -117,7 +117,7 @@ def population_joints(controllers, goals: np.ndarray) -> np.ndarray:
         a = run_programs(compile_programs(controllers), enc.inputs(goals))
     else:
         return np.stack([c(goals) for c in controllers])
-    return enc.joints(a.reshape(-1, enc.n_outputs)).reshape(len(controllers), len(goals), -1)
+    return enc.joints(a, goals)  # (n, goals, nq)
 
 
 def mlp_shape(problem: Problem, config: RunSettings):

@@ -382,7 +382,7 @@ class NEATBackend(Backend):
         """From the arrays the generation was evaluated with (no controller built)."""
         enc = self.problem.encoding
         a = run_programs(self._evaluated[2], enc.inputs(goals))  # (n, goals, nq)
-        return enc.joints(a.reshape(-1, enc.n_outputs)).reshape(a.shape)
+        return enc.joints(a, goals)
 
     def _reproduce(self) -> dict:
         """neat-python's reproduce; it can fail to fit spawn counts to a small population

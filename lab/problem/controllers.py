@@ -18,6 +18,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 
 from lab.problem import kernels
+from lab.problem.kernels import check_chain
 from lab.problem.encoding import Encoding
 
 
@@ -150,7 +151,7 @@ class MLPController:
         """Network outputs a_o in [-1, 1] of the answering head, (n, nq)."""
         if self.heads > 1:
             a = self.head_outputs(goals)
-            pick = choose_heads(self.encoding, self.chain, self.encoding.joints(a), goals)
+            pick = choose_heads(self.encoding, self.chain, self.encoding.joints(a, goals), goals)
             return a[pick, np.arange(len(goals))]
         XT = np.ascontiguousarray(self.encoding.inputs(goals).T)
         out = np.empty((self.encoding.n_outputs, XT.shape[1]))
@@ -163,12 +164,12 @@ class MLPController:
 
     def choose(self, goals: np.ndarray) -> np.ndarray:
         """(n,) the head that answers each goal: the one whose end effector lands closest."""
-        return choose_heads(self.encoding, self.chain, self.encoding.joints(self.head_outputs(goals)), goals)
+        return choose_heads(self.encoding, self.chain, self.encoding.joints(self.head_outputs(goals), goals), goals)
 
     def __call__(self, goals: np.ndarray) -> np.ndarray:
         if self.heads > 1:
             return mlp_joints(self.encoding, self.hidden, self.weights[None, :], goals, self)[0]
-        return self.encoding.joints(self.outputs(goals))
+        return self.encoding.joints(self.outputs(goals), goals)
 
     def to_dict(self) -> dict:
         d = {"kind": self.kind, "encoding": self.encoding.to_dict(), "hidden": self.hidden,
@@ -179,28 +180,6 @@ class MLPController:
                      chain={"rot": rot.tolist(), "pos": pos.tolist(), "kind": kind.tolist(),
                             "identity": identity.tolist(), "ee_pos": ee_pos.tolist()})
         return d
-
-
-def check_chain(chain, nq: int) -> tuple:
-    """The kinematic arrays (rot (k, 3, 3), pos (k, 3), kind (k,), identity (k,), ee_pos (3,)) as the
-    kernels take them, for a chain of nq joints; ValueError naming what is wrong."""
-    if isinstance(chain, dict):
-        chain = tuple(chain[k] for k in ("rot", "pos", "kind", "identity", "ee_pos"))
-    try:
-        rot, pos, kind, identity, ee_pos = chain
-    except (TypeError, ValueError):
-        raise ValueError("chain must be (rot, pos, kind, identity, ee_pos)") from None
-    rot, pos, ee_pos = (np.ascontiguousarray(np.asarray(a, dtype=np.float64)) for a in (rot, pos, ee_pos))
-    kind = np.ascontiguousarray(np.asarray(kind, dtype=np.int64))
-    identity = np.ascontiguousarray(np.asarray(identity, dtype=np.bool_))
-    if not (rot.shape == (nq, 3, 3) and pos.shape == (nq, 3) and kind.shape == identity.shape == (nq,)
-            and ee_pos.shape == (3,)):
-        raise ValueError(f"chain must describe {nq} joints: rot ({nq}, 3, 3), pos ({nq}, 3), kind and identity "
-                         f"({nq},), ee_pos (3,); got {rot.shape}, {pos.shape}, {kind.shape}, {identity.shape}, "
-                         f"{ee_pos.shape}")
-    if not (np.all(np.isfinite(rot)) and np.all(np.isfinite(pos)) and np.all(np.isfinite(ee_pos))):
-        raise ValueError("chain: its rotations and positions must be finite")
-    return rot, pos, kind, identity, ee_pos
 
 
 def mlp_head_outputs(encoding: Encoding, hidden: int, offsets: np.ndarray, W: np.ndarray, goals) -> np.ndarray:
@@ -238,7 +217,7 @@ def proposals(controller, goals) -> np.ndarray:
     goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
     if getattr(controller, "heads", 1) == 1:
         return np.asarray(controller(goals), dtype=np.float64)[None]
-    Q = controller.encoding.joints(controller.head_outputs(goals))  # (heads, n, nq)
+    Q = controller.encoding.joints(controller.head_outputs(goals), goals)  # (heads, n, nq)
     order = np.argsort(head_errors(controller.encoding, controller.chain, Q, goals), axis=0, kind="stable")
     return np.take_along_axis(Q, order[:, :, None], axis=0)
 
@@ -254,8 +233,8 @@ def mlp_joints(encoding: Encoding, hidden: int, W: np.ndarray, goals, heads_of=N
         A = np.empty((nq, len(W) * len(goals)))
         kernels.mlp_outputs(XT, W, hidden, A)
         a = A.reshape(nq, len(W), len(goals)).transpose(1, 2, 0)
-        return encoding.joints(a.reshape(-1, nq)).reshape(len(W), len(goals), -1)
-    Q = encoding.joints(mlp_head_outputs(encoding, hidden, heads_of.offsets, W, goals))  # (P, heads, g, nq)
+        return encoding.joints(a, goals)
+    Q = encoding.joints(mlp_head_outputs(encoding, hidden, heads_of.offsets, W, goals), goals)  # (P, heads, g, nq)
     pick = choose_heads(encoding, heads_of.chain, Q, goals)  # (P, g)
     return np.take_along_axis(Q, pick[:, None, :, None], axis=1)[:, 0]
 
@@ -294,7 +273,7 @@ class GraphController:
         return run_programs(self.program(), X)[0]
 
     def __call__(self, goals: np.ndarray) -> np.ndarray:
-        return self.encoding.joints(self.outputs(goals))
+        return self.encoding.joints(self.outputs(goals), goals)
 
     def to_dict(self) -> dict:
         return {

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 import robots
+from lab.problem import kernels
 
 FEATURES = ("cartesian", "polar", "cylindrical", "reach", "sphere", "bearings")
 _N_EXTRA = {"cartesian": 0, "polar": 2, "cylindrical": 0, "reach": 3, "sphere": 6, "bearings": 7}  # beyond the task axes
@@ -72,6 +73,8 @@ class Encoding:
     rho_max: float = 0.0  # "sphere": that sphere's radius
     axis_xy: np.ndarray | None = None  # (2,) where the arm's base axis crosses the x-y plane: r and phi are about it
     facing: float = 0.0  # "bearings": the bearing [rad] the arm faces most; phi is measured from it
+    turn: np.ndarray | None = None  # (10,) the first joint's closed-form turn (kernels.NO_TURN's layout); None: off
+    chain: tuple | None = None  # the arm's kinematic arrays (kernels' chain), needed by the turn
 
     def __post_init__(self):
         wrap = np.zeros(len(self.q_lo), bool) if self.wrap is None else np.asarray(self.wrap, bool).reshape(-1)
@@ -82,6 +85,8 @@ class Encoding:
         if axis_xy.shape != (2,) or not np.all(np.isfinite(axis_xy)):
             raise ValueError(f"axis_xy must be 2 finite coordinates, got {self.axis_xy!r}")
         object.__setattr__(self, "axis_xy", axis_xy)
+        if self.turn is not None:
+            self._check_turn()
         if self.features not in FEATURES:
             raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
         if not 0 <= self.margin < 10:
@@ -103,8 +108,40 @@ class Encoding:
             if not (lo.shape == hi.shape == (n,) and np.all(np.isfinite(lo) & np.isfinite(hi)) and np.all(lo < hi)):
                 raise ValueError(f"{what} must be {n} finite (lo < hi) pairs, got lo {lo.tolist()}, hi {hi.tolist()}")
 
+    def _check_turn(self) -> None:
+        turn = np.ascontiguousarray(np.asarray(self.turn, dtype=np.float64).reshape(-1))
+        if turn.shape != (10,) or not np.all(np.isfinite(turn)) or turn[0] != 1.0:
+            raise ValueError(f"turn must be 10 finite numbers [1, axis point (3), axis direction (3), lower, upper, "
+                             f"continuous], got {self.turn!r}")
+        if abs(np.linalg.norm(turn[4:7]) - 1.0) > 1e-9 or tuple(self.task_axes) != (0, 1, 2):
+            raise ValueError("the turn needs a unit axis direction and the task axes x, y, z")
+        if self.chain is None:
+            raise ValueError("an encoding that turns its first joint needs the arm's kinematic chain")
+        object.__setattr__(self, "turn", turn)
+        object.__setattr__(self, "chain", kernels.check_chain(self.chain, len(self.q_lo)))
+
+    @property
+    def turns(self) -> bool:
+        """Whether the first joint is turned in closed form toward each goal's bearing (see the module)."""
+        return self.turn is not None
+
+    @property
+    def turn_spec(self) -> np.ndarray:
+        """The turn as the kernels take it (kernels.NO_TURN when off)."""
+        return self.turn if self.turn is not None else kernels.NO_TURN
+
+    @staticmethod
+    def turn_for(arm: robots.Arm) -> np.ndarray:
+        """The turn of arm's first joint: [1, axis point, axis direction, lower, upper, continuous];
+        ValueError when it has none (a prismatic first joint, or fewer than 3 task axes)."""
+        if arm.is_prismatic[0] or tuple(arm.task_axes) != (0, 1, 2):
+            raise ValueError(f"{arm.name}: the turn needs a revolute first joint and 3 task axes (x, y, z)")
+        c, w = arm.base_axis
+        return np.concatenate([[1.0], c, w, [arm.lower[0], arm.upper[0], float(arm.chain.continuous[0])]])
+
     @classmethod
-    def for_arm(cls, arm: robots.Arm, features: str = "cartesian", margin: float = 0.0) -> "Encoding":
+    def for_arm(cls, arm: robots.Arm, features: str = "cartesian", margin: float = 0.0,
+                turn: bool = False) -> "Encoding":
         goals = arm.sample_goals(20_000, seed=12345)
         # r and phi about the base axis where it stands upright
         axis_xy = arm.base_axis[0][:2] if arm.base_upright and len(arm.task_axes) >= 2 else np.zeros(2)
@@ -119,7 +156,8 @@ class Encoding:
         flat = hi - lo < 1e-9
         lo, hi = np.where(flat, lo - 0.5, lo), np.where(flat, hi + 0.5, hi)
         return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy(), float(margin), r_max,
-                   np.asarray(arm.chain.continuous, bool).copy(), z_c, rho_max, axis_xy.copy(), facing)
+                   np.asarray(arm.chain.continuous, bool).copy(), z_c, rho_max, axis_xy.copy(), facing,
+                   cls.turn_for(arm) if turn else None, arm.chain.arrays if turn else None)
 
     @property
     def n_inputs(self) -> int:
@@ -167,13 +205,36 @@ class Encoding:
     def clip_hi(self) -> np.ndarray:
         return np.where(self.wrap, np.inf, self.q_hi)
 
-    def joints(self, a: np.ndarray) -> np.ndarray:
-        """Network outputs in [-1, 1] (..., nq) -> joint values (..., nq) within the limits (NaN stays NaN)."""
+    def joints(self, a: np.ndarray, goals: np.ndarray | None = None) -> np.ndarray:
+        """Network outputs in [-1, 1] (..., n, nq) -> joint values (..., n, nq) within the limits (NaN
+        stays NaN). An encoding that turns its first joint needs the goals (n, 3) the outputs answer."""
+        q = self.mapped(a)
+        if self.turn is None:
+            return q
+        if goals is None:
+            raise ValueError("this encoding turns the first joint toward each goal's bearing: joints() needs the goals")
+        return self.turned(q, goals)
+
+    def mapped(self, a: np.ndarray) -> np.ndarray:
+        """The output mapping alone: outputs (..., nq) -> joint values within the limits, before any turn."""
         q = self.q_offset + (np.asarray(a) + 1.0) * self.q_scale
         if self.wrap.any():  # by whole turns into [lower, lower + 2 pi), then clipped like the others
             turned = self.q_lo + np.mod(q - self.q_lo, 2 * np.pi)
             q = np.where(self.wrap, np.minimum(turned, self.q_hi), q)
         return q if self.margin == 0 and not self.wrap.any() else np.clip(q, self.q_lo, self.q_hi)
+
+    def turned(self, q: np.ndarray, goals: np.ndarray) -> np.ndarray:
+        """Joint values q (..., n, nq) with the first joint turned toward each goal's (n, 3) bearing."""
+        goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
+        q = np.asarray(q, dtype=np.float64)
+        nq = len(self.q_lo)
+        if q.ndim < 2 or q.shape[-2:] != (len(goals), nq) or goals.shape[1] != 3:
+            raise ValueError(f"the turn needs joint values (..., {len(goals)}, {nq}) for goals (n, 3), got joint "
+                             f"values {q.shape} for goals {goals.shape}")
+        QT = np.ascontiguousarray(q.reshape(-1, nq).T)
+        tiled = np.ascontiguousarray(np.tile(goals.T, (1, QT.shape[1] // len(goals))))
+        kernels.turn_first_joint(QT, tiled, self.chain, self.turn)
+        return QT.T.reshape(q.shape)
 
     def to_dict(self) -> dict:
         return {
@@ -185,6 +246,9 @@ class Encoding:
             **({"facing": self.facing} if self.features == "bearings" else {}),
             **({"wrap": self.wrap.tolist()} if self.wrap.any() else {}),
             **({"axis_xy": self.axis_xy.tolist()} if self.axis_xy.any() else {}),
+            **({"turn": self.turn.tolist(), "chain": dict(zip(("rot", "pos", "kind", "identity", "ee_pos"),
+                                                              (np.asarray(x).tolist() for x in self.chain)))}
+               if self.turn is not None else {}),
         }
 
     @classmethod
@@ -192,7 +256,8 @@ class Encoding:
         return cls(d["features"], tuple(d["task_axes"]),
                    *(np.atleast_1d(np.asarray(d[k], float)) for k in ("in_lo", "in_hi", "q_lo", "q_hi")),
                    float(d.get("margin", 0.0)), float(d.get("r_max", 0.0)), d.get("wrap"),
-                   float(d.get("z_c", 0.0)), float(d.get("rho_max", 0.0)), d.get("axis_xy"), float(d.get("facing", 0.0)))
+                   float(d.get("z_c", 0.0)), float(d.get("rho_max", 0.0)), d.get("axis_xy"), float(d.get("facing", 0.0)),
+                   d.get("turn"), d.get("chain"))
 
 
 def _enclosing_sphere(goals: np.ndarray) -> tuple[float, float]:

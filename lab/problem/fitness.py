@@ -80,7 +80,7 @@ class Problem:
         self._train = (_t(encoding.inputs(self.train_goals)), _t(self.train_goals))
         self._test = (_t(encoding.inputs(self.test_goals)), _t(self.test_goals))
         self._axes = np.asarray(arm.task_axes, dtype=np.int64)
-        self._qmap = (encoding.q_offset, encoding.q_scale, encoding.clip_lo, encoding.clip_hi)
+        self._qmap = (encoding.q_offset, encoding.q_scale, encoding.clip_lo, encoding.clip_hi, encoding.turn_spec)
         self._chain = arm.chain.arrays
 
     @property
@@ -142,11 +142,15 @@ class Problem:
         A = np.tanh(H @ w_o)
         raw = enc.q_offset + (A + 1.0) * enc.q_scale
         q = np.clip(raw, enc.clip_lo, enc.clip_hi)
+        if enc.turns:  # the first joint turned in closed form: at the turn the error is stationary in it
+            q = enc.turned(q, goals)
         axes = list(self.arm.task_axes)
         err = self.arm.fk(q)[:, axes] - goals  # (n, k)
         mse = float(np.mean(np.sum(err * err, axis=1)))
         J = self.arm.jacobian(q)[:, axes, :]  # (n, k, nq)
         dq = (2.0 / n) * np.einsum("gk,gkj->gj", err, J)
+        if enc.turns:  # the network's first output is unused
+            dq[:, 0] = 0.0
         dA = dq * ((raw >= enc.clip_lo) & (raw <= enc.clip_hi)) * enc.q_scale
         dZo = dA * (1.0 - A * A)
         dZh = (dZo @ w_o.T) * (1.0 - H * H)
@@ -156,9 +160,9 @@ class Problem:
     def outputs_mse(self, A: np.ndarray, test: bool = False) -> np.ndarray:
         """MSE of network outputs A (P, n, nq) in [-1, 1] on the goals: (P,)."""
         _, goalsT = self._split(test)
-        QT = np.ascontiguousarray(self.encoding.joints(np.asarray(A, dtype=np.float64)).transpose(0, 2, 1))
+        QT = np.ascontiguousarray(self.encoding.mapped(np.asarray(A, dtype=np.float64)).transpose(0, 2, 1))
         out = np.empty(len(QT))
-        kernels.joints_mse(QT, goalsT, self._axes, self._chain, out)
+        kernels.joints_mse(QT, goalsT, self._axes, self._chain, self.encoding.turn_spec, out)
         return out
 
     def graphs_mse(self, graphs, test: bool = False) -> np.ndarray:

@@ -4,7 +4,9 @@ One call evaluates a whole population on all goals:
 
     mse[p] = mean_g || goal_g - fk(joints(net_p(x_g)))[task_axes] ||^2
 
-joints() is lab.problem.encoding.Encoding.joints; its arrays travel as qmap = (offset, scale, lo, hi).
+joints() is lab.problem.encoding.Encoding.joints; its arrays travel as qmap = (offset, scale, lo, hi,
+turn): turn (NO_TURN when off) turns the first joint toward each goal's bearing in closed form
+(Encoding.turn) before the error is taken.
 A controller whose output or error is NaN or infinite gets +inf.
 
 Layout: goals run along the innermost, contiguous axis ("structure of arrays": inputs (ni, n),
@@ -79,7 +81,7 @@ def sincos_row(x, s, c):
 @numba.njit(**_JIT)
 def _to_joints_row(a, o, qmap):
     """a <- joint values of output row o: offset + (a + 1) scale, clipped (NaN stays NaN)."""
-    q_off, q_scale, q_lo, q_hi = qmap
+    q_off, q_scale, q_lo, q_hi = qmap[0], qmap[1], qmap[2], qmap[3]
     off, scale, lo, hi = q_off[o], q_scale[o], q_lo[o], q_hi[o]
     for g in range(a.shape[0]):
         q = off + (a[g] + 1.0) * scale
@@ -87,18 +89,17 @@ def _to_joints_row(a, o, qmap):
         a[g] = hi if q > hi else q
 
 
-@numba.njit(**_JIT)
-def fk_sq_errors(Q, goalsT, axes, chain, E):
-    """E (N,) <- squared task-space error of joint values Q (nq, N) against goals (k, N).
+# The turn of a controller that turns its first joint in closed form (lab.problem.encoding.Encoding.turn):
+# [on, c (3), w (3), lower, upper, continuous] of the first joint's axis (point c, unit direction w)
+NO_TURN = np.zeros(10)
 
-    chain = (rot, pos, kind, identity, ee_pos) as robots.kinematics.ChainKinematics.arrays.
-    Mirrors robots.kinematics.chain_point:
-    per joint k, p += R pos[k]; R = R rot[k]; revolute: mix columns 0 and 1 by (cos, sin);
-    prismatic: p += q R[:, 2].
-    """
+
+@numba.njit(**_JIT)
+def _chain_frames(Q, chain, R, P):
+    """R (3, 3, N), P (3, N) <- the last joint's frame of joint values Q (nq, N) (chain as fk_sq_errors)."""
     rot, pos, kind, identity, ee_pos = chain
     n = Q.shape[1]
-    R, T, P, S, C = np.empty((3, 3, n)), np.empty((3, 3, n)), np.empty((3, n)), np.empty(n), np.empty(n)
+    T, S, C = np.empty((3, 3, n)), np.empty(n), np.empty(n)
     for a in range(3):
         for b in range(3):
             v = 1.0 if a == b else 0.0
@@ -131,6 +132,77 @@ def fk_sq_errors(Q, goalsT, axes, chain, E):
             for a in range(3):
                 for g in range(n):
                     P[a, g] += Q[k, g] * R[a, 2, g]
+
+
+@numba.njit(**_JIT)
+def fk_sq_errors(Q, goalsT, axes, chain, E):
+    """E (N,) <- squared task-space error of joint values Q (nq, N) against goals (k, N).
+
+    chain = (rot, pos, kind, identity, ee_pos) as robots.kinematics.ChainKinematics.arrays.
+    Mirrors robots.kinematics.chain_point:
+    per joint k, p += R pos[k]; R = R rot[k]; revolute: mix columns 0 and 1 by (cos, sin);
+    prismatic: p += q R[:, 2].
+    """
+    fk_turned_sq_errors(Q, goalsT, axes, chain, NO_TURN, E)
+
+
+@numba.njit(**_JIT)
+def _turn_of(q0, theta, turn):
+    """The first joint's value after its turn by theta toward the goal's bearing (within its limits:
+    the candidate of largest cos of the angle still to go, as robots.ik's closed-form turn), and that
+    angle still to go."""
+    lo, hi = turn[7], turn[8]
+    if turn[9] != 0.0:  # continuous: whole turns into its range, the bearing met exactly
+        return lo + (q0 + theta - lo) % (2 * math.pi), 0.0
+    best, score = q0, math.cos(theta)
+    for j in range(5):
+        cand = q0 + theta + (j - 1) * 2 * math.pi if j < 3 else (lo if j == 3 else hi)
+        cs = math.cos(theta - (cand - q0))
+        if lo - 1e-12 <= cand <= hi + 1e-12 and cs > score + 1e-15:
+            best, score = min(max(cand, lo), hi), cs
+    return best, theta - (best - q0)
+
+
+@numba.njit(**_JIT)
+def _turn_row(P, R, ee_pos, Q, goalsT, turn, E, write):
+    """Per goal g, the end effector p = P + R ee_pos turned about the first joint's axis toward goal g:
+    E[g] <- its squared error after the turn (write: Q[0, g] <- the turned joint value).
+    With u = p - c, v = goal - c split into heights h along w and radial parts of lengths r, a turn by
+    the angle theta between the radial parts leaves |p' - goal|^2 = (r_u - r_v)^2 + (h_u - h_v)^2,
+    plus 4 r_u r_v sin^2(d / 2) when the limits stop it d short."""
+    cx, cy, cz, wx, wy, wz = turn[1], turn[2], turn[3], turn[4], turn[5], turn[6]
+    e0, e1, e2 = ee_pos[0], ee_pos[1], ee_pos[2]
+    for g in range(Q.shape[1]):
+        ux = P[0, g] + R[0, 0, g] * e0 + R[0, 1, g] * e1 + R[0, 2, g] * e2 - cx
+        uy = P[1, g] + R[1, 0, g] * e0 + R[1, 1, g] * e1 + R[1, 2, g] * e2 - cy
+        uz = P[2, g] + R[2, 0, g] * e0 + R[2, 1, g] * e1 + R[2, 2, g] * e2 - cz
+        vx, vy, vz = goalsT[0, g] - cx, goalsT[1, g] - cy, goalsT[2, g] - cz
+        hu = ux * wx + uy * wy + uz * wz
+        hv = vx * wx + vy * wy + vz * wz
+        ux, uy, uz = ux - hu * wx, uy - hu * wy, uz - hu * wz
+        vx, vy, vz = vx - hv * wx, vy - hv * wy, vz - hv * wz
+        ru = math.sqrt(ux * ux + uy * uy + uz * uz)
+        rv = math.sqrt(vx * vx + vy * vy + vz * vz)
+        sin_part = (uy * vz - uz * vy) * wx + (uz * vx - ux * vz) * wy + (ux * vy - uy * vx) * wz
+        theta = math.atan2(sin_part, ux * vx + uy * vy + uz * vz)
+        q0, short = _turn_of(Q[0, g], theta, turn)
+        dr, dh, s = ru - rv, hu - hv, math.sin(0.5 * short)
+        E[g] = dr * dr + dh * dh + 4.0 * ru * rv * s * s
+        if write:
+            Q[0, g] = q0
+
+
+@numba.njit(**_JIT)
+def fk_turned_sq_errors(Q, goalsT, axes, chain, turn, E):
+    """fk_sq_errors, the first joint turned toward each goal's bearing first when turn[0] is set
+    (3 task axes, in the order x, y, z)."""
+    rot, pos, kind, identity, ee_pos = chain
+    n = Q.shape[1]
+    R, P = np.empty((3, 3, n)), np.empty((3, n))
+    _chain_frames(Q, chain, R, P)
+    if turn[0] != 0.0:
+        _turn_row(P, R, ee_pos, Q, goalsT, turn, E, False)
+        return
     e0, e1, e2 = ee_pos[0], ee_pos[1], ee_pos[2]
     for g in range(n):
         E[g] = 0.0
@@ -139,6 +211,15 @@ def fk_sq_errors(Q, goalsT, axes, chain, E):
         for g in range(n):
             d = goalsT[t, g] - (P[a, g] + R[a, 0, g] * e0 + R[a, 1, g] * e1 + R[a, 2, g] * e2)
             E[g] += d * d
+
+
+@numba.njit(**_JIT)
+def turn_first_joint(Q, goalsT, chain, turn):
+    """Q[0] <- the first joint of joint values Q (nq, N) turned toward each goal's bearing (goalsT (3, N))."""
+    n = Q.shape[1]
+    R, P, E = np.empty((3, 3, n)), np.empty((3, n)), np.empty(n)
+    _chain_frames(Q, chain, R, P)
+    _turn_row(P, R, chain[4], Q, goalsT, turn, E, True)
 
 
 @numba.njit(**_JIT)
@@ -157,11 +238,11 @@ def _population_mse(A, goalsT, axes, qmap, chain, out):
     """A (nq, P n): outputs of P controllers side by side -> out (P,) <- MSE of each."""
     for o in range(A.shape[0]):
         _to_joints_row(A[o], o, qmap)
-    _joints_side_by_side_mse(A, goalsT, axes, chain, out)
+    _joints_side_by_side_mse(A, goalsT, axes, chain, qmap[4], out)
 
 
 @numba.njit(**_JIT)
-def _joints_side_by_side_mse(Q, goalsT, axes, chain, out):
+def _joints_side_by_side_mse(Q, goalsT, axes, chain, turn, out):
     """Q (nq, P n): joint values of P controllers side by side -> out (P,) <- MSE of each."""
     n = goalsT.shape[1]
     P = out.shape[0]
@@ -169,7 +250,7 @@ def _joints_side_by_side_mse(Q, goalsT, axes, chain, out):
     for p in range(P):
         tiled[:, p * n:(p + 1) * n] = goalsT
     E = np.empty(P * n)
-    fk_sq_errors(Q, tiled, axes, chain, E)
+    fk_turned_sq_errors(Q, tiled, axes, chain, turn, E)
     _segment_means(E, n, out)
 
 
@@ -289,13 +370,13 @@ def graph_mse(XT, goalsT, axes, program, qmap, chain, out):
 
 
 @numba.njit(**_JIT)
-def joints_mse(QT, goalsT, axes, chain, out):
-    """MSE of joint values QT (P, nq, n) on the goals: out (P,)."""
+def joints_mse(QT, goalsT, axes, chain, turn, out):
+    """MSE of joint values QT (P, nq, n) on the goals, the first joint turned when turn[0] is set: out (P,)."""
     P, nq, n = QT.shape
     Q = np.empty((nq, P * n))
     for p in range(P):
         Q[:, p * n:(p + 1) * n] = QT[p]
-    _joints_side_by_side_mse(Q, goalsT, axes, chain, out)
+    _joints_side_by_side_mse(Q, goalsT, axes, chain, turn, out)
 
 
 @numba.njit(**_JIT)
@@ -320,8 +401,30 @@ def mlp_heads_mse(XT, goalsT, axes, W, nh, offsets, qmap, chain, out):
         for o in range(nq):
             Q[o] = A[h * nq + o]
             _to_joints_row(Q[o], o, qmap)
-        fk_sq_errors(Q, tiled, axes, chain, Eh)
+        fk_turned_sq_errors(Q, tiled, axes, chain, qmap[4], Eh)
         for g in range(P * n):
             if Eh[g] < E[g]:  # NaN never is: a goal no head reaches stays +inf
                 E[g] = Eh[g]
     _segment_means(E, n, out)
+
+
+def check_chain(chain, nq: int) -> tuple:
+    """The kinematic arrays (rot (k, 3, 3), pos (k, 3), kind (k,), identity (k,), ee_pos (3,)) as the
+    kernels take them, for a chain of nq joints; ValueError naming what is wrong."""
+    if isinstance(chain, dict):
+        chain = tuple(chain[k] for k in ("rot", "pos", "kind", "identity", "ee_pos"))
+    try:
+        rot, pos, kind, identity, ee_pos = chain
+    except (TypeError, ValueError):
+        raise ValueError("chain must be (rot, pos, kind, identity, ee_pos)") from None
+    rot, pos, ee_pos = (np.ascontiguousarray(np.asarray(a, dtype=np.float64)) for a in (rot, pos, ee_pos))
+    kind = np.ascontiguousarray(np.asarray(kind, dtype=np.int64))
+    identity = np.ascontiguousarray(np.asarray(identity, dtype=np.bool_))
+    if not (rot.shape == (nq, 3, 3) and pos.shape == (nq, 3) and kind.shape == identity.shape == (nq,)
+            and ee_pos.shape == (3,)):
+        raise ValueError(f"chain must describe {nq} joints: rot ({nq}, 3, 3), pos ({nq}, 3), kind and identity "
+                         f"({nq},), ee_pos (3,); got {rot.shape}, {pos.shape}, {kind.shape}, {identity.shape}, "
+                         f"{ee_pos.shape}")
+    if not (np.all(np.isfinite(rot)) and np.all(np.isfinite(pos)) and np.all(np.isfinite(ee_pos))):
+        raise ValueError("chain: its rotations and positions must be finite")
+    return rot, pos, kind, identity, ee_pos

@@ -35,12 +35,12 @@ from lab.problem.encoding import FEATURES
 # hang in pycma's or neat's setup; hidden 256 is a CMA-ES search space of about 2,300 weights)
 LIMITS = {"population": 10_000, "goals": 1_000_000, "hidden": 256}
 # the paper's protocol: what a field left at None becomes when the method's defaults say nothing
-PROTOCOL = {"generations": 1000, "population": 50, "targets": 70, "heads": 1}
+PROTOCOL = {"generations": 1000, "population": 50, "targets": 70, "heads": 1, "turn": False}
 # the generations of a run with a time budget and no generation bound: the most a run may have (10^9;
 # the recordings and the app's history thin long runs already), so that every reader of
 # config.generations keeps an int
 UNBOUNDED = 10**9
-_PER_METHOD = ("generations", "population", "targets", "features", "margin", "hidden", "heads")
+_PER_METHOD = ("generations", "population", "targets", "features", "margin", "hidden", "heads", "turn")
 
 
 @dataclass(frozen=True, init=False)
@@ -64,13 +64,14 @@ class TrainConfig:
     paper: bool = False  # record that this is the paper's literal method (see preset)
     resample: bool = False  # new training goals every generation (the paper: fixed; lab.problem.fitness)
     seconds: float | None = None  # time budget: s of optimizer time (None: none; generations then default to UNBOUNDED)
+    turn: bool | None = None  # the first joint turned in closed form toward the goal (lab/problem/encoding.py; None: the method's default)
 
     def __init__(self, robot: str = "planar", method: str = methods.DEFAULT_METHOD, generations: int | None = None,
                  population: int | None = None, targets: int | None = None, seed: int = 0, test_goals: int = 1000,
                  goal_seed: int = 0, features: str | None = None, margin: float | None = None,
                  hidden: int | None = None, options: Options | dict | None = None, paper: bool = False,
                  resample: bool = False, heads: int | None = None, seconds: float | None = None,
-                 **option_values):
+                 turn: bool | None = None, **option_values):
         if option_values:
             base = options.to_dict() if isinstance(options, Options) else dict(options or {})
             options = {**base, **option_values}
@@ -78,7 +79,7 @@ class TrainConfig:
                             ("population", population), ("targets", targets), ("seed", seed),
                             ("test_goals", test_goals), ("goal_seed", goal_seed), ("features", features),
                             ("margin", margin), ("hidden", hidden), ("options", options), ("paper", paper),
-                            ("resample", resample), ("heads", heads), ("seconds", seconds)):
+                            ("resample", resample), ("heads", heads), ("seconds", seconds), ("turn", turn)):
             object.__setattr__(self, name, value)
         self.__post_init__()
 
@@ -120,6 +121,8 @@ class TrainConfig:
             real(self, "margin", 0, 10, "a number in [0, 10)", closed_above=False)
         flag(self, "paper")
         flag(self, "resample")
+        if self.turn is not None:
+            flag(self, "turn")
         if self.seconds is not None:
             real(self, "seconds", 0, float("inf"), "a positive finite number of seconds (optimizer time) or None",
                  closed_below=False)
@@ -178,4 +181,6 @@ class TrainConfig:
             del d["heads"]
         if d["seconds"] is None:  # no time budget: likewise, as before budgets existed
             del d["seconds"]
+        if not d["turn"]:  # no turn: likewise, as before the turn existed
+            del d["turn"]
         return {**d, **self.options.to_dict()}

@@ -106,7 +106,7 @@ class RunSummary:
 
 def build_problem(config: TrainConfig) -> Problem:
     arm = robots.load(config.robot)
-    enc = Encoding.for_arm(arm, config.features, config.margin)
+    enc = Encoding.for_arm(arm, config.features, config.margin, config.turn)
     return Problem(arm, enc, targets=config.targets, test_goals=config.test_goals, goal_seed=config.goal_seed,
                    resample_seed=config.seed if config.resample else None)
 
