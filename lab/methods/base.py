@@ -65,6 +65,7 @@ class RunSettings(Protocol):
     population: int  # candidates per generation
     hidden: int  # MLP hidden units; graph methods: hidden nodes of the first networks
     heads: int  # an MLP's output heads (1: single-head networks)
+    seconds: float | None  # a time budget of optimizer time (None: none; Backend.progress follows it)
     options: Options  # the method's own settings
 
 
@@ -161,6 +162,9 @@ class Backend(ABC):
         self.evaluations = 0
         self.best: Controller | None = None
         self.best_mse = np.inf
+        # the share of the run done before this step: generations done / generations, or with a time
+        # budget optimizer time spent / budget if that is larger (the runner sets it; a schedule may follow it)
+        self.progress = 0.0
 
     @abstractmethod
     def _step(self) -> StepResult: ...

@@ -68,10 +68,13 @@ class GradientBackend(Backend):
                 **config.options.to_dict(), "evaluations_per_step": 1 + problem.arm.nq}
 
     def learning_rate(self, step: int) -> float:
-        """Cosine decay from learning_rate at step 0 to final_rate x learning_rate at the last step."""
+        """Cosine decay from learning_rate at step 0 to final_rate x learning_rate at the last step
+        (with a time budget: over the run's progress, time spent / budget, Backend.progress)."""
         o = self.options
         last = max(self.config.generations - 1, 1)
         frac = min(step, last) / last
+        if self.config.seconds is not None:
+            frac = min(max(frac, self.progress), 1.0)
         return float(o.learning_rate * (o.final_rate + (1.0 - o.final_rate) * 0.5 * (1.0 + np.cos(np.pi * frac))))
 
     def _step(self) -> StepResult:

@@ -148,19 +148,20 @@ def fk_sq_errors(Q, goalsT, axes, chain, E):
 
 @numba.njit(**_JIT)
 def _turn_of(q0, theta, turn):
-    """The first joint's value after its turn by theta toward the goal's bearing (within its limits:
-    the candidate of largest cos of the angle still to go, as robots.ik's closed-form turn), and that
-    angle still to go."""
+    """The first joint's value after its turn by theta in [-pi, pi] toward the goal's bearing, and
+    the angle still to go: q0 + theta, or that a whole turn away, within the limits (a continuous
+    joint: turned by whole turns into its range); when none is, the limit nearer in angle (the
+    largest cos of the angle still to go, as robots.ik's closed-form turn chooses)."""
     lo, hi = turn[7], turn[8]
+    t = q0 + theta
     if turn[9] != 0.0:  # continuous: whole turns into its range, the bearing met exactly
-        return lo + (q0 + theta - lo) % (2 * math.pi), 0.0
-    best, score = q0, math.cos(theta)
-    for j in range(5):
-        cand = q0 + theta + (j - 1) * 2 * math.pi if j < 3 else (lo if j == 3 else hi)
-        cs = math.cos(theta - (cand - q0))
-        if lo - 1e-12 <= cand <= hi + 1e-12 and cs > score + 1e-15:
-            best, score = min(max(cand, lo), hi), cs
-    return best, theta - (best - q0)
+        return lo + (t - lo) % (2 * math.pi), 0.0
+    for k in range(3):
+        c = t + (0.0 if k == 0 else (-2 * math.pi if k == 1 else 2 * math.pi))
+        if lo <= c <= hi:
+            return c, 0.0
+    best = lo if math.cos(t - lo) >= math.cos(t - hi) else hi
+    return best, t - best
 
 
 @numba.njit(**_JIT)

@@ -392,6 +392,7 @@ class Runner(RunBase):
             if not self._go(last_start):
                 return
             t0 = last_start = time.perf_counter()
+            backend.progress = max(index / self.config.generations, t_run / budget if budget else 0.0)
             before = backend.best_mse
             result = backend.step()
             t_run += time.perf_counter() - t0
