@@ -249,3 +249,22 @@ def test_an_unknown_lesson_is_refused_by_name_and_changes_nothing(app, tab):
                        for _t, m in bad.messages)
     finally:
         bad.close()
+
+
+def test_a_budgeted_run_goes_at_full_speed_and_a_real_arm_brings_its_budget(app, tab):
+    """The Speed menu caps runs without a budget only; picking a real arm fills its live budget."""
+    from app.panels.train import REAL_ARM_BUDGET
+
+    set_field(tab, "GuiDropdownMessage", "Speed", "1 generation/s")
+    assert wait_until(lambda: app.state.speed == 1.0, 5)
+    app.panel.budget.value = 3.0
+    tab.click("Start")
+    assert wait_until(lambda: generations(app) >= 30, 10)  # far beyond 1 a second
+    assert wait_until(lambda: app.state.runner.state == "finished", 15)
+    app.panel.budget.value = 0.0
+    set_field(tab, "GuiDropdownMessage", "Robot", "ur5")
+    assert wait_until(lambda: app.panel.budget.value == REAL_ARM_BUDGET, 10)
+    config = app.panel.config()
+    assert config.seconds == REAL_ARM_BUDGET and config.turn
+    set_field(tab, "GuiDropdownMessage", "Robot", "planar")
+    assert wait_until(lambda: app.panel.budget.value == 0.0, 10)

@@ -7,8 +7,10 @@ the last valid one and the reason is shown (in the panel and as a notification i
 that typed it). Start while a run is going is refused the same way. A time budget (Settings, "Time
 budget (s)"; 0 or empty: none) ends the run after that many seconds of optimizer time; typing one
 fills the fields with the method's defaults for that budget (generations unbounded,
-lab.running.config.UNBOUNDED, unless typed after), and the status line shows the time left. Buttons only call
-LabState; the render loop calls `refresh` to show progress.
+lab.running.config.UNBOUNDED, unless typed after), and the status line shows the time left. Picking
+a real arm puts REAL_ARM_BUDGET in that field (a paper arm or a snake: none), so that Reset then
+Start shows the arm converge within a minute; a run with a budget is never slowed by the Speed
+menu (the budget is its pace). Buttons only call LabState; the render loop calls `refresh` to show progress.
 """
 
 from __future__ import annotations
@@ -29,6 +31,15 @@ from app.panels.teaching import RaceFields, Watching
 from app.training.live import decimate, lead_line, sample
 from app.training.state import SPEEDS, run_label, speed_label
 
+# a real arm's time budget in the panel: s of optimizer time, within which CMA-ES's defaults for it
+# bring every real arm to about 1 % of its reach (docs/results/budgets.md)
+REAL_ARM_BUDGET = 30.0
+
+
+def budget_for(robot: str) -> float:
+    """The time budget field's value when `robot` is picked: REAL_ARM_BUDGET on a real arm, else 0 (none)."""
+    return REAL_ARM_BUDGET if robots.kind(robot) == "real" else 0.0
+
 SHARED = ("population", "generations", "hidden", "seed")  # the TrainConfig fields shown
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
 EMPTY_PLOT = (np.array([0.0, 1.0]), np.full(2, np.nan), np.full(2, np.nan))
@@ -44,7 +55,7 @@ class TrainingPanel:
         """gui: a viser GuiApi (inside the Train tab); state: LabState; on_robot(name): switch the scene."""
         self.state, self.on_robot = state, on_robot
         self.gui = gui
-        d = lab.TrainConfig.preset(robot=state.arm.name)
+        d = lab.TrainConfig.preset(robot=state.arm.name, seconds=budget_for(state.arm.name) or None)
         # what a presenter uses comes first, so that it is in view on a projector (1366 x 768): the
         # arm and method, the run controls, the speed, the progress and the convergence plot; the
         # numbers behind a run, the race and the method's views follow
@@ -66,7 +77,7 @@ class TrainingPanel:
             button.on_click(lambda event, action=action: action(event.client))
         self._buttons_shown = None
         self.speed = gui.add_dropdown("Speed", tuple(SPEEDS), initial_value=speed_label(state.speed),
-                                      hint="at most this many generations a second, so that a class can follow")
+                                      hint="at most this many generations a second, so that a class can follow (a run with a time budget goes at full speed)")
         self.speed.on_update(lambda event: self._simple(lambda: self.state.set_speed(SPEEDS[self.speed.value]),
                                                         event.client))
         self.progress_bar = gui.add_progress_bar(0.0, animated=False)
@@ -82,7 +93,7 @@ class TrainingPanel:
             self.population = gui.add_number("Population", float(d.population), step=1)
             self.generations = gui.add_number("Generations", float(d.generations), step=1)
             self.budget = gui.add_number(
-                "Time budget (s)", 0.0, step=1,
+                "Time budget (s)", budget_for(d.robot), step=1,
                 hint="end the run after this many seconds of optimizer time, with its best network (0: no "
                      "budget); typing one sets the method's defaults for it, generations unbounded "
                      f"({UNBOUNDED:,}) unless you type fewer: whichever comes first ends the run")
@@ -216,6 +227,11 @@ class TrainingPanel:
                 self._revert(handle)
                 return
         if handle is self.robot:
+            self._reverting = True
+            try:
+                self.budget.value = budget_for(self.robot.value)  # a real arm's live budget, or none
+            finally:
+                self._reverting = False
             self._fill_defaults()  # the new arm's defaults
         self._valid[id(handle)] = handle.value
         self.message.content = ""

@@ -242,7 +242,7 @@ class LabState:
                 self.partner = Partner(runners[1], recordings[1], RunTrack(lab.methods.get(partner.method)))
             for r, rec, is_partner in zip(runners, recordings, (False, True)):
                 r.subscribe(_Tap(self, r, rec, partner=is_partner))
-                r.set_speed(self.speed)
+                r.set_speed(self._speed_of(r))
             for r in runners:
                 r.start()
             return None
@@ -285,14 +285,20 @@ class LabState:
             r.step()
 
     def set_speed(self, generations_per_second: float | None) -> str | None:
-        """Cap every run at this many generations a second (None: no cap), now and for later runs."""
+        """Cap every run without a time budget at this many generations a second (None: no cap), now
+        and for later runs."""
         try:
             speed_period(generations_per_second)
         except ValueError as e:
             return f"refused: {e}"
         self.speed = generations_per_second
         for r in self.runners():
-            r.set_speed(generations_per_second)
+            r.set_speed(self._speed_of(r))
+
+    def _speed_of(self, runner) -> float | None:
+        """The cap a run goes at: the Speed menu's, except for a run with a time budget, which goes at
+        full speed (its budget is its pace: capped, it would train less than its budget allows)."""
+        return None if runner.config.seconds is not None else self.speed
 
     def stop(self) -> str | None:
         """Stop every run going. A worker that has not ended its run stop_grace s after Stop is killed:

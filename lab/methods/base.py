@@ -69,6 +69,33 @@ class RunSettings(Protocol):
     options: Options  # the method's own settings
 
 
+# The inputs and output mapping of a real arm, shared by every method that trains an MLP or a graph
+# on one (their reasons: docs/results/real-arms.md and docs/results/budgets.md).
+# arms whose base turns less than a turn, so that the goals behind them lie across the bearing's seam:
+# the bearing twice, from the front and from behind (lab/problem/encoding.py, "bearings"). Not SO100:
+# there it raised the median error (docs/log.md)
+BEARINGS_ARMS = {"so101"}
+# the output margin of an arm whose every limited joint turns less than a full turn (SO100, SO101, Z1,
+# Panda, Kinova): there the limits bind, and uniformly drawn goals often need a joint near one, where
+# a margin of 0 asks the output tanh to saturate; 0.3 lowers each such arm's median error
+# (docs/results/real-arms.md, docs/log.md). The arms with joints of +-2 pi (UR5, UR10, xArm7) keep 0:
+# their limits lie two turns apart
+LIMITED_MARGIN = 0.3
+
+def margin_of(arm) -> float:
+    """A real arm's output margin: LIMITED_MARGIN when every joint with limits turns less than a full
+    turn between them (continuous joints take no margin: lab/problem/encoding.py), else 0."""
+    limited = ~np.asarray(arm.chain.continuous, bool)
+    return LIMITED_MARGIN if bool(np.all((arm.upper - arm.lower)[limited] < 2 * np.pi - 1e-9)) else 0.0
+
+
+def real_arm_io(arm) -> dict:
+    """A real arm's network inputs and output mapping: "sphere" inputs ("bearings" on BEARINGS_ARMS),
+    the output margin margin_of(arm), and the first joint turned in closed form toward the goal
+    (lab/problem/encoding.py, the turn)."""
+    return dict(features="bearings" if arm.name in BEARINGS_ARMS else "sphere", margin=margin_of(arm), turn=True)
+
+
 @dataclass(frozen=True, eq=False)
 class Population:
     """The candidates one generation evaluated (Backend.candidates()).

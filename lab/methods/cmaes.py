@@ -19,7 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 import robots
-from lab.methods.base import Backend, Options, StepResult, mlp_joints, mlp_shape, option
+from lab.methods.base import (BEARINGS_ARMS, LIMITED_MARGIN, Backend, Options, StepResult, margin_of,  # noqa: F401
+                              mlp_joints, mlp_shape, option, real_arm_io)
 from lab.methods.registry import LivePlot, Method, SpeedReference, register
 from lab.problem.checks import flag, real, whole
 from lab.problem.controllers import MAX_HEADS, MLPController, mlp_size
@@ -30,17 +31,9 @@ REAL_ARM_GENERATIONS = 45_000  # a real arm's budget: about 4-5 minutes on two c
 # (docs/results/real-arms.md; the timings in docs/log.md)
 MULTI_HEAD_ARMS = {"ur5": dict(heads=2, generations=32_000), "so100": dict(heads=3, generations=26_000),
                    "so101": dict(heads=4, generations=20_000), "z1": dict(heads=2, generations=32_000)}
-# arms whose base turns less than a turn, so that the goals behind them lie across the bearing's seam:
-# the bearing twice, from the front and from behind (lab/problem/encoding.py, "bearings"). Not SO100:
-# there it raised the median error (docs/log.md)
-BEARINGS_ARMS = {"so101"}
-# the output margin of an arm whose every limited joint turns less than a full turn (SO100, SO101, Z1,
-# Panda, Kinova): there the limits bind, and uniformly drawn goals often need a joint near one, where
-# a margin of 0 asks the output tanh to saturate; 0.3 lowers each such arm's median error
-# (docs/results/real-arms.md, docs/log.md). The arms with joints of +-2 pi (UR5, UR10, xArm7) keep 0:
-# their limits lie two turns apart
-LIMITED_MARGIN = 0.3
 log = logging.getLogger(__name__)
+SHORT_BUDGET, SHORT_POPULATION = 15.0, 20  # a real arm's budget of at most 15 s: a population of 20
+BUDGET_HEADS = {"so100": 2, "so101": 2}  # a real arm's heads with a time budget (the others: one)
 STALL = 150  # generations without 1% improvement that end a start (restarts only)
 _STOP_IGNORED = {"maxiter", "maxfevals", "ftarget"}
 
@@ -178,13 +171,6 @@ def reference_loop(config, problem, generations: int) -> float:
     return time.perf_counter() - t
 
 
-def margin_of(arm) -> float:
-    """A real arm's output margin: LIMITED_MARGIN when every joint with limits turns less than a full
-    turn between them (continuous joints take no margin: lab/problem/encoding.py), else 0."""
-    limited = ~np.asarray(arm.chain.continuous, bool)
-    return LIMITED_MARGIN if bool(np.all((arm.upper - arm.lower)[limited] < 2 * np.pi - 1e-9)) else 0.0
-
-
 def defaults(arm) -> dict:
     """The settings CMA-ES runs with on an arm when none are given, each chosen by a measured
     comparison (benchmarks/bench_quality.py for the paper's arms: docs/results/paper-budget.md;
@@ -225,10 +211,24 @@ def defaults(arm) -> dict:
 
 def budget_defaults(arm, seconds: float) -> dict:
     """The settings CMA-ES runs with on an arm with a time budget of `seconds` s of optimizer time
-    (TrainConfig.seconds) when none are given: for now defaults(arm) without its generations (the
-    budget ends the run; the heads and network of an arm's defaults were measured for about four
-    minutes). The settings best for each budget and arm are not measured yet (first figures: docs/log.md)."""
-    return {k: v for k, v in defaults(arm).items() if k != "generations"}
+    (TrainConfig.seconds) when none are given, each chosen by measurement on the eight real arms
+    (benchmarks/bench_budget.py: docs/results/budgets.md; what was tried: docs/log.md).
+
+    The paper's arms and the snakes: defaults(arm) without its generations (the budget ends the run).
+    A real arm: defaults(arm) without its generations, with the first joint turned in closed form
+    toward the goal (real_arm_io: the network then learns the goal's distance from the base axis
+    and its height, not its bearing), and for a budget of at most SHORT_BUDGET s a population of
+    SHORT_POPULATION (more, cheaper generations in the time). Heads: BUDGET_HEADS, fewer than
+    without a budget (MULTI_HEAD_ARMS): with the bearing solved, UR5 and Z1 need no second head, and
+    the SO arms two (the second leaning back, for the goals behind the base); fewer heads are
+    cheaper generations."""
+    d = {k: v for k, v in defaults(arm).items() if k != "generations"}
+    if robots.kind(arm.name) != "real":
+        return d
+    d.update(real_arm_io(arm), heads=BUDGET_HEADS.get(arm.name, 1))
+    if seconds <= SHORT_BUDGET:
+        d["population"] = SHORT_POPULATION
+    return d
 
 
 METHOD = register(Method(

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 import robots
-from lab.methods.base import Backend, Options, StepResult, option
+from lab.methods.base import Backend, Options, StepResult, option, real_arm_io
 from lab.methods.registry import LivePlot, Method, register
 from lab.problem.checks import real
 from lab.problem.controllers import MLPController, mlp_size
@@ -114,18 +114,26 @@ def defaults(arm) -> dict:
     A margin clips outputs beyond a limit and passes them no gradient, yet it wins by far on the
     planar arm: as for CMA-ES, a goal at a joint limit then asks no saturated tanh. Learning rate
     0.03 (the best of 0.003, 0.01 and 0.03 at 3000 steps), 3000 steps (about a second on planar).
-    Real arms: CMA-ES's real-arm network, goals and "sphere" inputs (they beat "reach" there too),
-    the default learning rate and 20,000 steps (about 20 s); not tuned yet."""
+    Real arms: CMA-ES's real-arm network, goals, inputs and turn (real_arm_io: the first joint turned
+    in closed form toward the goal, whose gradient is then stationary in that joint), output margin 0
+    (a margin clips, and a clipped output passes no gradient), the default learning rate and 20,000
+    steps (about 20-30 s)."""
     if robots.kind(arm.name) in ("paper", "snake"):
         return dict(features="reach", margin=2.0, hidden=5, population=1, generations=3000, learning_rate=0.03)
-    return dict(features="sphere", margin=0.0, hidden=32, targets=300, population=1, generations=20_000)
+    return dict(real_arm_io(arm), margin=0.0, hidden=32, targets=300, population=1, generations=20_000)
+
+
+def budget_defaults(arm, seconds: float) -> dict:
+    """With a time budget: defaults(arm) without its generations; the learning rate decays over the
+    budget (learning_rate: Backend.progress)."""
+    return {k: v for k, v in defaults(arm).items() if k != "generations"}
 
 
 METHOD = register(Method(
     name="gradient", label="Gradient (Adam)", color=(44, 160, 44),
     summary="Adam on the MLP's weights, gradient by backpropagation through the arm's Jacobian",
     backend_class=GradientBackend, options=GradientOptions, controller="mlp",
-    defaults=defaults, paper=None, min_population=1, min_hidden=1,
+    defaults=defaults, budget_defaults=budget_defaults, paper=None, min_population=1, min_hidden=1,
     search_title="Adam: gradient norm and learning rate",
     search_series="the norm of the loss gradient and the learning rate per step",
     cost=1.0, step_evaluations=lambda arm, config: 1 + arm.nq,
