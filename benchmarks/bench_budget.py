@@ -14,6 +14,10 @@ between budgets, arms and methods measured in one sitting, and note the load wit
     .venv/bin/python benchmarks/bench_budget.py --robots ur5 --methods cmaes --budgets 10,30
     .venv/bin/python benchmarks/bench_budget.py --out budgets.jsonl    # one JSON line per run, appended as it ends
     .venv/bin/python benchmarks/bench_budget.py --table budgets.jsonl  # the table of runs already made
+    .venv/bin/python benchmarks/bench_budget.py --table budgets.jsonl --write   # and store them for the app
+
+--write stores the held-out medians in lab/experiments/budgets.json (lab.experiments.budgets), from
+which the app tells a user what a method is measured to reach on an arm before a run starts.
 """
 
 from __future__ import annotations
@@ -88,6 +92,9 @@ def main() -> None:
     p.add_argument("--jobs", type=int, default=2, help="runs side by side, each on one thread (default 2)")
     p.add_argument("--out", help="append each run's JSON line to this file as it ends")
     p.add_argument("--table", metavar="JSONL", help="print the table of the runs in this file, run nothing")
+    p.add_argument("--write", action="store_true",
+                   help="store the runs' medians in lab/experiments/budgets.json (what the app quotes)")
+    p.add_argument("--machine", default="the lab's 2-core development machine", help="where they were measured (--write)")
     args = p.parse_args()
     robots_, methods_ = args.robots.split(","), args.methods.split(",")
     budgets = [float(b) for b in args.budgets.split(",")]
@@ -99,6 +106,8 @@ def main() -> None:
         with open(args.table, encoding="utf-8") as f:
             rows = [json.loads(line) for line in f if line.strip()]
         print(table(rows, robots_, methods_, budgets))
+        if args.write:
+            store(rows, args.machine)
         return
     # the longest runs first, so that the two lanes end together
     jobs = sorted(((r, m, b) for r in robots_ for m in methods_ for b in budgets), key=lambda j: -j[2])
@@ -112,6 +121,15 @@ def main() -> None:
                     f.write(json.dumps(row) + "\n")
     print(f"\n{len(rows)} runs in {time.time() - t0:.0f} s, {args.jobs} side by side\n")
     print(table(rows, robots_, methods_, budgets))
+    if args.write:
+        store(rows, args.machine)
+
+
+def store(rows: list[dict], machine: str) -> None:
+    from lab.experiments import budgets
+
+    budgets.write(rows, machine, time.strftime("%Y-%m-%d"))
+    print(f"\nwrote {budgets.BUDGETS_FILE}")
 
 
 if __name__ == "__main__":

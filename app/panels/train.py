@@ -24,6 +24,7 @@ import viser.uplot
 import lab
 import robots
 from lab import methods
+from lab.experiments import budgets
 from lab.running.config import UNBOUNDED
 
 from app.classroom.limits import refusal as limits_refusal
@@ -39,6 +40,27 @@ REAL_ARM_BUDGET = 30.0
 def budget_for(robot: str) -> float:
     """The time budget field's value when `robot` is picked: REAL_ARM_BUDGET on a real arm, else 0 (none)."""
     return REAL_ARM_BUDGET if robots.kind(robot) == "real" else 0.0
+
+def expectation(robot: str, method: str, seconds: float | None) -> str:
+    """What `method` is measured to reach on `robot` in `seconds` (lab.experiments.budgets), in words,
+    said plainly when that is too coarse to be an IK answer (median beyond POOR_PCT % of the reach),
+    with the method that does best in the same time; "" where nothing was measured."""
+    e = budgets.expected(robot, method, seconds)
+    if e is None:
+        return ""
+    label = methods.get(method).label
+    said = (f"Measured on {e['machine'] or 'one machine'}: {label} on {robot} in {e['seconds']:g} s, a median "
+            f"error of {e['median_mm']:.1f} mm ({e['median_pct']:.2f} % of its reach).")
+    if e["median_pct"] <= budgets.POOR_PCT:
+        return said
+    others = [(x, m) for m in methods.names() if m != method
+              if (x := budgets.expected(robot, m, seconds)) is not None]
+    best = min(others, key=lambda xm: xm[0]["median_pct"], default=None)
+    instead = (f" {methods.get(best[1]).label} reaches {best[0]['median_mm']:.1f} mm in {best[0]['seconds']:g} s."
+               if best is not None and best[0]["median_pct"] < e["median_pct"] else "")
+    return (f"**{label}'s network will miss most goals on this arm by about {e['median_mm']:.0f} mm "
+            f"({e['median_pct']:.0f} % of its reach): a rough first guess, not an IK answer.{instead}** {said}")
+
 
 SHARED = ("population", "generations", "hidden", "seed")  # the TrainConfig fields shown
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
@@ -62,6 +84,7 @@ class TrainingPanel:
         self.robot = gui.add_dropdown("Robot", robots.names(), initial_value=state.arm.name)
         self.method = gui.add_dropdown("Method", tuple(m.label for m in methods.all_methods()),
                                        initial_value=methods.get(d.method).label)
+        self.expected = gui.add_markdown(expectation(d.robot, d.method, d.seconds))  # what it will be worth
         actions = {"Start": self.start, "Pause": self.pause, "Resume": self.resume, "Step": self.step,
                    "Stop": self.stop, "Reset": self.reset, "Trained network": self.trained}
         icons = {"Start": viser.Icon.PLAYER_PLAY, "Pause": viser.Icon.PLAYER_PAUSE, "Step": viser.Icon.PLAYER_TRACK_NEXT,
@@ -150,6 +173,7 @@ class TrainingPanel:
                 seconds = None
             d = lab.TrainConfig.preset(robot=self.robot.value, method=self._method_name(), seed=int(self.seed.value),
                                        seconds=seconds)
+            self.expected.content = expectation(d.robot, d.method, d.seconds)
             self._reverting = True
             try:
                 for name in SHARED:

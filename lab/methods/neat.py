@@ -43,7 +43,9 @@ from dataclasses import dataclass
 import neat
 import numpy as np
 
-from lab.methods.base import Backend, Options, StepResult, option
+import robots
+
+from lab.methods.base import Backend, Options, StepResult, option, real_arm_io
 from lab.methods.registry import LivePlot, Method, SpeedReference, register
 from lab.problem.checks import real
 from lab.problem.controllers import GraphController, join_programs, lay_out, run_programs
@@ -443,11 +445,34 @@ def reference_loop(config, problem, generations: int) -> float:
 
 # NEAT's defaults (benchmarks/bench_quality.py; docs/results/paper-budget.md, the figures in docs/log.md):
 # "polar" inputs and a small margin; it loses with the slack-of-reach input and a wide margin
+REAL_ARM_GENERATIONS = 8_000  # a real arm's budget: about 5 minutes of a population of 100 on one core
+
+
+def defaults(arm) -> dict:
+    """The settings NEAT runs with on an arm when none are given (the comparisons behind them:
+    docs/results/paper-budget.md, docs/results/budgets.md; their figures: docs/log.md).
+
+    The paper's arms and the snakes: polar inputs, output margin 0.5, no hidden node at first.
+    A real arm: the real-arm inputs and output mapping every method shares (real_arm_io: the first
+    joint turned in closed form), 300 goals, a population of 100, weight perturbations of 0.1 and
+    structural mutations 25-50 times the paper's (add node 0.05, add connection 0.1), so that
+    networks grow within minutes, from no hidden node; REAL_ARM_GENERATIONS generations."""
+    if robots.kind(arm.name) in ("paper", "snake"):
+        return dict(features="polar", margin=0.5, hidden=0)
+    return dict(real_arm_io(arm), hidden=0, targets=300, population=100, generations=REAL_ARM_GENERATIONS,
+                mutation_power=0.1, add_node=0.05, add_connection=0.1)
+
+
+def budget_defaults(arm, seconds: float) -> dict:
+    """With a time budget: defaults(arm) without its generations."""
+    return {k: v for k, v in defaults(arm).items() if k != "generations"}
+
+
 METHOD = register(Method(
     name="neat", label="NEAT", color=(214, 39, 40),
     summary="NEAT (neat-python): topology and weights evolved together",
     backend_class=NEATBackend, options=NEATOptions, controller="graph",
-    defaults=lambda arm: dict(features="polar", margin=0.5, hidden=0),
+    defaults=defaults, budget_defaults=budget_defaults,
     # the paper's parameters (section 4.3); NEAT starts with the inputs wired to the outputs
     paper=dict(features="cartesian", margin=0.0, hidden=0, mutation_power=1.0, add_node=0.002, add_connection=0.002),
     min_population=2, min_hidden=0,
