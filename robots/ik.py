@@ -34,6 +34,7 @@ import numpy as np
 import pinocchio as pin
 
 from robots.arm import Arm
+from robots.registry import in_metres
 
 _local = threading.local()  # one pin.Data per thread and arm (pink's rule: Data is not shared)
 
@@ -96,6 +97,16 @@ def workspace_size(arm: Arm) -> float:
     """The largest extent of the task coordinates' bounding box [length]."""
     lo, hi = arm.workspace_bounds
     return float(np.max(hi - lo))
+
+
+def default_tolerance(arm: Arm) -> float:
+    """refine's tolerance when none is given [length]: 1e-4 m (0.1 mm) on a serial arm in metres
+    (robots.in_metres: the real arms, an arm from a URDF of another name); 1e-4 x workspace_size
+    otherwise (the paper's arms and the snakes, in the paper's units, and a tree, whose tolerance
+    bounds all its effectors' errors stacked)."""
+    if not arm.is_tree and in_metres(arm.name):
+        return 1e-4
+    return 1e-4 * workspace_size(arm)
 
 
 def dls_ik(arm: Arm, goal, q0=None, *, damping: float = 0.02, tol: float | None = None,
@@ -251,8 +262,8 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     and the others take up the rest of the error
     (clipping it instead left many more goals unsolved: docs/log.md), and the step length
     is halved while the full step does not lower the error (each halving costs one forward
-    kinematics, not a Jacobian). A goal stops once its error is below tol (default 1e-4 x
-    workspace_size); each goal keeps its best iterate. goals (n, len(task_axes)), q0 (n, nq)
+    kinematics, not a Jacobian). A goal stops once its error is below tol (default:
+    default_tolerance, 0.1 mm on a real arm); each goal keeps its best iterate. goals (n, len(task_axes)), q0 (n, nq)
     (a network's output), or (k, n, nq): k proposals for each goal (a multi-head network's, one
     per head). Then each proposal in turn takes the turn and the first step, until one is within
     tolerance; otherwise the one nearest its goal after them takes the rest (RefineResult.choice):
@@ -283,7 +294,7 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     goals = goals.reshape(len(goals), -1)  # a tree's goal: its effectors' coordinates one after the other
     size = workspace_size(arm)
     lam2_eye = (damping * size) ** 2 * np.eye(goals.shape[1])
-    tol = 1e-4 * size if tol is None else float(tol)
+    tol = default_tolerance(arm) if tol is None else float(tol)
     model, data = arm.model, _data(arm)
     direct = model.nq == arm.nq
     limited = ~arm.chain.continuous.astype(bool)

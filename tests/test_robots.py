@@ -605,6 +605,29 @@ def test_refine_with_several_proposals_keeps_the_one_on_the_right_branch():
     assert np.array_equal(one.q, alone.q) and np.array_equal(one.steps, alone.steps)
 
 
+def test_refine_stops_at_a_tenth_of_a_millimetre_on_a_real_arm_by_default():
+    """refine's default tolerance (robots.ik.default_tolerance): 1e-4 m on a real arm, the figure the
+    docs promise (not 1e-4 x its workspace size, 0.19 mm on the UR5); 1e-4 x the workspace size on
+    the paper's arms and the snakes (their units) and on a tree."""
+    from robots.ik import default_tolerance, refine, workspace_size
+
+    for name in ("ur5", "so100", "kinova"):
+        assert default_tolerance(robots.load(name)) == 1e-4
+    for name in ("planar", "scara", "planar-10", "solo12"):
+        arm = robots.load(name)
+        assert default_tolerance(arm) == 1e-4 * workspace_size(arm)
+    arm = robots.load("ur5")
+    assert workspace_size(arm) > 1.5  # 1e-4 x workspace size would be above 0.15 mm
+    q_true = arm.sample_q(60, seed=7)
+    goals = arm.reach(q_true)
+    seeds = arm.within_limits(q_true + np.random.default_rng(4).normal(0, 0.01, q_true.shape))
+    r = refine(arm, goals, seeds, steps=1)
+    same = refine(arm, goals, seeds, steps=1, tol=1e-4)
+    assert np.array_equal(r.q, same.q) and np.array_equal(r.error, same.error)
+    looser = refine(arm, goals, seeds, steps=1, tol=1e-4 * workspace_size(arm))
+    assert not np.array_equal(r.error, looser.error)  # some goal went on below 0.19 mm
+
+
 def test_refine_refuses_mismatched_shapes():
     from robots.ik import refine
 

@@ -19,7 +19,7 @@ import numpy as np
 import robots
 from lab.problem.controllers import proposals
 from lab.problem.fitness import TEST_SEED_OFFSET
-from robots.ik import dls_ik, refine, workspace_size
+from robots.ik import default_tolerance, dls_ik, refine
 
 HELD_OUT = 2000
 
@@ -29,8 +29,9 @@ def held_out_goals(arm: robots.Arm, n: int = HELD_OUT, goal_seed: int = 0) -> np
 
 
 def tolerance(arm: robots.Arm) -> float:
-    """'Exact' for a real arm: 0.1 mm; for the paper's arms the same fraction of the workspace (1e-4)."""
-    return 1e-4 if robots.in_metres(arm.name) else 1e-4 * workspace_size(arm)
+    """'Exact': refine's default tolerance (robots.ik.default_tolerance): 0.1 mm on a real arm; on the
+    paper's arms the same fraction of the workspace (1e-4)."""
+    return default_tolerance(arm)
 
 
 def position_errors(arm: robots.Arm, controller, goals: np.ndarray) -> np.ndarray:
