@@ -220,15 +220,21 @@ def _turned(q, p, goal, bearing, lower, upper, continuous) -> np.ndarray:
     """q with its first joint turned so that the end effector p's bearing about the first joint's
     axis is the goal's: turning that joint alone moves p on a circle about the axis, and the point
     of the circle nearest the goal lies at the goal's bearing (when that bearing is beyond the
-    joint's limits: the turn within them nearest to it). Scalar math: it runs once per goal."""
+    joint's limits: the turn within them nearest to it). Scalar math on Python floats: it runs
+    once per goal and step."""
     c, w = bearing
-    u, v = p - c, goal - c
+    ux, uy, *uz = (a - b for a, b in zip(p.tolist(), c))
+    vx, vy, *vz = (a - b for a, b in zip(goal.tolist(), c))
     if w is None:  # the x-y plane, turned about z
-        turn = math.atan2(u[0] * v[1] - u[1] * v[0], u[0] * v[0] + u[1] * v[1])
+        turn = math.atan2(ux * vy - uy * vx, ux * vx + uy * vy)
     else:
-        u, v = u - float(u @ w) * w, v - float(v @ w) * w
-        x = u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]
-        turn = math.atan2(x[0] * w[0] + x[1] * w[1] + x[2] * w[2], float(u @ v))
+        wx, wy, wz = w
+        uz, vz = uz[0], vz[0]
+        du, dv = ux * wx + uy * wy + uz * wz, vx * wx + vy * wy + vz * wz
+        ux, uy, uz = ux - du * wx, uy - du * wy, uz - du * wz
+        vx, vy, vz = vx - dv * wx, vy - dv * wy, vz - dv * wz
+        cross = (uy * vz - uz * vy) * wx + (uz * vx - ux * vz) * wy + (ux * vy - uy * vx) * wz
+        turn = math.atan2(cross, ux * vx + uy * vy + uz * vz)
     q = q.copy()
     q0, lo, hi = float(q[0]), float(lower[0]), float(upper[0])
     if continuous:  # whole turns into its range
@@ -300,12 +306,34 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     limited = ~arm.chain.continuous.astype(bool)
     lower, upper = arm.lower, arm.upper
 
+    wrapped = [(int(j), float(lower[j])) for j in np.flatnonzero(arm.chain.continuous)]
+    cos_at, sin_at = arm.chain.idx_q[~limited], arm.chain.idx_q[~limited] + 1
+    plain_at, q_ref = arm.chain.idx_q[limited], arm.q_ref
+
+    def within(x):
+        """arm.within_limits of one new vector x (changed in place), without its checks and batching."""
+        for j, lo in wrapped:  # whole turns into [lo, lo + 2 pi)
+            v = float(x[j])
+            if not lo <= v < lo + 2 * np.pi:
+                x[j] = lo + (v - lo) % (2 * np.pi)
+        return np.minimum(np.maximum(x, lower), upper)
+
+    def to_pin(x):
+        """arm.to_pinocchio of one vector."""
+        if direct:
+            return x
+        out = q_ref.copy()
+        out[plain_at], out[cos_at], out[sin_at] = x[limited], np.cos(x[~limited]), np.sin(x[~limited])
+        return out
+
     def error(qi, goal):
-        pin.forwardKinematics(model, data, qi if direct else arm.to_pinocchio(qi))
+        pin.forwardKinematics(model, data, to_pin(qi))
         e = _task_error(arm, data, goal, axes)
         return e, float(np.sqrt(e @ e))
 
     bearing = _bearing(arm) if turn and not arm.is_tree else None
+    if bearing is not None:  # Python floats for _turned's scalar math
+        bearing = (tuple(bearing[0].tolist()), None if bearing[1] is None else tuple(bearing[1].tolist()))
     continuous0 = bool(arm.chain.continuous[0])
 
     def start(qi, goal, e=None, err=None):
@@ -324,11 +352,11 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
         out of reach)."""
         k = 0
         while err >= tol and k < most:
-            J = _task_jacobian(arm, data, qi if direct else arm.to_pinocchio(qi), axes)  # (m, nq)
+            J = _task_jacobian(arm, data, to_pin(qi), axes)  # (m, nq)
             dq = _held_step(J, e, qi, lower, upper, limited, lam2_eye)
             k += 1
             for h in range(halvings + 1):
-                q_try = arm.within_limits(qi + dq * 0.5**h)
+                q_try = within(qi + dq * 0.5**h)
                 e_try, err_try = error(q_try, goal)
                 if err_try < err:
                     break
