@@ -22,9 +22,11 @@ from lab.problem.fitness import TEST_SEED_OFFSET
 from robots.ik import default_tolerance, dls_ik, refine
 
 HELD_OUT = 2000
+OTHER_GOALS = 2  # the goal seed of a second held-out set, tuned on by nobody (0: the held-out goals; 1: validation)
 
 
 def held_out_goals(arm: robots.Arm, n: int = HELD_OUT, goal_seed: int = 0) -> np.ndarray:
+    """n goals from uniformly random joint vectors: arm.sample_goals(n, seed=goal_seed + TEST_SEED_OFFSET)."""
     return arm.sample_goals(n, seed=goal_seed + TEST_SEED_OFFSET)
 
 
