@@ -51,8 +51,8 @@ def error_stats(arm: robots.Arm, errors: np.ndarray) -> dict:
     return out
 
 
-def held_out(arm: robots.Arm, controller, n: int = HELD_OUT) -> dict:
-    return error_stats(arm, position_errors(arm, controller, held_out_goals(arm, n)))
+def held_out(arm: robots.Arm, controller, n: int = HELD_OUT, goal_seed: int = 0) -> dict:
+    return error_stats(arm, position_errors(arm, controller, held_out_goals(arm, n, goal_seed)))
 
 
 def refined(arm: robots.Arm, controller, goals: np.ndarray, steps: int = 3, most: int = 8) -> dict:
