@@ -34,6 +34,7 @@ import numpy as np
 import pinocchio as pin
 
 from robots.arm import Arm
+from robots.registry import in_metres
 
 _local = threading.local()  # one pin.Data per thread and arm (pink's rule: Data is not shared)
 
@@ -81,6 +82,31 @@ def _task_jacobian(arm: Arm, data: pin.Data, q_pin: np.ndarray, axes: list) -> n
                            for fid in fids])
 
 
+def _task_jacobian_axes(arm: Arm, data: pin.Data, q_pin: np.ndarray, axes: list) -> tuple[np.ndarray, list]:
+    """_task_jacobian's stacked (E len(axes), nq) rows, and each effector's positional and angular
+    rows (3, nq) each: an angular column is the joint's unit axis (zero for a prismatic joint or a
+    joint that does not move that effector)."""
+    full = [pin.computeFrameJacobian(arm.model, data, q_pin, fid, pin.LOCAL_WORLD_ALIGNED) for fid in arm.effector_ids]
+    J = full[0][:3][axes] if len(full) == 1 else np.concatenate([f[:3][axes] for f in full])
+    return J, [(f[:3], f[3:]) for f in full]
+
+
+def _curvature(parts: list, v: np.ndarray, axes: list) -> np.ndarray:
+    """d^2/dt^2 of the effectors' task coordinates at t = 0 along q + t v, stacked: for each effector,
+    sum_j (2 Omega_j + v_j w_j) x (J_j v_j), J_j its positional column of joint j, w_j the joint's
+    axis (its angular column) and Omega_j = sum_{i < j} v_i w_i (the joints' order is parents first,
+    and a joint off the effector's path has zero columns). Exact for revolute and prismatic joints:
+    along v, a column J_j = w_j x (p - c_j) (revolute) or d_j (prismatic) turns with the joints
+    before it, and a revolute joint's own turn moves p too. The sum of the cross products a_j x b_j
+    is the axial vector of A B^T - B A^T (A, B: the columns side by side)."""
+    out = []
+    for lin, ang in parts:
+        wv = ang * v  # (3, nq): v_j w_j
+        M = (2.0 * np.cumsum(wv, axis=1) - wv) @ (lin * v).T
+        out.append(np.array([M[1, 2] - M[2, 1], M[2, 0] - M[0, 2], M[0, 1] - M[1, 0]])[axes])
+    return out[0] if len(out) == 1 else np.concatenate(out)
+
+
 def _data(arm: Arm) -> pin.Data:
     """This thread's pin.Data of the arm's model; dropped with the arm (an id could be reused)."""
     cache = getattr(_local, "data", None)
@@ -96,6 +122,16 @@ def workspace_size(arm: Arm) -> float:
     """The largest extent of the task coordinates' bounding box [length]."""
     lo, hi = arm.workspace_bounds
     return float(np.max(hi - lo))
+
+
+def default_tolerance(arm: Arm) -> float:
+    """refine's tolerance when none is given [length]: 1e-4 m (0.1 mm) on a serial arm in metres
+    (robots.in_metres: the real arms, an arm from a URDF of another name); 1e-4 x workspace_size
+    otherwise (the paper's arms and the snakes, in the paper's units, and a tree, whose tolerance
+    bounds all its effectors' errors stacked)."""
+    if not arm.is_tree and in_metres(arm.name):
+        return 1e-4
+    return 1e-4 * workspace_size(arm)
 
 
 def dls_ik(arm: Arm, goal, q0=None, *, damping: float = 0.02, tol: float | None = None,
@@ -170,15 +206,19 @@ class RefineResult:
     error: np.ndarray
     steps: np.ndarray
     seconds: float
-    choice: np.ndarray | None = None  # (n,) the proposal kept for each goal, when refine had several
+    choice: np.ndarray | None = None  # (n,) the proposal kept for each goal, when refine had several (refine)
 
 
-def _held_step(J, e, q, lower, upper, free_limits, lam2_eye) -> np.ndarray:
+def _held_step(J, e, q, lower, upper, free_limits, lam2_eye) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A damped Gauss-Newton step J^T (J J^T + lambda^2 I)^-1 e whose joints stay within their limits:
     a joint the step would take past a limit stops at it, and the free joints solve for the rest of
-    the error (an active set, at most one pass per joint). free_limits: False for continuous joints."""
-    dq = J.T @ np.linalg.solve(J @ J.T + lam2_eye, e)
+    the error (an active set, at most one pass per joint). free_limits: False for continuous joints.
+    Returns the step, and the free joints' Jacobian Jf (held columns zero) and (Jf Jf^T + lambda^2 I)^-1
+    of its last solve (the same solve for another right-hand side: Jf^T K r)."""
+    K = np.linalg.inv(J @ J.T + lam2_eye)
+    dq = J.T @ (K @ e)
     held = np.zeros(len(q), bool)
+    Jf = J
     for _ in range(len(q)):
         over = free_limits & ~held & ((q + dq < lower) | (q + dq > upper))
         if not over.any():
@@ -186,8 +226,9 @@ def _held_step(J, e, q, lower, upper, free_limits, lam2_eye) -> np.ndarray:
         held |= over
         dq_held = np.where(held, np.clip(q + dq, lower, upper) - q, 0.0)
         Jf = np.where(held, 0.0, J)
-        dq = dq_held + Jf.T @ np.linalg.solve(Jf @ Jf.T + lam2_eye, e - J @ dq_held)
-    return dq
+        K = np.linalg.inv(Jf @ Jf.T + lam2_eye)
+        dq = dq_held + Jf.T @ (K @ (e - J @ dq_held))
+    return dq, Jf, K
 
 
 def _bearing(arm: Arm) -> tuple[np.ndarray, np.ndarray] | None:
@@ -209,15 +250,21 @@ def _turned(q, p, goal, bearing, lower, upper, continuous) -> np.ndarray:
     """q with its first joint turned so that the end effector p's bearing about the first joint's
     axis is the goal's: turning that joint alone moves p on a circle about the axis, and the point
     of the circle nearest the goal lies at the goal's bearing (when that bearing is beyond the
-    joint's limits: the turn within them nearest to it). Scalar math: it runs once per goal."""
+    joint's limits: the turn within them nearest to it). Scalar math on Python floats: it runs
+    once per goal and step."""
     c, w = bearing
-    u, v = p - c, goal - c
+    ux, uy, *uz = (a - b for a, b in zip(p.tolist(), c))
+    vx, vy, *vz = (a - b for a, b in zip(goal.tolist(), c))
     if w is None:  # the x-y plane, turned about z
-        turn = math.atan2(u[0] * v[1] - u[1] * v[0], u[0] * v[0] + u[1] * v[1])
+        turn = math.atan2(ux * vy - uy * vx, ux * vx + uy * vy)
     else:
-        u, v = u - float(u @ w) * w, v - float(v @ w) * w
-        x = u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]
-        turn = math.atan2(x[0] * w[0] + x[1] * w[1] + x[2] * w[2], float(u @ v))
+        wx, wy, wz = w
+        uz, vz = uz[0], vz[0]
+        du, dv = ux * wx + uy * wy + uz * wz, vx * wx + vy * wy + vz * wz
+        ux, uy, uz = ux - du * wx, uy - du * wy, uz - du * wz
+        vx, vy, vz = vx - dv * wx, vy - dv * wy, vz - dv * wz
+        cross = (uy * vz - uz * vy) * wx + (uz * vx - ux * vz) * wy + (ux * vy - uy * vx) * wz
+        turn = math.atan2(cross, ux * vx + uy * vy + uz * vz)
     q = q.copy()
     q0, lo, hi = float(q[0]), float(lower[0]), float(upper[0])
     if continuous:  # whole turns into its range
@@ -234,13 +281,15 @@ def _turned(q, p, goal, bearing, lower, upper, continuous) -> np.ndarray:
 
 
 def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, damping: float = 1e-3,
-           halvings: int = 4, turn: bool = True) -> RefineResult:
+           halvings: int = 4, turn: bool = True, curved: bool = True, flips: bool = True) -> RefineResult:
     """A learned seed made exact: at most `steps` damped Gauss-Newton steps from q0 toward each goal,
-    each after a closed-form turn of the first joint (turn=True).
+    each after a closed-form turn of the first joint (turn=True), each bent along the arc the
+    joints' turns trace (curved=True).
 
         q_0 = q0 with its first joint turned to the goal's bearing about that joint's axis (_turned)
         dq_k = J^T (J J^T + lambda^2 I)^-1 (g - p(q_k))       with joints at a limit held (an active set)
-        q_{k+1} = turned(q_k + a_k dq_k),  a_k the first of 1, 1/2, 1/4, ... (halvings) that lowers the error
+        a_k: J a_k = -d2p/dt2 along dq_k (_curvature); none when |a_k| >= 1.5 |dq_k|
+        q_{k+1} = turned(q_k + t dq_k + t^2 a_k / 2),  t the first of 1, 1/2, 1/4, ... (halvings) that lowers the error
 
     J the translational rows of Pinocchio's frame Jacobian (LOCAL_WORLD_ALIGNED, end-effector
     frame) on the task axes (a tree of E effectors: their errors and Jacobians stacked, goals
@@ -251,8 +300,8 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     and the others take up the rest of the error
     (clipping it instead left many more goals unsolved: docs/log.md), and the step length
     is halved while the full step does not lower the error (each halving costs one forward
-    kinematics, not a Jacobian). A goal stops once its error is below tol (default 1e-4 x
-    workspace_size); each goal keeps its best iterate. goals (n, len(task_axes)), q0 (n, nq)
+    kinematics, not a Jacobian). A goal stops once its error is below tol (default:
+    default_tolerance, 0.1 mm on a real arm); each goal keeps its best iterate. goals (n, len(task_axes)), q0 (n, nq)
     (a network's output), or (k, n, nq): k proposals for each goal (a multi-head network's, one
     per head). Then each proposal in turn takes the turn and the first step, until one is within
     tolerance; otherwise the one nearest its goal after them takes the rest (RefineResult.choice):
@@ -269,7 +318,24 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     Gauss-Newton step, linear in the angle, overshoots. The turn again after every step: a step
     that moves the end effector toward or away from the axis leaves its bearing off again (more
     goals within tolerance for a little more time; the figures: docs/results/real-arms.md,
-    docs/log.md). turn=False: Gauss-Newton steps only."""
+    docs/log.md). turn=False: Gauss-Newton steps only.
+
+    The bend (geodesic acceleration, Transtrum and Sethna 2012): a Gauss-Newton step is a straight
+    line in joint space, but each joint's turn moves the effector on a circle, so the step lands off
+    the point its linear model aims at, worst near a fold of the workspace (an elbow nearly
+    straight, a goal near full reach). The second derivative of the effector's position along the
+    step is known in closed form from the Jacobian's columns and the joints' axes, so the same
+    factored solve corrects the step to second order: no more Jacobians, no more forward
+    kinematics. curved=False: straight steps.
+
+    The half turns (flips=True): when the best proposal's first step took less than 90 % of its
+    error off (a step that stalls on the wrong side of a fold: a wrist turning its offset away from
+    a goal near full reach), that proposal with one joint turned by half a turn (pi, or -pi to stay
+    within its limits), for each joint after the first that is not prismatic, takes the turn (one
+    forward kinematics each), and the two of them then nearest the goal are two more proposals,
+    tried as the others (the first step, one at a time until one is within tolerance);
+    RefineResult.choice is then k + j - 1 for the one of joint j. Goals whose first step goes well
+    never try them: the answer kept has still had at most `steps` steps."""
     t0 = time.perf_counter()
     goals = np.asarray(goals, dtype=np.float64)
     goals = goals[None] if goals.ndim == (2 if arm.is_tree else 1) else goals
@@ -283,18 +349,40 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     goals = goals.reshape(len(goals), -1)  # a tree's goal: its effectors' coordinates one after the other
     size = workspace_size(arm)
     lam2_eye = (damping * size) ** 2 * np.eye(goals.shape[1])
-    tol = 1e-4 * size if tol is None else float(tol)
+    tol = default_tolerance(arm) if tol is None else float(tol)
     model, data = arm.model, _data(arm)
     direct = model.nq == arm.nq
     limited = ~arm.chain.continuous.astype(bool)
     lower, upper = arm.lower, arm.upper
 
+    wrapped = [(int(j), float(lower[j])) for j in np.flatnonzero(arm.chain.continuous)]
+    cos_at, sin_at = arm.chain.idx_q[~limited], arm.chain.idx_q[~limited] + 1
+    plain_at, q_ref = arm.chain.idx_q[limited], arm.q_ref
+
+    def within(x):
+        """arm.within_limits of one new vector x (changed in place), without its checks and batching."""
+        for j, lo in wrapped:  # whole turns into [lo, lo + 2 pi)
+            v = float(x[j])
+            if not lo <= v < lo + 2 * np.pi:
+                x[j] = lo + (v - lo) % (2 * np.pi)
+        return np.minimum(np.maximum(x, lower), upper)
+
+    def to_pin(x):
+        """arm.to_pinocchio of one vector."""
+        if direct:
+            return x
+        out = q_ref.copy()
+        out[plain_at], out[cos_at], out[sin_at] = x[limited], np.cos(x[~limited]), np.sin(x[~limited])
+        return out
+
     def error(qi, goal):
-        pin.forwardKinematics(model, data, qi if direct else arm.to_pinocchio(qi))
+        pin.forwardKinematics(model, data, to_pin(qi))
         e = _task_error(arm, data, goal, axes)
         return e, float(np.sqrt(e @ e))
 
     bearing = _bearing(arm) if turn and not arm.is_tree else None
+    if bearing is not None:  # Python floats for _turned's scalar math
+        bearing = (tuple(bearing[0].tolist()), None if bearing[1] is None else tuple(bearing[1].tolist()))
     continuous0 = bool(arm.chain.continuous[0])
 
     def start(qi, goal, e=None, err=None):
@@ -313,11 +401,20 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
         out of reach)."""
         k = 0
         while err >= tol and k < most:
-            J = _task_jacobian(arm, data, qi if direct else arm.to_pinocchio(qi), axes)  # (m, nq)
-            dq = _held_step(J, e, qi, lower, upper, limited, lam2_eye)
+            if curved:
+                J, parts = _task_jacobian_axes(arm, data, to_pin(qi), axes)  # (m, nq)
+            else:
+                J = _task_jacobian(arm, data, to_pin(qi), axes)
+            dq, Jf, K = _held_step(J, e, qi, lower, upper, limited, lam2_eye)
+            bend = 0.0
+            if curved:  # the arc's correction a / 2: J a = -d2p/dt2 along dq, with the held joints held
+                bend = -0.5 * (Jf.T @ (K @ _curvature(parts, dq, axes)))
+                if bend @ bend >= 0.5625 * (dq @ dq):  # |a| >= 1.5 |dq|: the second-order model is off
+                    bend = 0.0
             k += 1
             for h in range(halvings + 1):
-                q_try = arm.within_limits(qi + dq * 0.5**h)
+                t = 0.5**h
+                q_try = within(qi + t * dq + (t * t) * bend)
                 e_try, err_try = error(q_try, goal)
                 if err_try < err:
                     break
@@ -326,20 +423,42 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
             qi, e, err = start(q_try, goal, e_try, err_try)  # and the turn again
         return qi, e, err, k, False
 
-    first = min(steps, 1) if len(q) > 1 else steps
+    first = min(steps, 1)  # the proposals' first steps; then the nearest takes the rest
+    flippable = [j for j in range(1, arm.nq) if flips and not arm.is_prismatic[j]]
     out_q, out_err = np.empty((len(goals), arm.nq)), np.zeros(len(goals))
     taken, choice = np.zeros(len(goals), np.int64), np.zeros(len(goals), np.int64)
     for i, goal in enumerate(goals):
         best = None
         for j in range(len(q)):
-            state = descend(*start(q[j, i], goal), goal, first)
+            seed = start(q[j, i], goal)
+            state = descend(*seed, goal, first)
             if best is None or state[2] < best[2]:
-                best, choice[i] = state, j
+                best, choice[i], before = state, j, seed[2]
             if best[2] < tol:  # done: the later proposals cannot do better than within tolerance
                 break
+        if first and flippable and best[2] >= tol and best[2] > 0.1 * before:
+            # the best first step took less than 90 % of the error off: the seed may sit on the wrong
+            # side of a fold (a wrist turning its offset away from a goal near full reach); the best
+            # proposal with one joint turned by half a turn (within its limits) is another proposal
+            kept, tried = q[choice[i], i], []
+            for j in flippable:
+                qf = kept.copy()
+                half = math.pi if qf[j] + math.pi <= upper[j] or not limited[j] else -math.pi
+                qf[j] += half
+                if limited[j] and not lower[j] <= qf[j] <= upper[j]:
+                    continue
+                tried.append((*start(within(qf), goal), j))
+            tried.sort(key=lambda x: x[2])  # the two nearest the goal after the turn take the first step
+            for qs, es, errs, j in tried[:2]:
+                state = descend(qs, es, errs, goal, first)
+                if state[2] < best[2]:
+                    best, choice[i] = state, len(q) + j - 1
+                if best[2] < tol:
+                    break
         qi, e, err, k, stuck = best
         if not stuck and k < steps:
             qi, e, err, more, _ = descend(qi, e, err, goal, steps - k)
             k += more
         out_q[i], out_err[i], taken[i] = qi, err, k
-    return RefineResult(out_q, out_err, taken, time.perf_counter() - t0, choice if len(q) > 1 else None)
+    several = len(q) > 1 or bool(first and flippable)
+    return RefineResult(out_q, out_err, taken, time.perf_counter() - t0, choice if several else None)

@@ -568,7 +568,8 @@ def test_every_shipped_controller_fits_its_arm_and_has_the_error_its_file_record
 def test_every_shipped_real_arm_controller_seeds_a_refinement_to_a_tenth_of_a_millimetre(robot):
     """The practical use of a learned IK (docs/results/real-arms.md): the shipped network's answer
     (every head's proposal) and at most 3 damped Gauss-Newton steps reach 0.1 mm on at least 99 %
-    of the 2,000 held-out goals."""
+    of the 2,000 held-out goals, and of 2,000 goals of another seed (arms.OTHER_GOALS) that no
+    setting was tuned on."""
     from app.startup import load_pretrained
     from lab.experiments import arms
     from lab.problem.controllers import proposals
@@ -576,10 +577,13 @@ def test_every_shipped_real_arm_controller_seeds_a_refinement_to_a_tenth_of_a_mi
 
     controller, _ = load_pretrained(robot)
     arm = robots.load(robot)
-    goals, tol = arms.held_out_goals(arm), arms.tolerance(arm)
-    r = refine(arm, goals, proposals(controller, goals), steps=3, tol=tol)
-    assert np.all(r.steps <= 3)
-    assert np.mean(r.error < tol) >= 0.99, np.mean(r.error < tol)
+    tol = arms.tolerance(arm)
+    assert tol == 1e-4
+    for goal_seed in (0, arms.OTHER_GOALS):
+        goals = arms.held_out_goals(arm, goal_seed=goal_seed)
+        r = refine(arm, goals, proposals(controller, goals), steps=3)  # refine's default tolerance: 0.1 mm
+        assert np.all(r.steps <= 3)
+        assert np.mean(r.error < tol) >= 0.99, (goal_seed, np.mean(r.error < tol))
 
 
 @pytest.mark.parametrize("robot", ["ur5", "panda", "so100"])

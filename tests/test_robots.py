@@ -589,7 +589,8 @@ def test_refine_with_several_proposals_keeps_the_one_on_the_right_branch():
     close = arm.within_limits(q_true + rng.normal(0, 0.02, q_true.shape))
     far = arm.sample_q(2 * n, seed=22).reshape(2, n, arm.nq)
     alone = refine(arm, goals, close, steps=3, tol=1e-4)
-    assert np.mean(alone.error < 1e-4) >= 0.95 and alone.choice is None
+    assert np.mean(alone.error < 1e-4) >= 0.95
+    assert refine(arm, goals, close, steps=3, tol=1e-4, flips=False).choice is None  # one proposal, no half turns
     where = rng.integers(0, 3, n)  # the close proposal's place among the three
     P = np.empty((3, n, arm.nq))
     P[where, np.arange(n)] = close
@@ -603,6 +604,77 @@ def test_refine_with_several_proposals_keeps_the_one_on_the_right_branch():
     assert np.mean(r.choice[ok] == where[ok]) >= 0.9
     one = refine(arm, goals, close[None], steps=3, tol=1e-4)
     assert np.array_equal(one.q, alone.q) and np.array_equal(one.steps, alone.steps)
+
+
+def test_refine_stops_at_a_tenth_of_a_millimetre_on_a_real_arm_by_default():
+    """refine's default tolerance (robots.ik.default_tolerance): 1e-4 m on a real arm, the figure the
+    docs promise (not 1e-4 x its workspace size, 0.19 mm on the UR5); 1e-4 x the workspace size on
+    the paper's arms and the snakes (their units) and on a tree."""
+    from robots.ik import default_tolerance, refine, workspace_size
+
+    for name in ("ur5", "so100", "kinova"):
+        assert default_tolerance(robots.load(name)) == 1e-4
+    for name in ("planar", "scara", "planar-10", "solo12"):
+        arm = robots.load(name)
+        assert default_tolerance(arm) == 1e-4 * workspace_size(arm)
+    arm = robots.load("ur5")
+    assert 1e-4 * workspace_size(arm) > 1.5e-4
+    # seeds 0.15 mm off (the wrist 1 joint alone): within 1e-4 x workspace size, not within 0.1 mm
+    q_true = arm.sample_q(60, seed=7)
+    goals = arm.reach(q_true)
+    lever = np.linalg.norm(arm.jacobian(q_true)[:, :, 3], axis=1)  # m per rad of joint 3
+    seeds = q_true.copy()
+    seeds[:, 3] += 1.5e-4 / lever
+    start = np.linalg.norm(arm.reach(seeds) - goals, axis=1)
+    assert np.all((start > 1e-4) & (start < 1e-4 * workspace_size(arm)))
+    r = refine(arm, goals, seeds, steps=1, turn=False)
+    assert np.all(r.steps == 1) and np.all(r.error < 1e-4)
+    same = refine(arm, goals, seeds, steps=1, tol=1e-4, turn=False)
+    assert np.array_equal(r.q, same.q) and np.array_equal(r.error, same.error)
+    looser = refine(arm, goals, seeds, steps=1, tol=1e-4 * workspace_size(arm), turn=False)
+    assert np.all(looser.steps == 0)
+
+
+@pytest.mark.parametrize("name", ["ur5", "scara", "kinova", "planar"])
+def test_refines_bend_is_the_second_derivative_along_the_step(name):
+    """robots.ik._curvature: d2p/dt2 along q + t v from the Jacobian's columns and the joints' axes
+    equals central finite differences of the arm's reach (revolute, prismatic and continuous joints;
+    the planar arm's two task axes)."""
+    from robots.ik import _curvature, _data, _task_jacobian_axes
+
+    arm = robots.load(name)
+    axes, rng, h = list(arm.task_axes), np.random.default_rng(8), 1e-4
+    for x in arm.sample_q(10, seed=8):
+        v = rng.standard_normal(arm.nq)
+        J, parts = _task_jacobian_axes(arm, _data(arm), arm.to_pinocchio(x), axes)
+        np.testing.assert_allclose(J, arm.jacobian(x)[axes], rtol=0, atol=1e-9)
+        fd = (arm.reach(x + h * v) - 2 * arm.reach(x) + arm.reach(x - h * v)) / h**2
+        np.testing.assert_allclose(_curvature(parts, v, axes), fd, rtol=0, atol=1e-5 * max(1.0, np.abs(fd).max()))
+
+
+def test_refine_bends_its_steps_and_turns_a_wrist_by_half_a_turn_near_full_reach():
+    """UR5 goals near full reach (the elbow within 0.15 rad of straight), seeds 0.02 rad off the
+    solution with wrist 2 turned by half a turn (its offset pointing away): straight steps solve
+    few, bent steps more, and the half-turn proposals (tried when the first step takes less than
+    90 % of the error off) nearly all, the wrist's (choice k + j - 1 = 4) on most, within 3 steps."""
+    from robots.ik import refine
+
+    arm = robots.load("ur5")
+    rng = np.random.default_rng(5)
+    q_true = arm.sample_q(200, seed=9)
+    q_true[:, 2] = rng.uniform(-0.15, 0.15, len(q_true))
+    goals = arm.reach(q_true)
+    seeds = q_true + rng.normal(0, 0.02, q_true.shape)
+    seeds[:, 4] += np.where(seeds[:, 4] + np.pi <= arm.upper[4], np.pi, -np.pi)
+    seeds = arm.within_limits(seeds)
+    straight = refine(arm, goals, seeds, steps=3, tol=1e-4, curved=False, flips=False)
+    bent = refine(arm, goals, seeds, steps=3, tol=1e-4, flips=False)
+    both = refine(arm, goals, seeds, steps=3, tol=1e-4)
+    ok = [np.mean(r.error < 1e-4) for r in (straight, bent, both)]
+    assert ok[0] < 0.75 and ok[1] > ok[0] + 0.15 and ok[2] >= 0.98, ok
+    assert np.mean(both.choice == 4) >= 0.5 and np.all(both.steps <= 3)
+    assert np.allclose(np.linalg.norm(arm.reach(both.q) - goals, axis=1), both.error)
+    assert np.all((both.q >= arm.lower - 1e-12) & (both.q <= arm.upper + 1e-12))
 
 
 def test_refine_refuses_mismatched_shapes():

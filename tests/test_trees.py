@@ -13,7 +13,7 @@ import pytest
 
 import robots
 from conftest import fmt_xyz, random_joints
-from robots.ik import _data, _task_jacobian, dls_ik, refine, workspace_size
+from robots.ik import _curvature, _data, _task_jacobian, _task_jacobian_axes, dls_ik, refine, workspace_size
 
 TREES = {  # name: (joints, effector frames)
     "talos-legs": (12, ("left_sole_link", "right_sole_link")),
@@ -163,6 +163,23 @@ def test_one_frame_in_a_sequence_is_a_serial_arm(tmp_path):
     assert listed.fk(q).shape == (10, 3) and listed.jacobian(q).shape == (10, 3, one.nq)
     np.testing.assert_array_equal(listed.fk(q), one.fk(q))
     assert listed.chain.arrays[4].shape == (3,)  # what the lab's kernels read, as before
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_refines_bend_is_the_second_derivative_along_the_step_on_any_tree(seed, tmp_path):
+    """robots.ik._curvature, from the Jacobian's columns and the joints' axes: the effectors' second
+    derivative along a joint direction v equals central finite differences of fk, with unaligned
+    revolute, continuous and prismatic joints, and effectors on different branches."""
+    path = tmp_path / "tree.urdf"
+    path.write_text(random_tree_urdf(seed))
+    arm = robots.from_urdf(path, ["tip6", "tip8", "tip7"])
+    rng, h = np.random.default_rng(seed), 1e-4
+    for x in arm.sample_q(10, seed=seed):
+        v = rng.standard_normal(arm.nq)
+        J, parts = _task_jacobian_axes(arm, _data(arm), arm.to_pinocchio(x), [0, 1, 2])
+        np.testing.assert_allclose(J, arm.jacobian(x).reshape(-1, arm.nq), rtol=0, atol=1e-9)
+        fd = (arm.fk(x + h * v) - 2 * arm.fk(x) + arm.fk(x - h * v)).reshape(-1) / h**2
+        np.testing.assert_allclose(_curvature(parts, v, [0, 1, 2]), fd, rtol=0, atol=1e-5 * max(1.0, np.abs(fd).max()))
 
 
 @pytest.mark.parametrize("name", TREES)
