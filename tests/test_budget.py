@@ -214,3 +214,41 @@ def test_a_recording_holds_the_budget(tmp_path):
     config = rec.protocol["config"]
     assert config["seconds"] == 0.3 and config["generations"] == UNBOUNDED
     assert len(rec.generations) == s.generations and s.ended_by == "seconds"
+
+
+def test_expected_quotes_the_largest_measured_budget_within_the_run(tmp_path):
+    """lab.experiments.budgets: a run of S s is quoted the figure of the largest budget measured
+    not above S (never more time than it has), the smallest one below them all; written whole."""
+    from lab.experiments import budgets
+
+    path = str(tmp_path / "budgets.json")
+    rows = [dict(robot="ur5", method="neat", seconds=s, median_pct=p, median_mm=10 * p, generations=1)
+            for s, p in ((10.0, 30.0), (60.0, 12.0), (300.0, 8.0))]
+    budgets.write(rows + [dict(robot="ur5", method="cmaes", seconds=60.0, error="boom")], "here", "2026-12-04", path)
+    assert budgets.expected("ur5", "neat", 59, path)["median_pct"] == 30.0
+    assert budgets.expected("ur5", "neat", 60, path)["median_pct"] == 12.0
+    assert budgets.expected("ur5", "neat", None, path)["median_pct"] == 8.0
+    assert budgets.expected("ur5", "neat", 5, path)["seconds"] == 10.0
+    assert budgets.expected("ur5", "cmaes", 60, path) is None  # a failed run is not a figure
+    budgets.write([dict(robot="ur5", method="cmaes", seconds=60.0, median_pct=0.5, median_mm=5.0)], "here", "d", path)
+    assert budgets.expected("ur5", "neat", 60, path)["median_pct"] == 12.0  # merged, not replaced
+    with open(path, "w") as f:
+        f.write("[1, 2]")
+    budgets._measured.cache_clear()
+    with pytest.raises(ValueError, match="not a budgets file"):
+        budgets.expected("ur5", "neat", 60, path)
+    budgets._measured.cache_clear()
+
+
+def test_budget_defaults_on_a_real_arm_turn_the_first_joint_for_every_method():
+    """With a time budget, every method's real-arm defaults turn the first joint in closed form;
+    the paper's arms keep their defaults."""
+    import robots
+    from lab import methods
+
+    for name in ("ur5", "so101"):
+        for method in methods.names():
+            config = lab.TrainConfig(robot=name, method=method, seconds=30)
+            assert config.turn, (name, method)
+    assert not lab.TrainConfig(robot="planar", seconds=30).turn
+    assert robots.kind("ur5") == "real"
