@@ -40,6 +40,8 @@ BEARINGS_ARMS = {"so101"}
 # (docs/results/real-arms.md, docs/log.md). The arms with joints of +-2 pi (UR5, UR10, xArm7) keep 0:
 # their limits lie two turns apart
 LIMITED_MARGIN = 0.3
+# a tree's settings (tree_defaults; the margin is margin_of's: their joints turn less than a turn)
+TREE_SETTINGS = dict(features="sphere", hidden=32, targets=300, population=50, sigma0=0.05, separable=True)
 log = logging.getLogger(__name__)
 STALL = 150  # generations without 1% improvement that end a start (restarts only)
 _STOP_IGNORED = {"maxiter", "maxfevals", "ftarget"}
@@ -217,10 +219,20 @@ def defaults(arm) -> dict:
       third head starts there); SO101's fourth is the second's mirror image in the base joint."""
     if robots.kind(arm.name) in ("paper", "snake"):
         return dict(features="reach", margin=2.0, hidden=5)
+    if robots.kind(arm.name) == "tree":
+        return tree_defaults(arm)
     return {**dict(features="bearings" if arm.name in BEARINGS_ARMS else "sphere", margin=margin_of(arm),
                    hidden=32, targets=300, population=50, generations=REAL_ARM_GENERATIONS, sigma0=0.05,
                    separable=True),
             **MULTI_HEAD_ARMS.get(arm.name, {})}
+
+
+def tree_defaults(arm) -> dict:
+    """The settings CMA-ES runs with on a tree of several end effectors (robots' kind "tree": legs, a
+    hand, a humanoid) when none are given: one network answers all joints for all effectors' goals
+    (lab/problem/tree_encoding.py), the real arms' search (sep-CMA-ES, population 50, 300 goals),
+    TREE_SETTINGS chosen by short budgeted runs (the comparison and its figures: docs/log.md)."""
+    return {**TREE_SETTINGS, "margin": margin_of(arm), "generations": REAL_ARM_GENERATIONS}
 
 
 def budget_defaults(arm, seconds: float) -> dict:
