@@ -74,7 +74,7 @@ def measure(robot: str, method: str, seconds: float, seed: int, setting: dict, r
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--robots", default="talos-legs,solo12", help=f"comma-separated, among: {', '.join(TREES)}")
-    ap.add_argument("--method", default="cmaes", help="a registered method (lab.methods.names())")
+    ap.add_argument("--method", default=lab.methods.DEFAULT_METHOD, help="a registered method (lab.methods.names())")
     ap.add_argument("--seconds", type=float, default=60.0, help="each run's time budget (optimizer time)")
     ap.add_argument("--seeds", default="0", help="comma-separated training seeds")
     ap.add_argument("--set", default="", help="settings to compare: 'name=value,...;name=value,...' (none: the defaults)")

@@ -41,7 +41,7 @@ BEARINGS_ARMS = {"so101"}
 # their limits lie two turns apart
 LIMITED_MARGIN = 0.3
 # a tree's settings (tree_defaults; the margin is margin_of's: their joints turn less than a turn)
-TREE_SETTINGS = dict(features="sphere", hidden=32, targets=300, population=50, sigma0=0.05, separable=True)
+TREE_SETTINGS = dict(features="reach", hidden=32, targets=300, population=50, sigma0=0.05, separable=True)
 log = logging.getLogger(__name__)
 STALL = 150  # generations without 1% improvement that end a start (restarts only)
 _STOP_IGNORED = {"maxiter", "maxfevals", "ftarget"}
