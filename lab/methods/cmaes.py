@@ -40,7 +40,8 @@ BEARINGS_ARMS = {"so101"}
 # (docs/results/real-arms.md, docs/log.md). The arms with joints of +-2 pi (UR5, UR10, xArm7) keep 0:
 # their limits lie two turns apart
 LIMITED_MARGIN = 0.3
-# a tree's settings (tree_defaults; the margin is margin_of's: their joints turn less than a turn)
+# a tree's settings (tree_defaults), with margin_of's margin (0.3 where every joint turns less than a turn: 0 on
+# solo12, whose joints turn +-10 rad)
 TREE_SETTINGS = dict(features="reach", hidden=32, targets=300, population=50, sigma0=0.05, separable=True)
 log = logging.getLogger(__name__)
 STALL = 150  # generations without 1% improvement that end a start (restarts only)

@@ -32,6 +32,9 @@ from lab.problem.checks import real
 from lab.problem.controllers import MLPController, mlp_size
 
 
+TREE_TARGETS = 3000  # a tree's training goals (defaults)
+
+
 @dataclass(frozen=True)
 class GradientOptions(Options):
     learning_rate: float = option(0.01, "Adam step size (the largest change of a weight per step, about)")
@@ -115,9 +118,13 @@ def defaults(arm) -> dict:
     planar arm: as for CMA-ES, a goal at a joint limit then asks no saturated tanh. Learning rate
     0.03 (the best of 0.003, 0.01 and 0.03 at 3000 steps), 3000 steps (about a second on planar).
     Real arms: CMA-ES's real-arm network, goals and "sphere" inputs (they beat "reach" there too),
-    the default learning rate and 20,000 steps (about 20 s); not tuned yet."""
+    the default learning rate and 20,000 steps (about 20 s); not tuned yet.
+    Trees (several end effectors): the real arms' settings with TREE_TARGETS training goals: with 300,
+    a full-batch descent fits them and generalizes badly (the comparison: docs/log.md)."""
     if robots.kind(arm.name) in ("paper", "snake"):
         return dict(features="reach", margin=2.0, hidden=5, population=1, generations=3000, learning_rate=0.03)
+    if robots.kind(arm.name) == "tree":
+        return dict(features="sphere", margin=0.0, hidden=32, targets=TREE_TARGETS, population=1, generations=20_000)
     return dict(features="sphere", margin=0.0, hidden=32, targets=300, population=1, generations=20_000)
 
 

@@ -2,7 +2,9 @@
 
 Fitness (paper, section 4.3): the mean over the training goals of ||p - p'||^2, p' the
 end-effector position the controller's joint values reach (task coordinates only).
-Lower is better; NaN or infinite becomes +inf.
+Lower is better; NaN or infinite becomes +inf. A tree of several end effectors (arm.is_tree): goals
+(n, E, m), and the error of a goal is the sum over the effectors of ||p_e - p'_e||^2 (the tree kernels,
+lab.problem.kernels.tree_mlp_mse and its kin; docs/methods.md).
 
 Resampled training goals (resample_seed not None; TrainConfig.resample): the paper keeps its 70
 training goals fixed for the whole run. With resampling, `draw_goals(generation)` replaces them

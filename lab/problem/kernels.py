@@ -8,6 +8,9 @@ joints() is lab.problem.encoding.Encoding.joints; its arrays travel as qmap = (o
 turn): turn (NO_TURN when off) turns the first joint toward each goal's bearing in closed form
 (Encoding.turn) before the error is taken.
 A controller whose output or error is NaN or infinite gets +inf.
+A tree of several end effectors has its own kernels (tree_mlp_mse, tree_graph_mse, tree_joints_mse):
+the squared error of a goal is the sum over the effectors of each one's, every effector's own serial
+chain composed by fk_sq_errors (see pack_tree).
 
 Layout: goals run along the innermost, contiguous axis ("structure of arrays": inputs (ni, n),
 hidden activations (nh, n), joint values (nq, n), the chain's rotation (3, 3, n)), so every
