@@ -8,6 +8,12 @@ Held-out goals are drawn from uniformly random joint vectors (arm.sample_goals w
 seed, as lab.problem.Problem's); reach = arm.reach_radius (the farthest end-effector position
 from the base origin over 20,000 joint samples). benchmarks/bench_arms.py prints these per arm,
 and `python -m app.startup` stores them with the app's shipped controllers.
+
+A tree (several end effectors): held_out gives the same numbers per effector ("effectors": each one's
+median, p90 and p99 in mm and in % of ITS reach, arm.effector_reach[e]) and overall ("median" and
+"median_pct": the median over every goal and effector, each error in % of its own effector's reach);
+refined and dls_from_rest take a tree's goals (n, E, 3), their error the norm of all effectors'
+errors stacked (robots.ik), to the same tolerance.
 """
 
 from __future__ import annotations
@@ -37,8 +43,8 @@ def tolerance(arm: robots.Arm) -> float:
 
 
 def position_errors(arm: robots.Arm, controller, goals: np.ndarray) -> np.ndarray:
-    """||goal - reach(controller(goal))|| per goal [the arm's length unit]."""
-    return np.linalg.norm(arm.reach(controller(goals)) - goals, axis=1)
+    """||goal - reach(controller(goal))|| per goal [the arm's length unit]: (n,), a tree's (n, E), per effector."""
+    return np.linalg.norm(arm.reach(controller(goals)) - goals, axis=-1)
 
 
 def error_stats(arm: robots.Arm, errors: np.ndarray) -> dict:
@@ -52,7 +58,26 @@ def error_stats(arm: robots.Arm, errors: np.ndarray) -> dict:
 
 
 def held_out(arm: robots.Arm, controller, n: int = HELD_OUT, goal_seed: int = 0) -> dict:
-    return error_stats(arm, position_errors(arm, controller, held_out_goals(arm, n, goal_seed)))
+    errors = position_errors(arm, controller, held_out_goals(arm, n, goal_seed))
+    return tree_error_stats(arm, errors) if arm.is_tree else error_stats(arm, errors)
+
+
+def tree_error_stats(arm: robots.Arm, errors: np.ndarray) -> dict:
+    """A tree's errors (n, E): error_stats of each effector in % of its own reach (arm.effector_reach[e]),
+    under "effectors" (with its name), and the median over all goals and effectors, in the arm's unit
+    ("median") and in % of each error's own effector's reach ("median_pct")."""
+    scale = 1000.0 if robots.in_metres(arm.name) else 1.0
+    reach = np.asarray(arm.effector_reach, dtype=np.float64)
+    out = {"unit": "mm" if scale == 1000.0 else "paper units", "reach": arm.reach_radius * scale,
+           "median": float(np.median(errors)) * scale, "median_pct": float(np.median(100.0 * errors / reach)),
+           "effectors": []}
+    for e, name in enumerate(arm.effectors):
+        row = {"effector": name, "reach": float(reach[e]) * scale}
+        for label, q in (("median", 50), ("p90", 90), ("p99", 99)):
+            v = float(np.percentile(errors[:, e], q))
+            row[label], row[f"{label}_pct"] = v * scale, 100.0 * v / float(reach[e])
+        out["effectors"].append(row)
+    return out
 
 
 def refined(arm: robots.Arm, controller, goals: np.ndarray, steps: int = 3, most: int = 8) -> dict:

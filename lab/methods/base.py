@@ -104,7 +104,7 @@ class Population:
     controllers: the n candidates as controllers, or None where they were left out (the recording
         and the pipe carry them only at a bounded rate, lab.running.runner.POPULATION_PERIOD);
     species: (n,) each candidate's species id, or None for a method without species;
-    points: (n, 3) each candidate's end-effector point at the recording's display goal
+    points: (n, 3) each candidate's end-effector point at the recording's display goal ((n, E, 3) on a tree)
         (lab.running.decimation.display_goal), filled in by the runner, or None.
     """
 
@@ -124,9 +124,10 @@ class Population:
         return population_joints(self.controllers, goals)
 
     def reach(self, arm, goals: np.ndarray) -> np.ndarray:
-        """(n, len(goals), 3): every candidate's end-effector point for each goal."""
+        """(n, len(goals), 3): every candidate's end-effector point for each goal ((n, len(goals), E, 3) on a tree)."""
         q = self.joints(goals)
-        return arm.fk(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:2], 3)
+        p = arm.fk(q.reshape(-1, q.shape[-1]))
+        return p.reshape(*q.shape[:2], *p.shape[1:])
 
 
 def population_joints(controllers, goals: np.ndarray) -> np.ndarray:
@@ -229,13 +230,14 @@ class Backend(ABC):
                           None if species is None else np.asarray(species, np.int64))
 
     def candidate_reach(self, goals: np.ndarray) -> np.ndarray:
-        """(n, len(goals), 3): each candidate's end-effector point for each goal, in the order of
+        """(n, len(goals), 3) ((n, len(goals), E, 3) on a tree): each candidate's end-effector points for each goal, in the order of
         candidates() (through _candidate_joints where the backend has a faster way than its controllers)."""
         goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
         q = self._candidate_joints(goals) if self.keeps_candidates else None
         if q is None:
             return self.candidates().reach(self.problem.arm, goals)
-        return self.problem.arm.fk(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:2], 3)
+        p = self.problem.arm.fk(q.reshape(-1, q.shape[-1]))
+        return p.reshape(*q.shape[:2], *p.shape[1:])
 
     def _candidate_controllers(self) -> list:
         """The last step's candidates as controllers, in the order of its fitness (keeps_candidates)."""

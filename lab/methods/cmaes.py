@@ -31,6 +31,9 @@ REAL_ARM_GENERATIONS = 45_000  # a real arm's budget: about 4-5 minutes on two c
 # (docs/results/real-arms.md; the timings in docs/log.md)
 MULTI_HEAD_ARMS = {"ur5": dict(heads=2, generations=32_000), "so100": dict(heads=3, generations=26_000),
                    "so101": dict(heads=4, generations=20_000), "z1": dict(heads=2, generations=32_000)}
+# a tree's settings (tree_defaults), with margin_of's margin (0.3 where every joint turns less than a turn: 0 on
+# solo12, whose joints turn +-10 rad)
+TREE_SETTINGS = dict(features="reach", hidden=32, targets=300, population=50, sigma0=0.05, separable=True)
 log = logging.getLogger(__name__)
 SHORT_BUDGET, SHORT_POPULATION = 15.0, 20  # a real arm's budget of at most 15 s: a population of 20
 BUDGET_HEADS = {"so100": 2, "so101": 2}  # a real arm's heads with a time budget (the others: one)
@@ -203,10 +206,20 @@ def defaults(arm) -> dict:
       third head starts there); SO101's fourth is the second's mirror image in the base joint."""
     if robots.kind(arm.name) in ("paper", "snake"):
         return dict(features="reach", margin=2.0, hidden=5)
+    if robots.kind(arm.name) == "tree":
+        return tree_defaults(arm)
     return {**dict(features="bearings" if arm.name in BEARINGS_ARMS else "sphere", margin=margin_of(arm),
                    hidden=32, targets=300, population=50, generations=REAL_ARM_GENERATIONS, sigma0=0.05,
                    separable=True),
             **MULTI_HEAD_ARMS.get(arm.name, {})}
+
+
+def tree_defaults(arm) -> dict:
+    """The settings CMA-ES runs with on a tree of several end effectors (robots' kind "tree": legs, a
+    hand, a humanoid) when none are given: one network answers all joints for all effectors' goals
+    (lab/problem/tree_encoding.py), the real arms' search (sep-CMA-ES, population 50, 300 goals),
+    TREE_SETTINGS chosen by short budgeted runs (the comparison and its figures: docs/log.md)."""
+    return {**TREE_SETTINGS, "margin": margin_of(arm), "generations": REAL_ARM_GENERATIONS}
 
 
 def budget_defaults(arm, seconds: float) -> dict:

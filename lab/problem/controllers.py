@@ -1,7 +1,7 @@
 """Neuro-controllers: goal positions in, joint values out.
 
-Two kinds, one contract (`Controller`): called on goals (n, len(task_axes)) they return joint
-values (n, nq) within the joint limits; `to_dict()` is complete enough to rebuild them
+Two kinds, one contract (`Controller`): called on goals (n, len(task_axes)) (a tree's: (n, E,
+len(task_axes)), lab/problem/tree_encoding.py) they return joint values (n, nq) within the joint limits; `to_dict()` is complete enough to rebuild them
 (`controller_from_dict`), which is how the Rerun logger stores them.
 
 - `MLPController`: the paper's fixed-topology MLP (section 4.3), a weight vector.

@@ -2,7 +2,9 @@
 
 Fitness (paper, section 4.3): the mean over the training goals of ||p - p'||^2, p' the
 end-effector position the controller's joint values reach (task coordinates only).
-Lower is better; NaN or infinite becomes +inf.
+Lower is better; NaN or infinite becomes +inf. A tree of several end effectors (arm.is_tree): goals
+(n, E, m), and the error of a goal is the sum over the effectors of ||p_e - p'_e||^2 (the tree kernels,
+lab.problem.kernels.tree_mlp_mse and its kin; docs/methods.md).
 
 Resampled training goals (resample_seed not None; TrainConfig.resample): the paper keeps its 70
 training goals fixed for the whole run. With resampling, `draw_goals(generation)` replaces them
@@ -77,11 +79,16 @@ class Problem:
         self.resample_seed = resample_seed
         self.test_goals = arm.sample_goals(test_goals, seed=self.goal_seed + TEST_SEED_OFFSET)
         # the kernels take goals along the last, contiguous axis
-        self._train = (_t(encoding.inputs(self.train_goals)), _t(self.train_goals))
-        self._test = (_t(encoding.inputs(self.test_goals)), _t(self.test_goals))
+        self._train = (_t(encoding.inputs(self.train_goals)), _goals_t(self.train_goals))
+        self._test = (_t(encoding.inputs(self.test_goals)), _goals_t(self.test_goals))
         self._axes = np.asarray(arm.task_axes, dtype=np.int64)
         self._qmap = (encoding.q_offset, encoding.q_scale, encoding.clip_lo, encoding.clip_hi, encoding.turn_spec)
-        self._chain = arm.chain.arrays
+        if arm.is_tree:  # the sum of the effectors' squared errors: each effector's chain in turn
+            self._chain = tree_arrays(arm)
+            self._mlp_kernel, self._graph_kernel = kernels.tree_mlp_mse, kernels.tree_graph_mse
+        else:
+            self._chain = arm.chain.arrays
+            self._mlp_kernel, self._graph_kernel = kernels.mlp_mse, kernels.graph_mse
 
     @property
     def resampling(self) -> bool:
@@ -93,7 +100,7 @@ class Problem:
         generation) whatever came before."""
         seq = np.random.SeedSequence([self.goal_seed, RESAMPLE_STREAM, int(self.resample_seed), int(generation)])
         self.train_goals = self.arm.sample_goals(len(self.reference_goals), seed=int(seq.generate_state(1)[0]))
-        self._train = (_t(self.encoding.inputs(self.train_goals)), _t(self.train_goals))
+        self._train = (_t(self.encoding.inputs(self.train_goals)), _goals_t(self.train_goals))
 
     def _split(self, test: bool):
         return self._test if test else self._train
@@ -106,7 +113,10 @@ class Problem:
         W = np.ascontiguousarray(W, dtype=np.float64)
         out = np.empty(len(W))
         if offsets is None or len(offsets) == self.encoding.n_outputs:
-            kernel, extra = kernels.mlp_mse, ()
+            kernel, extra = self._mlp_kernel, ()
+        elif self.arm.is_tree:
+            raise ValueError(f"{self.arm.name} is a tree of {self.arm.n_effectors} end effectors: multi-head MLPs "
+                             "(heads > 1) are for serial arms only")
         else:
             kernel, extra = kernels.mlp_heads_mse, (np.ascontiguousarray(offsets, dtype=np.float64),)
         heads = 1 if not extra else len(offsets) // self.encoding.n_outputs
@@ -145,9 +155,9 @@ class Problem:
         if enc.turns:  # the first joint turned in closed form: at the turn the error is stationary in it
             q = enc.turned(q, goals)
         axes = list(self.arm.task_axes)
-        err = self.arm.fk(q)[:, axes] - goals  # (n, k)
+        err = self.arm.fk(q)[..., axes].reshape(n, -1) - goals  # (n, k); a tree's (n, E k), the errors stacked
         mse = float(np.mean(np.sum(err * err, axis=1)))
-        J = self.arm.jacobian(q)[:, axes, :]  # (n, k, nq)
+        J = self.arm.jacobian(q)[..., axes, :].reshape(n, err.shape[1], -1)  # (n, k, nq), a tree's stacked
         dq = (2.0 / n) * np.einsum("gk,gkj->gj", err, J)
         if enc.turns:  # the network's first output is unused
             dq[:, 0] = 0.0
@@ -162,7 +172,10 @@ class Problem:
         _, goalsT = self._split(test)
         QT = np.ascontiguousarray(self.encoding.mapped(np.asarray(A, dtype=np.float64)).transpose(0, 2, 1))
         out = np.empty(len(QT))
-        kernels.joints_mse(QT, goalsT, self._axes, self._chain, self.encoding.turn_spec, out)
+        if self.arm.is_tree:
+            kernels.tree_joints_mse(QT, goalsT, self._axes, self._chain, out)
+        else:
+            kernels.joints_mse(QT, goalsT, self._axes, self._chain, self.encoding.turn_spec, out)
         return out
 
     def graphs_mse(self, graphs, test: bool = False) -> np.ndarray:
@@ -173,7 +186,7 @@ class Problem:
         """MSE of every graph of a compiled program (lab.problem.controllers.compile_programs): (P,)."""
         XT, goalsT = self._split(test)
         out = np.empty(len(program[0]))
-        kernels.graph_mse(XT, goalsT, self._axes, program, self._qmap, self._chain, out)
+        self._graph_kernel(XT, goalsT, self._axes, program, self._qmap, self._chain, out)
         return out
 
     def controller_mse(self, controller: Controller, goals: np.ndarray | None = None) -> float:
@@ -186,8 +199,23 @@ def _t(a: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(a, dtype=np.float64).T)
 
 
+def _goals_t(goals: np.ndarray) -> np.ndarray:
+    """Goals as the kernels take them: (k, n), a tree's (n, E, k) as (E k, n), effector after effector."""
+    goals = np.asarray(goals, dtype=np.float64)
+    return _t(goals.reshape(len(goals), -1))
+
+
+def tree_arrays(arm: robots.Arm) -> tuple:
+    """A tree as the tree kernels take it (lab.problem.kernels.pack_tree): each effector's own serial
+    chain (arm.chain.effector_arrays(e)) on its path (arm.chain.path(e))."""
+    E = arm.n_effectors
+    return kernels.pack_tree([arm.chain.effector_arrays(e) for e in range(E)], [arm.chain.path(e) for e in range(E)],
+                             arm.nq)
+
+
 def goal_errors(arm: robots.Arm, controller: Controller, goals: np.ndarray) -> np.ndarray:
-    """Squared end-effector error ||p - p'||^2 of a controller on each goal: (n,). NaN -> inf."""
+    """Squared end-effector error ||p - p'||^2 of a controller on each goal: (n,); a tree's summed over its
+    effectors. NaN -> inf."""
     reached = arm.reach(controller(goals))
-    err = np.sum((np.asarray(goals) - reached) ** 2, axis=-1)
+    err = np.sum(((np.asarray(goals) - reached) ** 2).reshape(len(reached), -1), axis=-1)
     return np.where(np.isfinite(err), err, np.inf)

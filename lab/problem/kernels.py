@@ -8,6 +8,9 @@ joints() is lab.problem.encoding.Encoding.joints; its arrays travel as qmap = (o
 turn): turn (NO_TURN when off) turns the first joint toward each goal's bearing in closed form
 (Encoding.turn) before the error is taken.
 A controller whose output or error is NaN or infinite gets +inf.
+A tree of several end effectors has its own kernels (tree_mlp_mse, tree_graph_mse, tree_joints_mse):
+the squared error of a goal is the sum over the effectors of each one's, every effector's own serial
+chain composed by fk_sq_errors (see pack_tree).
 
 Layout: goals run along the innermost, contiguous axis ("structure of arrays": inputs (ni, n),
 hidden activations (nh, n), joint values (nq, n), the chain's rotation (3, 3, n)), so every
@@ -407,6 +410,109 @@ def mlp_heads_mse(XT, goalsT, axes, W, nh, offsets, qmap, chain, out):
             if Eh[g] < E[g]:  # NaN never is: a goal no head reaches stays +inf
                 E[g] = Eh[g]
     _segment_means(E, n, out)
+
+
+# A tree of several end effectors (robots' trees) as the kernels take it: every effector's own serial
+# chain (robots.kinematics.ChainKinematics.effector_arrays) laid end to end,
+#     tree = (rot (K, 3, 3), pos (K, 3), kind (K,), identity (K,), ee_pos (E, 3), joints (K,), starts (E + 1,))
+# effector e's chain is rows starts[e] .. starts[e + 1] - 1, composed on the joint values of rows
+# joints[starts[e]:starts[e + 1]] (its path, root first); its goal is rows e m .. (e + 1) m - 1 of the
+# goals (m task axes: a goal (E, m) flattened). A joint that moves several effectors (a humanoid's
+# waist) is composed once for each.
+
+
+@numba.njit(**_JIT)
+def tree_sq_errors(Q, goalsT, axes, tree, E):
+    """E (N,) <- the sum over effectors of each one's squared task-space error, joint values Q (nq, N),
+    goals (E m, N): each effector's chain composed by fk_sq_errors (the serial arm's path, unchanged)
+    on its own rows of Q, the errors added in effector order."""
+    rot, pos, kind, identity, ee_pos, joints, starts = tree
+    n, m = Q.shape[1], axes.shape[0]
+    longest = 0
+    for e in range(ee_pos.shape[0]):
+        longest = max(longest, starts[e + 1] - starts[e])
+    Qe, Ee = np.empty((longest, n)), np.empty(n)
+    for g in range(n):
+        E[g] = 0.0
+    for e in range(ee_pos.shape[0]):
+        a, b = starts[e], starts[e + 1]
+        for k in range(b - a):
+            Qe[k] = Q[joints[a + k]]
+        fk_sq_errors(Qe[:b - a], goalsT[e * m:(e + 1) * m], axes,
+                     (rot[a:b], pos[a:b], kind[a:b], identity[a:b], ee_pos[e]), Ee)
+        for g in range(n):
+            E[g] += Ee[g]
+
+
+@numba.njit(**_JIT)
+def _tree_side_by_side_mse(Q, goalsT, axes, tree, out):
+    """Q (nq, P n): joint values of P controllers side by side -> out (P,) <- each one's mean over the
+    goals of the summed squared effector errors."""
+    n = goalsT.shape[1]
+    P = out.shape[0]
+    tiled = np.empty((goalsT.shape[0], P * n))
+    for p in range(P):
+        tiled[:, p * n:(p + 1) * n] = goalsT
+    E = np.empty(P * n)
+    tree_sq_errors(Q, tiled, axes, tree, E)
+    _segment_means(E, n, out)
+
+
+@numba.njit(**_JIT)
+def _tree_population_mse(A, goalsT, axes, qmap, tree, out):
+    """_population_mse on a tree: A (nq, P n) outputs -> out (P,)."""
+    for o in range(A.shape[0]):
+        _to_joints_row(A[o], o, qmap)
+    _tree_side_by_side_mse(A, goalsT, axes, tree, out)
+
+
+@numba.njit(**_JIT)
+def tree_mlp_mse(XT, goalsT, axes, W, nh, qmap, tree, out):
+    """mlp_mse on a tree: goals (E m, n), each MLP's fitness the mean of the summed effector errors."""
+    A = np.empty((qmap[0].shape[0], W.shape[0] * XT.shape[1]))
+    mlp_outputs(XT, W, nh, A)
+    _tree_population_mse(A, goalsT, axes, qmap, tree, out)
+
+
+@numba.njit(**_JIT)
+def tree_graph_mse(XT, goalsT, axes, program, qmap, tree, out):
+    """graph_mse on a tree (goals (E m, n))."""
+    starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot, no = program
+    n = XT.shape[1]
+    V = _graph_scratch(XT, n_nodes)
+    A = np.empty((no, starts.shape[0] * n))
+    for p in range(starts.shape[0]):
+        _graph_rows(XT, p, starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot, V,
+                    A[:, p * n:(p + 1) * n])
+    _tree_population_mse(A, goalsT, axes, qmap, tree, out)
+
+
+@numba.njit(**_JIT)
+def tree_joints_mse(QT, goalsT, axes, tree, out):
+    """joints_mse on a tree: joint values QT (P, nq, n), goals (E m, n) -> out (P,)."""
+    P, nq, n = QT.shape
+    Q = np.empty((nq, P * n))
+    for p in range(P):
+        Q[:, p * n:(p + 1) * n] = QT[p]
+    _tree_side_by_side_mse(Q, goalsT, axes, tree, out)
+
+
+def pack_tree(chains, paths, nq: int) -> tuple:
+    """The tree tuple the tree kernels take (see above), from each effector's chain (rot, pos, kind,
+    identity, ee_pos) (robots' effector_arrays(e)) and its path (the joint indices it is composed on,
+    root first; robots' path(e)); ValueError naming what is wrong."""
+    chains, paths = list(chains), [np.asarray(p, dtype=np.int64).reshape(-1) for p in paths]
+    if not chains or len(chains) != len(paths):
+        raise ValueError(f"a tree needs one path per effector's chain, got {len(chains)} chains and {len(paths)} paths")
+    parts = []
+    for e, (chain, path) in enumerate(zip(chains, paths)):
+        if len(path) == 0 or path.min() < 0 or path.max() >= nq:
+            raise ValueError(f"effector {e}: its path must be joint indices in [0, {nq}), got {path.tolist()}")
+        parts.append(check_chain(chain, len(path)))
+    rot, pos, kind, identity = (np.ascontiguousarray(np.concatenate([p[i] for p in parts])) for i in range(4))
+    ee_pos = np.ascontiguousarray(np.stack([p[4] for p in parts]))
+    starts = np.concatenate([[0], np.cumsum([len(p) for p in paths])]).astype(np.int64)
+    return rot, pos, kind, identity, ee_pos, np.ascontiguousarray(np.concatenate(paths)), starts
 
 
 def check_chain(chain, nq: int) -> tuple:

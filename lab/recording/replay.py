@@ -202,8 +202,10 @@ def _populations(pops: dict) -> list:
         if "mse" not in row or "points" not in row:
             continue
         species = np.asarray(row["species"], np.int64) if row.get("species") is not None else None
-        out.append((g, Population(g, np.asarray(row["mse"], float), None, species,
-                                  np.asarray(row["points"], np.float32).reshape(-1, 3))))
+        mse, points = np.asarray(row["mse"], float), np.asarray(row["points"], np.float32).reshape(-1, 3)
+        if len(mse) and len(points) != len(mse) and len(points) % len(mse) == 0:  # a tree's: E points each
+            points = points.reshape(len(mse), -1, 3)
+        out.append((g, Population(g, mse, None, species, points)))
     return out
 
 

@@ -40,7 +40,7 @@ class Geometry:
 
     arm: robots.Arm
     goals: np.ndarray  # (n, len(task_axes)) as the problem has them
-    goals3: np.ndarray  # (n, 3)
+    goals3: np.ndarray  # (n, 3); a tree's (n E, 3), the effectors of each goal one after the other
     radius: float  # a thin line, in the arm's length unit
 
     def __init__(self, arm: robots.Arm, goals: np.ndarray):
@@ -48,7 +48,7 @@ class Geometry:
         lo, hi = arm.workspace_bounds
         object.__setattr__(self, "arm", arm)
         object.__setattr__(self, "goals", goals)
-        object.__setattr__(self, "goals3", arm.to_3d(goals))
+        object.__setattr__(self, "goals3", arm.to_3d(goals).reshape(-1, 3))
         object.__setattr__(self, "radius", 0.003 * float(np.max(hi - lo)))
 
 
@@ -56,7 +56,11 @@ def pose(geo: Geometry, controller) -> dict:
     """The arm at controller(goal) for every training goal, the points reached, and the errors."""
     q = controller(geo.goals)  # (n, nq)
     strips = geo.arm.joint_positions(q).astype(np.float32)  # (n, nq + 2, 3); float32 converts 2x faster
-    reached = geo.arm.to_3d(geo.arm.reach(q))
+    if geo.arm.is_tree:  # no polyline: a segment from each point to the one it hangs from
+        parents = geo.arm.point_parents
+        child = np.flatnonzero(parents >= 0)
+        strips = np.stack([strips[:, parents[child]], strips[:, child]], axis=2).reshape(-1, 2, 3)
+    reached = geo.arm.to_3d(geo.arm.reach(q)).reshape(-1, 3)
     r = geo.radius
     return {
         **robot_pose(geo.arm, q[0]),
@@ -152,7 +156,8 @@ def blueprint(method: MethodView, geo: Geometry | None = None) -> rrb.Blueprint:
 
 
 def _eye(geo: Geometry) -> rrb.EyeControls3D:
-    lo, hi = (geo.arm.to_3d(b[None, :])[0] for b in geo.arm.workspace_bounds)
+    lo, hi = (geo.arm.to_3d(b).reshape(-1, 3) for b in geo.arm.workspace_bounds)  # a tree: a box per effector
+    lo, hi = lo.min(axis=0), hi.max(axis=0)
     center, size = (lo + hi) / 2, float(np.max(hi - lo))
     planar = len(geo.arm.task_axes) == 2
     offset = np.array([0.0, -0.35, 1.3]) if planar else np.array([0.7, -0.7, 0.55])

@@ -118,16 +118,18 @@ class Writer:
             if p is None or p.points is None or not population_logged(e.index):  # not the live views' extras
                 continue
             self._set_time(e)
-            colors = mse_colors(p.mse)
-            species = {} if p.species is None else {"class_ids": np.asarray(p.species, np.uint16)}
-            self._rec.log("world/population", rr.Points3D(np.asarray(p.points, np.float32), colors=colors,
+            points = np.asarray(p.points, np.float32).reshape(-1, 3)  # a tree's: each candidate's E points
+            per = len(points) // max(len(p.mse), 1)
+            colors = np.repeat(mse_colors(p.mse), per, axis=0)
+            species = {} if p.species is None else {"class_ids": np.repeat(np.asarray(p.species, np.uint16), per)}
+            self._rec.log("world/population", rr.Points3D(points, colors=colors,
                                                           radii=3 * self._geometry.radius, **species))
             values = {"mse": np.asarray(p.mse, np.float64)}
             if p.species is not None:
                 values["species"] = np.asarray(p.species, np.int64)
                 # the species' own colours, for the viewer (class ids get colours of its own otherwise)
-                self._rec.log("world/population_species", rr.Points3D(np.asarray(p.points, np.float32),
-                                                                      colors=species_colors(p.species),
+                colors = np.repeat(species_colors(p.species), per, axis=0)
+                self._rec.log("world/population_species", rr.Points3D(points, colors=colors,
                                                                       radii=3 * self._geometry.radius))
             self._rec.log("population", rr.AnyValues(**values))
 
@@ -219,8 +221,8 @@ class Writer:
         rec.log("about", rr.TextDocument(views.about(c, self.method), media_type=rr.MediaType.MARKDOWN), static=True)
         for entity, archetype in views.static_scene(self._geometry) + views.robot_meshes(arm):
             rec.log(entity, archetype, static=True)
-        goal = arm.to_3d(display_goal(arm)[None])[0]
-        rec.log("world/display_goal", rr.Points3D([goal], colors=[[255, 255, 255]], radii=5 * self._geometry.radius,
+        goal = arm.to_3d(display_goal(arm)).reshape(-1, 3)  # a tree's: one point per effector
+        rec.log("world/display_goal", rr.Points3D(goal, colors=[[255, 255, 255]], radii=5 * self._geometry.radius,
                                                   labels=["population shown for this goal"]), static=True)
 
 

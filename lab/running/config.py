@@ -85,8 +85,8 @@ class TrainConfig:
 
     def __post_init__(self):
         method = methods.get(self.method)
-        if not isinstance(self.robot, str) or self.robot not in robots.names():
-            raise ValueError(f"unknown robot {self.robot!r}; known robots: {', '.join(robots.names())}")
+        if not isinstance(self.robot, str) or self.robot not in robots.names(trees=True):
+            raise ValueError(f"unknown robot {self.robot!r}; known robots: {', '.join(robots.names(trees=True))}")
         self._check(method)  # what was given, before any arm is loaded
         arm = robots.load(self.robot)
         budget = {} if self.seconds is None else {"generations": UNBOUNDED}
@@ -96,6 +96,10 @@ class TrainConfig:
                 object.__setattr__(self, name, defaults[name])
         object.__setattr__(self, "options", method.options_for(arm, self.options, self.seconds))
         self._check(method)  # and the defaults filled in
+        if arm.is_tree and (self.heads > 1 or self.turn):
+            raise ValueError(f"{self.robot} is a tree of {arm.n_effectors} end effectors: "
+                             + ("multi-head MLPs (heads > 1) are for serial arms only" if self.heads > 1 else
+                                "it has no closed-form turn (no one joint turns every effector)"))
 
     def _check(self, method) -> None:
         """Every field that is set (None: a default still to come) is valid, by name."""

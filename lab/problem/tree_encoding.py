@@ -1,0 +1,178 @@
+"""How a tree's goals enter a network: one position per end effector, every effector's inputs side by side.
+
+A tree (robots' trees: a biped's feet, a quadruped's four feet, a hand's fingertips, a humanoid's
+hands and feet) has E end effectors; a goal is (E, m), one position per effector, and the network
+answers all nq joints at once (the output mapping is Encoding's, unchanged). The inputs are E blocks,
+effector e's block the features of goal e alone, each scaled to [-1, 1] by the range of that
+effector's own workspace:
+
+    "cartesian"   goal e's task coordinates (scaled by arm.workspace_bounds[e]);
+    any other of encoding.FEATURES: the serial arm's features of that name, taken in effector e's
+                  limb frame instead of the base frame. The limb is the chain of joints that move
+                  effector e (arm.chain.path(e), root first); its first joint hangs from the fixed
+                  root, so its axis is fixed in space: the limb frame has its origin on that axis (the
+                  point the kinematics place the joint at), its z along the axis, and its x toward the
+                  circular mean bearing of the effector's workspace about the axis (so that a bearing's
+                  seam at +-pi lies behind the limb). So "polar" adds the distance r of the goal from
+                  the limb's first axis and its bearing about it; "reach" the slack of r; "sphere" the
+                  distance rho from the centre of the smallest sphere on that axis that holds the
+                  effector's workspace (near a leg's hip: its knee goes as the fold of rho), its slack
+                  and elevation; "bearings" the bearing from behind too; "cylindrical" r, phi and the
+                  height along the axis. Their task coordinates are then the limb frame's.
+
+Goals of any other shape than (n, E, m) are refused, naming the shape expected. A tree has no
+closed-form turn (no one joint turns every effector) and no multi-head networks here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+import robots
+from lab.problem.encoding import FEATURES, Encoding, _enclosing_sphere, _raw_features
+
+_LIMB_FIELDS = ("limb_origin", "limb_frame", "limb_r_max", "limb_z_c", "limb_rho_max", "limb_facing")
+_FEATURE_COUNT = {"cartesian": 3, "polar": 5, "cylindrical": 3, "reach": 6, "sphere": 9, "bearings": 10}
+
+
+@dataclass(frozen=True, eq=False)
+class TreeEncoding(Encoding):
+    """Encoding of a tree of `effectors` end effectors: in_lo/in_hi hold the E blocks of inputs one after
+    the other; the limb_* arrays (one row per effector) place each effector's limb frame (see the module)."""
+
+    effectors: int = 2
+    limb_origin: np.ndarray | None = None  # (E, 3) a point of the first axis of each effector's limb
+    limb_frame: np.ndarray | None = None  # (E, 3, 3) the limb frame's axes as columns (z: the first axis)
+    limb_r_max: np.ndarray | None = None  # (E,) the largest distance from the first axis ("reach" and beyond)
+    limb_z_c: np.ndarray | None = None  # (E,) the height on that axis of the workspace's smallest sphere ("sphere")
+    limb_rho_max: np.ndarray | None = None  # (E,) that sphere's radius
+    limb_facing: np.ndarray | None = None  # (E,) "bearings": the bearing the limb faces most (0: its x axis)
+
+    def __post_init__(self):
+        E = self.effectors
+        if isinstance(E, bool) or not isinstance(E, (int, np.integer)) or E < 2:
+            raise ValueError(f"a tree's encoding needs at least 2 effectors, got {E!r}")
+        object.__setattr__(self, "effectors", int(E))
+        if self.features not in FEATURES:
+            raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
+        if tuple(self.task_axes) != (0, 1, 2):
+            raise ValueError(f"a tree's encoding needs the task axes x, y, z, got {self.task_axes!r}")
+        if self.turn is not None:
+            raise ValueError("a tree has no closed-form turn (no one joint turns every effector)")
+        if not 0 <= self.margin < 10:
+            raise ValueError(f"margin must be in [0, 10), got {self.margin!r}")
+        wrap = np.zeros(len(self.q_lo), bool) if self.wrap is None else np.asarray(self.wrap, bool).reshape(-1)
+        if wrap.shape != (len(self.q_lo),):
+            raise ValueError(f"wrap must hold one flag per joint ({len(self.q_lo)}), got {len(wrap)}")
+        object.__setattr__(self, "wrap", wrap)
+        object.__setattr__(self, "axis_xy", np.zeros(2))
+        shapes = {"limb_origin": (E, 3), "limb_frame": (E, 3, 3), "limb_r_max": (E,), "limb_z_c": (E,),
+                  "limb_rho_max": (E,), "limb_facing": (E,)}
+        for name, shape in shapes.items():
+            value = getattr(self, name)
+            a = np.zeros(shape) if value is None else np.asarray(value, dtype=np.float64)
+            if a.shape != shape or not np.all(np.isfinite(a)):
+                raise ValueError(f"{name} must be {shape} finite numbers, got shape {a.shape}")
+            object.__setattr__(self, name, a)
+        n_in = E * _FEATURE_COUNT[self.features]
+        for lo, hi, n, what in ((self.in_lo, self.in_hi, n_in, f"input ranges ({self.features}, {E} effectors)"),
+                                (self.q_lo, self.q_hi, len(self.q_lo), "joint ranges")):
+            if not (lo.shape == hi.shape == (n,) and np.all(np.isfinite(lo) & np.isfinite(hi)) and np.all(lo < hi)):
+                raise ValueError(f"{what} must be {n} finite (lo < hi) pairs, got lo {lo.tolist()}, hi {hi.tolist()}")
+
+    @classmethod
+    def for_arm(cls, arm: robots.Arm, features: str = "cartesian", margin: float = 0.0,
+                turn: bool = False) -> "TreeEncoding":
+        if not arm.is_tree:
+            raise ValueError(f"{arm.name} has one end effector: its encoding is Encoding.for_arm's")
+        if turn:
+            raise ValueError(f"{arm.name} is a tree of {arm.n_effectors} end effectors: it has no closed-form turn "
+                             "(no one joint turns every effector)")
+        if features not in FEATURES:
+            raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {features!r}")
+        goals = arm.sample_goals(20_000, seed=12345)  # (N, E, 3), the samples of arm.workspace_bounds
+        limbs = {name: [] for name in _LIMB_FIELDS}
+        for e in range(arm.n_effectors):
+            origin, frame = _limb_frame(arm, e, goals[:, e])
+            local = (goals[:, e] - origin) @ frame
+            r = np.hypot(local[:, 0], local[:, 1])
+            z_c, rho_max = _enclosing_sphere(local)
+            facing = float(np.angle(np.mean(np.exp(1j * np.arctan2(local[:, 1], local[:, 0])))))
+            for name, value in zip(_LIMB_FIELDS, (origin, frame, float(r.max()), z_c, rho_max, facing)):
+                limbs[name].append(value)
+        limbs = {name: np.asarray(v, dtype=np.float64) for name, v in limbs.items()}
+        raw = _tree_features(goals, features, limbs)
+        lo, hi = raw.min(axis=0), raw.max(axis=0)
+        flat = hi - lo < 1e-9
+        lo, hi = np.where(flat, lo - 0.5, lo), np.where(flat, hi + 0.5, hi)
+        return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy(), float(margin),
+                   wrap=np.asarray(arm.chain.continuous, bool).copy(), effectors=arm.n_effectors, **limbs)
+
+    @property
+    def input_names(self) -> list[str]:
+        """One short label per network input: the serial arm's, numbered by effector (x1, y1, ..., x2, ...)."""
+        task = ["x", "y", "z"]
+        one = {"cartesian": task, "polar": task + ["r", "φ"], "cylindrical": ["r", "φ", "z"],
+               "reach": task + ["r", "φ", "s"], "sphere": task + ["r", "φ", "s", "ρ", "ψ", "σ"],
+               "bearings": task + ["r", "φ", "s", "ρ", "ψ", "σ", "φ′"]}[self.features]
+        return [f"{name}{e + 1}" for e in range(self.effectors) for name in one]
+
+    def inputs(self, goals: np.ndarray) -> np.ndarray:
+        """Goals (n, E, 3) -> network inputs (n, n_inputs) in about [-1, 1]."""
+        goals = np.asarray(goals, dtype=np.float64)
+        if goals.ndim != 3 or goals.shape[1:] != (self.effectors, len(self.task_axes)):
+            raise ValueError(f"goals of a tree of {self.effectors} end effectors must have shape "
+                             f"(n, {self.effectors}, {len(self.task_axes)}) (one position per effector), "
+                             f"got {goals.shape}")
+        raw = _tree_features(goals, self.features, {name: getattr(self, name) for name in _LIMB_FIELDS})
+        return 2.0 * (raw - self.in_lo) / (self.in_hi - self.in_lo) - 1.0
+
+    def to_dict(self) -> dict:
+        return {
+            "features": self.features, "task_axes": list(self.task_axes),
+            "in_lo": self.in_lo.tolist(), "in_hi": self.in_hi.tolist(),
+            "q_lo": self.q_lo.tolist(), "q_hi": self.q_hi.tolist(), "margin": self.margin,
+            **({"wrap": self.wrap.tolist()} if self.wrap.any() else {}),
+            "effectors": self.effectors, **{name: getattr(self, name).tolist() for name in _LIMB_FIELDS},
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TreeEncoding":
+        return cls(d["features"], tuple(d["task_axes"]),
+                   *(np.atleast_1d(np.asarray(d[k], float)) for k in ("in_lo", "in_hi", "q_lo", "q_hi")),
+                   float(d.get("margin", 0.0)), wrap=d.get("wrap"), effectors=d["effectors"],
+                   **{name: d[name] for name in _LIMB_FIELDS})
+
+
+def _limb_frame(arm: robots.Arm, e: int, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(origin (3,), frame (3, 3)) of effector e's limb: the first joint of its path, whose parent is
+    the fixed root (its placement is where the kinematics put it, its axis the joint frame's z),
+    x toward the circular mean bearing of the effector's goals about that axis."""
+    k = int(arm.chain.path(e)[0])
+    origin = np.asarray(arm.chain.pos[k], dtype=np.float64).copy()
+    w = np.asarray(arm.chain.rot[k], dtype=np.float64)[:, 2]
+    w = w / np.linalg.norm(w)
+    helper = np.eye(3)[int(np.argmin(np.abs(w)))]  # the world axis least along w
+    x = np.cross(helper, w)
+    x /= np.linalg.norm(x)
+    y = np.cross(w, x)
+    d = goals - origin
+    mean = np.angle(np.mean(np.exp(1j * np.arctan2(d @ y, d @ x))))
+    x, y = np.cos(mean) * x + np.sin(mean) * y, -np.sin(mean) * x + np.cos(mean) * y
+    return origin, np.column_stack([x, y, w])
+
+
+def _tree_features(goals: np.ndarray, features: str, limbs: dict) -> np.ndarray:
+    """(n, E * per-effector features): each effector's block, goals (n, E, 3)."""
+    blocks = []
+    for e in range(goals.shape[1]):
+        if features == "cartesian":
+            blocks.append(goals[:, e])
+            continue
+        local = (goals[:, e] - limbs["limb_origin"][e]) @ limbs["limb_frame"][e]
+        blocks.append(_raw_features(local, features, 3, limbs["limb_r_max"][e], limbs["limb_z_c"][e],
+                                    limbs["limb_rho_max"][e], (0.0, 0.0), limbs["limb_facing"][e]))
+    return np.concatenate(blocks, axis=1)
+

@@ -1,0 +1,191 @@
+"""Training on trees (several end effectors): the fitness is the mean over goals of the summed squared
+effector errors, the same through the compiled kernels as through arm.fk; every method trains on a
+tree, reproducibly; tree controllers save and load; a serial arm's numbers are unchanged."""
+
+import json
+
+import numpy as np
+import pytest
+
+import lab
+import robots
+from lab.experiments import arms
+from lab.problem import Encoding, Problem, kernels
+from lab.problem.controllers import MLPController, controller_from_dict, mlp_size
+from lab.problem.fitness import tree_arrays
+from lab.problem.tree_encoding import TreeEncoding
+
+from conftest import METHODS
+
+TREES = ("talos-legs", "solo12", "allegro", "g1")
+FAST = dict(targets=30, test_goals=40)  # a run of a few generations in well under a second each
+
+
+def reference_mse(arm, q, goals):
+    """The tree fitness by numpy: mean over goals of sum over effectors of ||goal_e - fk_e(q)||^2."""
+    return float(np.mean(np.sum((arm.fk(q)[..., list(arm.task_axes)] - goals) ** 2, axis=(-2, -1))))
+
+
+@pytest.mark.parametrize("robot", TREES)
+@pytest.mark.parametrize("features", ["cartesian", "sphere"])
+def test_the_kernel_fitness_is_the_summed_effector_errors_through_fk(robot, features):
+    arm = robots.load(robot)
+    enc = Encoding.for_arm(arm, features, 0.3)
+    assert isinstance(enc, TreeEncoding) and enc.n_outputs == arm.nq
+    problem = Problem(arm, enc, targets=25, test_goals=10)
+    rng = np.random.default_rng(1)
+    W = rng.normal(0, 0.5, (4, mlp_size(enc.n_inputs, 6, enc.n_outputs)))
+    f = problem.mlp_mse(W, 6)
+    ref = [reference_mse(arm, MLPController(enc, 6, w)(problem.train_goals), problem.train_goals) for w in W]
+    np.testing.assert_allclose(f, ref, rtol=1e-9, atol=0)
+    A = rng.uniform(-1, 1, (3, len(problem.train_goals), arm.nq))  # outputs_mse: network outputs directly
+    ref = [reference_mse(arm, enc.joints(a), problem.train_goals) for a in A]
+    np.testing.assert_allclose(problem.outputs_mse(A), ref, rtol=1e-9, atol=0)
+    assert problem.controller_mse(MLPController(enc, 6, W[0])) == pytest.approx(f[0], rel=1e-9)
+
+
+def test_graph_fitness_on_a_tree_is_the_reference():
+    """NEAT's compiled graphs go through the tree's graph kernel: the same numbers as arm.fk."""
+    run = lab.evolve("solo12", "neat", generations=2, population=6, seed=0, **FAST)
+    arm = robots.load("solo12")
+    problem = Problem(arm, run.controller.encoding, **FAST)
+    goals = problem.train_goals
+    assert problem.graphs_mse([run.controller])[0] == pytest.approx(reference_mse(arm, run.controller(goals), goals),
+                                                                    rel=1e-9)
+
+
+@pytest.mark.parametrize("robot", ["planar", "scara", "ur5"])
+def test_a_serial_arm_as_a_tree_of_one_effector_gives_the_same_bits(robot):
+    """The tree kernel composes each effector's chain by the serial kernel: one effector on every joint
+    is the serial arm's fitness bit for bit (and a serial arm's Problem keeps the serial kernels)."""
+    arm = robots.load(robot)
+    enc = Encoding.for_arm(arm, "reach", 0.5)
+    problem = Problem(arm, enc, targets=30, test_goals=5)
+    XT, goalsT = problem._train
+    one = kernels.pack_tree([arm.chain.arrays], [np.arange(arm.nq)], arm.nq)
+    W = np.random.default_rng(2).normal(0, 0.7, (5, mlp_size(enc.n_inputs, 5, enc.n_outputs)))
+    serial, tree = np.empty(5), np.empty(5)
+    kernels.mlp_mse(XT, goalsT, problem._axes, W, 5, problem._qmap, arm.chain.arrays, serial)
+    kernels.tree_mlp_mse(XT, goalsT, problem._axes, W, 5, problem._qmap, one, tree)
+    assert np.array_equal(serial, tree)
+    assert np.array_equal(problem.mlp_mse(W, 5), serial)
+
+
+def test_the_tree_arrays_are_each_effectors_own_chain():
+    arm = robots.load("g1")  # the hands share the waist's three joints
+    rot, pos, kind, identity, ee_pos, joints, starts = tree_arrays(arm)
+    assert len(starts) == arm.n_effectors + 1 and starts[-1] == len(joints) == len(rot)
+    for e in range(arm.n_effectors):
+        assert np.array_equal(joints[starts[e]:starts[e + 1]], arm.chain.path(e))
+        for mine, theirs in zip((rot, pos, kind, identity), arm.chain.effector_arrays(e)[:4]):
+            assert np.array_equal(mine[starts[e]:starts[e + 1]], theirs)
+    with pytest.raises(ValueError, match=r"effector 0: its path must be joint indices in \[0, 29\)"):
+        kernels.pack_tree([arm.chain.effector_arrays(0)], [np.arange(10) + 25], arm.nq)
+    with pytest.raises(ValueError, match="chain must describe 3 joints"):
+        kernels.pack_tree([arm.chain.effector_arrays(0)], [np.arange(3)], arm.nq)
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("robot", ["talos-legs", "solo12"])
+def test_every_method_improves_a_tree_and_repeats_its_run(method, robot):
+    generations = 40 if method == "gradient" else 8
+    runs = [lab.evolve(robot, method, generations=generations, population=12, seed=3, **FAST) for _ in range(2)]
+    a, b = runs
+    assert a.history[-1] < a.history[0]
+    assert np.array_equal(a.history, b.history) and a.test_mse == b.test_mse
+    goals = robots.load(robot).sample_goals(5, seed=9)
+    assert np.array_equal(a.controller(goals), b.controller(goals))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_tree_controller_saves_and_loads(method):
+    run = lab.evolve("talos-legs", method, generations=3, population=6, seed=1, **FAST)
+    doc = json.loads(json.dumps(run.controller.to_dict()))
+    assert doc["encoding"]["effectors"] == 2
+    back = controller_from_dict(doc)
+    assert isinstance(back.encoding, TreeEncoding)
+    goals = robots.load("talos-legs").sample_goals(20, seed=4)
+    assert np.array_equal(back(goals), run.controller(goals))
+    assert back(goals).shape == (20, 12)
+
+
+def test_goals_of_the_wrong_shape_are_refused_by_name():
+    arm = robots.load("solo12")
+    run = lab.evolve("solo12", "cmaes", generations=1, population=6, seed=0, **FAST)
+    for bad in (np.zeros((5, 3)), np.zeros((5, 2, 3)), np.zeros((5, 4, 2))):
+        with pytest.raises(ValueError, match=r"4 end effectors must have shape \(n, 4, 3\)"):
+            run.controller(bad)
+    assert run.controller(arm.sample_goals(2, seed=0)).shape == (2, arm.nq)
+
+
+def test_heads_and_the_turn_are_refused_on_a_tree():
+    with pytest.raises(ValueError, match="tree of 2 end effectors: multi-head"):
+        lab.TrainConfig(robot="talos-legs", method="cmaes", heads=2)
+    with pytest.raises(ValueError, match="no closed-form turn"):
+        lab.TrainConfig(robot="talos-legs", method="cmaes", turn=True)
+    with pytest.raises(ValueError, match="no closed-form turn"):
+        Encoding.for_arm(robots.load("solo12"), "cartesian", turn=True)
+
+
+def test_the_tree_encoding_round_trips_and_scales_each_effector_by_its_own_workspace():
+    arm = robots.load("allegro")
+    enc = Encoding.for_arm(arm, "cartesian")
+    lo, hi = arm.workspace_bounds
+    np.testing.assert_allclose(enc.in_lo, lo.reshape(-1))
+    np.testing.assert_allclose(enc.in_hi, hi.reshape(-1))
+    for features in ("sphere", "bearings", "polar"):
+        enc = Encoding.for_arm(arm, features, 0.3)
+        back = Encoding.from_dict(json.loads(json.dumps(enc.to_dict())))
+        goals = arm.sample_goals(50, seed=3)
+        assert np.array_equal(back.inputs(goals), enc.inputs(goals))
+        assert len(enc.input_names) == enc.n_inputs
+        x = enc.inputs(arm.sample_goals(2000, seed=5))
+        assert np.all(np.abs(x) <= 1.2)  # about [-1, 1] on other goals too
+
+
+def test_the_gradient_on_a_tree_is_the_fitness_gradient():
+    arm = robots.load("solo12")
+    problem = Problem(arm, Encoding.for_arm(arm, "sphere", 0.3), targets=20, test_goals=5)
+    enc = problem.encoding
+    w = np.random.default_rng(4).normal(0, 0.3, mlp_size(enc.n_inputs, 3, enc.n_outputs))
+    mse, g = problem.mlp_gradient(w, 3)
+    assert mse == pytest.approx(problem.mlp_mse(w[None], 3)[0], rel=1e-12)
+    h = 1e-6
+    E = np.eye(w.size) * h
+    fd = (problem.mlp_mse(w + E, 3) - problem.mlp_mse(w - E, 3)) / (2 * h)
+    np.testing.assert_allclose(g, fd, rtol=0, atol=1e-6 * np.abs(g).max())
+
+
+def test_held_out_stats_per_effector_and_refinement_on_a_tree():
+    arm = robots.load("talos-legs")
+    run = lab.evolve("talos-legs", "cmaes", generations=5, population=8, seed=0, **FAST)
+    stats = arms.held_out(arm, run.controller, n=200)
+    assert [e["effector"] for e in stats["effectors"]] == list(arm.effectors)
+    errors = arms.position_errors(arm, run.controller, arms.held_out_goals(arm, 200))
+    for e, row in enumerate(stats["effectors"]):
+        assert row["median"] == pytest.approx(1000 * np.median(errors[:, e]))
+        assert row["median_pct"] == pytest.approx(100 * np.median(errors[:, e]) / arm.effector_reach[e])
+        assert row["median"] <= row["p90"] <= row["p99"]
+    assert stats["median"] == pytest.approx(1000 * np.median(errors))
+    goals = arms.held_out_goals(arm, 4)
+    r = arms.refined(arm, run.controller, goals, steps=2, most=3)
+    assert len(r["errors"]) == 4 and 0 <= r["success"] <= 1
+    d = arms.dls_from_rest(arm, goals, max_iter=50)
+    assert 0 <= d["success"] <= 1
+
+
+def test_a_tree_run_records_and_reloads(tmp_path):
+    from lab.recording.logger import RerunLogger
+    from lab.recording.replay import load_controller, read_recording
+
+    config = lab.TrainConfig(robot="solo12", method="cmaes", generations=4, population=8, **FAST)
+    runner = lab.Runner(config)
+    logger = RerunLogger(runner, path=tmp_path / "tree.rrd", pose_every=1)
+    runner.subscribe(logger)
+    summary = runner.run()
+    logger.wait(60)
+    assert summary.state == "finished"
+    goals = runner.problem.test_goals[:10]
+    assert np.array_equal(load_controller(tmp_path / "tree.rrd")(goals), summary.controller(goals))
+    rec = read_recording(tmp_path / "tree.rrd")
+    assert rec.population_at(3).points.shape == (8, 4, 3)
