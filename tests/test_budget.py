@@ -148,10 +148,13 @@ def test_a_method_chooses_its_schedule_from_the_budget():
         plain = lab.TrainConfig.preset(robot="planar", method="cmaesbudget")
         assert (plain.population, plain.sigma0, plain.generations) == (50, base.options().sigma0, 1000)
         # a method without the hook: its defaults less their generations
-        assert methods.get("neat").budget_defaults is None
-        assert lab.TrainConfig.preset(robot="planar", method="neat", seconds=5).generations == UNBOUNDED
+        methods.register(dataclasses.replace(base, name="cmaesplain", budget_defaults=None))
+        assert lab.TrainConfig.preset(robot="planar", method="cmaesplain", seconds=5).generations == UNBOUNDED
+        assert lab.TrainConfig.preset(robot="planar", method="cmaesplain", seconds=5).population == 50
     finally:
         methods.unregister("cmaesbudget")
+        if "cmaesplain" in methods.names():
+            methods.unregister("cmaesplain")
 
 
 def test_python_m_lab_train_seconds(capsys):
