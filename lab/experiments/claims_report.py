@@ -26,6 +26,7 @@ from lab.running.config import TrainConfig
 
 EVOLVED, GRADIENT = C.METHODS[:2], C.METHODS[2]
 SNAKES = tuple(r for r in C.ROBOTS if robots.kind(r) == "snake")  # "highly redundant"
+TREES = tuple(r for r in C.ROBOTS if robots.kind(r) == "tree")  # the paper's reason: bipeds, humanoids
 SETTINGS = {"evaluations": "equal budget in evaluations", "seconds": "equal wall time"}
 
 
@@ -36,6 +37,19 @@ def _label(method: str) -> str:
 def _reach(robot: str) -> float:
     """The arm's reach in the unit its errors are reported in (mm for a real arm)."""
     return robots.load(robot).reach_radius * (1000.0 if robots.in_metres(robot) else 1.0)
+
+
+def _in_metres() -> list[str]:
+    return [r for r in C.ROBOTS if robots.in_metres(r)]
+
+
+def _goals_line() -> str:
+    """Each method's default number of training goals on each kind of robot in the experiment."""
+    kinds = {}
+    for r in C.ROBOTS:
+        kinds.setdefault(robots.kind(r), r)
+    return "; ".join(f"{kind} ({r}): " + ", ".join(f"{_label(m)} {TrainConfig.preset(robot=r, method=m).targets:,}"
+                                                    for m in C.METHODS) for kind, r in kinds.items())
 
 
 def _unit(robot: str) -> str:
@@ -167,6 +181,15 @@ def judge_arm(num: dict) -> str:
     return "mixed"
 
 
+def _spelled(arms: dict, names: list[str]) -> str:
+    """Each arm's medians and stuck runs, the gradient method first."""
+    return "; ".join(
+        f"{r}: {_label(GRADIENT)} median {fmt(arms[r][GRADIENT]['median'], 3)} (stuck, above "
+        f"{C.POOR_FACTOR:g}x the best run and above {100 * C.POOR_REACH:g}% of reach: {_n(arms[r], GRADIENT)}) against "
+        + ", ".join(f"{_label(m)} {fmt(arms[r][m]['median'], 3)} ({_n(arms[r], m)})" for m in EVOLVED)
+        for r in names)
+
+
 def verdict_gradient(per_setting: dict) -> str:
     """Claim (ii) from the numbers: per setting, per arm judge_arm, the snakes spelled out."""
     parts, tallies = [], []
@@ -174,11 +197,8 @@ def verdict_gradient(per_setting: dict) -> str:
         judged = {r: judge_arm(num) for r, num in arms.items() if all(m in num for m in C.METHODS)}
         tally = {v: [r for r, j in judged.items() if j == v] for v in ("supported", "contradicted", "mixed")}
         tallies.append(tally)
-        snake_text = "; ".join(
-            f"{r}: {_label(GRADIENT)} median {fmt(arms[r][GRADIENT]['median'], 3)} (stuck, above "
-            f"{C.POOR_FACTOR:g}x the best run and above {100 * C.POOR_REACH:g}% of reach: {_n(arms[r], GRADIENT)}) against "
-            + ", ".join(f"{_label(m)} {fmt(arms[r][m]['median'], 3)} ({_n(arms[r], m)})" for m in EVOLVED)
-            for r in SNAKES if r in judged)
+        snake_text = _spelled(arms, [r for r in SNAKES if r in judged])
+        tree_text = _spelled(arms, [r for r in TREES if r in judged])
         best = [min(num, key=lambda m: num[m]["median"]) for r, num in arms.items() if r in judged]
         lowest = ", ".join(f"{_label(m)} on {best.count(m)}" for m in C.METHODS)
         trapped = [f"{r} {arms[r][GRADIENT]['rel']}/{arms[r][GRADIENT]['n']}" for r in judged
@@ -187,7 +207,8 @@ def verdict_gradient(per_setting: dict) -> str:
             snake_text += (f". {_label(GRADIENT)} runs more than {C.POOR_FACTOR:g}x worse than the best run: "
                            f"{', '.join(trapped)}: it has poor optima too")
         parts.append(
-            f"At {SETTINGS[kind]}, on the highly redundant snakes: {snake_text or 'no runs'}. Lowest median held-out "
+            f"At {SETTINGS[kind]}, on the highly redundant snakes: {snake_text or 'no runs'}. On the robots the paper "
+            f"names as its reason (trees of several end effectors): {tree_text or 'no runs'}. Lowest median held-out "
             f"error over the {len(judged)} arms: {lowest}. The claim is "
             + "; ".join(f"{v} on {len(tally[v])} arm(s) ({', '.join(tally[v]) or 'none'})" for v in tally) + ".")
     if tallies and all(not t["supported"] and t["contradicted"] for t in tallies):
@@ -304,9 +325,8 @@ def _what(result) -> list[str]:
             f"- **Equal budget in evaluations** (one controller evaluated on all its training goals, as each "
             f"method counts it; {_label(GRADIENT)}: 1 + nq per step): E = {c.generations} generations of "
             f"{_label(C.METHODS[0])} at its population, per arm: {budgets}; each method runs E // (its "
-            "evaluations per step) steps. Methods keep their own default numbers of training goals (on the "
-            "real arms CMA-ES and the gradient method 300, NEAT 70), so an evaluation is not the same "
-            "kinematic work for all. NEAT has no real-arm defaults: it runs with its paper-arm settings there.",
+            "evaluations per step) steps. Methods keep their own default numbers of training goals, so an "
+            "evaluation is not the same kinematic work for all (" + _goals_line() + ").",
             f"- **Equal wall time** (optimizer time, stopped by `lab.running.TimeLimit`): per arm {limits} "
             f"(generations x the {_label(C.METHODS[0])} seconds per generation measured on this machine, "
             "claims.SECONDS_PER_GENERATION); generation cap "
@@ -320,7 +340,8 @@ def _what(result) -> list[str]:
             "generation not counted in the budget. The fixed runs are the equal-budget runs above.",
             "- **Held-out error** of a run: the median over 2,000 held-out goals (lab.experiments.arms, drawn apart "
             "from every training goal) of the end-effector position error of its final best controller, in mm "
-            "for the real arms (UR5, Panda) and in the paper's units otherwise; curves: the same at "
+            f"for the robots in metres ({', '.join(_in_metres())}) and in the paper's units otherwise; on a tree of "
+            "several end effectors the median over goals and effectors; curves: the same at "
             f"{C.CHECKPOINTS} log-spaced points of each run's budget.",
             f"- **Stuck in a poor optimum**: held-out error above {C.POOR_FACTOR:g}x the best run of any method on "
             f"that arm in that setting, and, separately, above {100 * C.POOR_REACH:g}% of the arm's reach. "
@@ -350,7 +371,7 @@ def claims_md(result, outputs_seconds: float) -> str:
             per_setting[kind][robot] = num
             tests += welch_rows(result, robot, kind, itertools.combinations(C.METHODS, 2))
         md += [f"## Claim (ii) at {SETTINGS[kind]}\n",
-               "Held-out errors in mm for ur5 and panda, in the paper's units otherwise; generations, evaluations "
+               f"Held-out errors in mm for {', '.join(_in_metres())}, in the paper's units otherwise; generations, evaluations "
                "and seconds are medians over runs.\n", md_table(TABLE_HEADER, rows, left=2),
                "Welch's unequal-variance t-test on the runs' held-out errors, per pair of methods:\n",
                md_table(WELCH_HEADER, tests, left=2)]

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import time
 
+TREE = "talos-legs"  # the tree whose kernels are compiled (every tree shares them)
+
 
 def compile_kernels(progress=None) -> float:
     """Call every kernel once (forward kinematics, each method's fitness, controllers); seconds taken.
@@ -29,10 +31,12 @@ def compile_kernels(progress=None) -> float:
     q = arm.sample_q(2, seed=0)
     arm.fk(q)
     arm.joint_positions(q)
+    tree = robots.load(TREE)
     for k, method in enumerate(names, 2):
         say(f"compiling kernels ({k}/{len(names) + 1}): {methods.get(method).label} fitness and controller")
-        run = evolve("planar", method, generations=2, population=10, targets=5, test_goals=5, seed=0)
-        run.controller(arm.sample_goals(2, seed=1))
+        for robot in (arm, tree):  # a serial arm's kernels and a tree's (several end effectors)
+            run = evolve(robot.name, method, generations=2, population=10, targets=5, test_goals=5, seed=0)
+            run.controller(robot.sample_goals(2, seed=1))
     return time.perf_counter() - t
 
 
