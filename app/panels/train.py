@@ -38,8 +38,9 @@ REAL_ARM_BUDGET = 30.0
 
 
 def budget_for(robot: str) -> float:
-    """The time budget field's value when `robot` is picked: REAL_ARM_BUDGET on a real arm, else 0 (none)."""
-    return REAL_ARM_BUDGET if robots.kind(robot) == "real" else 0.0
+    """The time budget field's value when `robot` is picked: REAL_ARM_BUDGET on a real arm or a tree
+    (a real robot of several end effectors), else 0 (none)."""
+    return REAL_ARM_BUDGET if robots.kind(robot) in ("real", "tree") else 0.0
 
 def expectation(robot: str, method: str, seconds: float | None) -> str:
     """What `method` is measured to reach on `robot` in `seconds` (lab.experiments.budgets), in words,
@@ -81,7 +82,7 @@ class TrainingPanel:
         # what a presenter uses comes first, so that it is in view on a projector (1366 x 768): the
         # arm and method, the run controls, the speed, the progress and the convergence plot; the
         # numbers behind a run, the race and the method's views follow
-        self.robot = gui.add_dropdown("Robot", robots.names(), initial_value=state.arm.name)
+        self.robot = gui.add_dropdown("Robot", robots.names(trees=True), initial_value=state.arm.name)
         self.method = gui.add_dropdown("Method", tuple(m.label for m in methods.all_methods()),
                                        initial_value=methods.get(d.method).label)
         self.expected = gui.add_markdown(expectation(d.robot, d.method, d.seconds))  # what it will be worth
