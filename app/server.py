@@ -254,8 +254,9 @@ class LabApp:
         scene.add_grid("/floor", width=1.6 * size, height=1.6 * size, cell_size=ws["cell"],
                        section_size=10 * ws["cell"], position=(ws["center"][0], ws["center"][1], ws["floor_z"]))
         goals = self.training_goals()
+        # a tree's goals are a point per effector each (4 x 70 on a humanoid): smaller, so the robot shows
         scene.add_point_cloud("/training_goals", points=goals.astype(np.float32), colors=(200, 30, 30),
-                              point_size=0.008 * size, point_shape="circle")
+                              point_size=(0.004 if arm.is_tree else 0.008) * size, point_shape="circle")
         self._map_z = -0.05 * size  # just under the planar arm (its visuals reach z = -0.04 size)
         self._floor_z = ws["floor_z"] + 0.002 * size  # a spatial arm's map lies on the floor
         if self._drawn[1] is not arm:  # each arm opens with its own default
