@@ -239,4 +239,8 @@ def test_a_recorded_tree_run_replays(app, tab):
         q = expected(goal[None])[0]
         g = session.goals[0]
         assert wait_until(lambda: np.allclose(g.errors, np.linalg.norm(arm.reach(q) - goal, axis=-1)), 10)
+    # the population the recording logged at that generation: every effector's point of each candidate
+    recorded = state.replayed_population
+    assert recorded is not None and recorded.points.shape == (len(recorded), arm.n_effectors, 3)
+    assert wait_until(lambda: g.cloud is not None and np.allclose(g.cloud.points, recorded.points.reshape(-1, 3)), 10)
     app.runs.live()

@@ -68,8 +68,15 @@ class GoalExtras:
             segments = np.stack([chain[:, parents[child]], chain[:, child]], axis=2).reshape(-1, 2, 3)
             light = (0.45 * per_candidate.astype(float) + 0.55 * 255).astype(np.uint8)
             seg_colors = np.repeat(light, len(child), axis=0)[:, None, :].repeat(2, axis=1)
-            self.faint = scene.add_line_segments(f"{base}/population_arms", segments.astype(np.float32), seg_colors,
-                                                 thickness=0.003 * size)
+            segments = segments.astype(np.float32)
+            if self.faint is not None and np.shape(self.faint.points) == segments.shape:
+                # the same node, new values (as the cloud): a tree's faint arms are thousands of segments
+                self.faint.points, self.faint.colors = segments, seg_colors
+                if not self.faint.visible:
+                    self.faint.visible = True
+            else:
+                self.faint = scene.add_line_segments(f"{base}/population_arms", segments, seg_colors,
+                                                     thickness=0.003 * size)
         elif self.faint is not None:
             self.faint.visible = False
 
