@@ -244,3 +244,21 @@ def test_a_recorded_tree_run_replays(app, tab):
     assert recorded is not None and recorded.points.shape == (len(recorded), arm.n_effectors, 3)
     assert wait_until(lambda: g.cloud is not None and np.allclose(g.cloud.points, recorded.points.reshape(-1, 3)), 10)
     app.runs.live()
+
+
+def test_a_shipped_tree_controller_is_picked_up_and_a_missing_one_is_trained(tmp_path, monkeypatch):
+    """app/pretrained/<tree>-<method>.json, in the serial arms' format, opens the tree; without one
+    a quick run is trained instead (as for an arm)."""
+    import app.startup as startup
+    from lab.experiments import arms
+
+    monkeypatch.setattr(startup, "PRETRAINED_DIR", str(tmp_path))
+    controller, note = startup.startup_controller("talos-legs")  # no file: a quick run
+    assert note.startswith("trained at startup") and startup.made_for(controller, robots.load("talos-legs"))
+    run = lab.evolve("talos-legs", generations=5, population=10, seed=0)
+    path = startup.write_pretrained(run, arms.held_out(robots.load("talos-legs"), run.controller))
+    assert path == str(tmp_path / "talos-legs-cmaes.json")
+    controller, note = startup.startup_controller("talos-legs")
+    assert note.startswith("shipped (5 generations, median error")
+    goals = robots.load("talos-legs").sample_goals(3, seed=1)
+    np.testing.assert_allclose(controller(goals), run.controller(goals))
