@@ -58,7 +58,7 @@ class GoalExtras:
             if not self.cloud.visible:
                 self.cloud.visible = True
         else:
-            self.cloud = scene.add_point_cloud(f"{base}/population", points, colors, point_size=0.015 * size,
+            self.cloud = scene.add_point_cloud(f"{base}/population", points, colors, point_size=self.tab.ws["point"],
                                                point_shape="circle", precision="float32")
         if faint:
             arm = self.tab.arm

@@ -76,7 +76,8 @@ def frame_workspace(arm: robots.Arm) -> dict:
     around all its effectors' boxes for the camera and floor, each effector's own for its marker).
 
     limits: one (x, y, z) range triple per end effector; gizmo: the markers' size (on a tree at most
-    0.8 x the smallest distance between two effectors at rest, so a hand's fingertips keep apart)."""
+    0.8 x the smallest distance between two effectors at rest, so a hand's fingertips keep apart);
+    point: the population's point size."""
     lo3, hi3 = (arm.to_3d(b).reshape(-1, 3) for b in arm.workspace_bounds)  # (E, 3) each
     box_lo, box_hi = lo3.min(axis=0), hi3.max(axis=0)
     size = float(np.max((box_hi - box_lo)[list(arm.task_axes)]))
@@ -85,12 +86,14 @@ def frame_workspace(arm: robots.Arm) -> dict:
     limits = [tuple((float(a - m), float(b + m)) if k in arm.task_axes else (0.0, 0.0)
                     for k, (a, b, m) in enumerate(zip(lo, hi, mg))) for lo, hi, mg in zip(lo3, hi3, margin)]
     floor_z = float(box_lo[2] - 0.08 * size) if 2 in arm.task_axes else -0.12 * size
-    gizmo = 0.2 * size
+    gizmo, point, view = 0.2 * size, 0.015 * size, np.array([-0.15, -0.75, 0.65])
     if arm.is_tree:
         rest = arm.fk(arm.rest)  # (E, 3)
         apart = np.linalg.norm(rest[:, None] - rest[None], axis=-1)[np.triu_indices(len(rest), 1)]
         gizmo = min(gizmo, 0.8 * float(apart.min()))
+        point = 0.4 * point  # E points per candidate: smaller, so that the feet and fingers still show
+        view = np.array([0.35, -0.8, 0.4])  # lower and more from the front: a standing robot, a hand
     return dict(
         center=center, size=size, limits=limits, floor_z=floor_z, label_offset=np.array([0.03, 0.03, 0.0]) * size,
-        camera=center + size * np.array([-0.15, -0.75, 0.65]), cell=10 ** np.floor(np.log10(size / 4)), gizmo=gizmo,
+        camera=center + size * view, cell=10 ** np.floor(np.log10(size / 4)), gizmo=gizmo, point=point,
     )
