@@ -11,6 +11,8 @@ poses, whatever the number of meshes.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pinocchio as pin
 
@@ -71,15 +73,35 @@ def to_world(arm: robots.Arm, goal) -> np.ndarray:
     return arm.to_3d(goal)
 
 
+@functools.lru_cache(maxsize=16)
+def body_bounds(arm: robots.Arm) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (3,) of the arm's visual geometry at rest: its meshes' vertices, its primitives'
+    centres (a tree's body: a humanoid's torso and head stand far above its feet's workspace)."""
+    data = arm.model.createData()
+    pin.forwardKinematics(arm.model, data, arm.to_pinocchio(arm.rest))
+    points = [np.zeros((1, 3))]
+    for j, pos, wxyz, kind, params, _rgba in visual_geometry(arm):
+        M = data.oMi[j]
+        local = params[0].astype(np.float64) if kind == "Mesh" else np.zeros((1, 3))
+        R = pin.Quaternion(float(wxyz[0]), float(wxyz[1]), float(wxyz[2]), float(wxyz[3])).toRotationMatrix()
+        points.append((local @ R.T + pos) @ M.rotation.T + M.translation)
+    points = np.concatenate(points)
+    return points.min(axis=0), points.max(axis=0)
+
+
 def frame_workspace(arm: robots.Arm) -> dict:
     """Camera, floor and goal-marker limits for an arm, from its workspace bounds (a tree's: the box
-    around all its effectors' boxes for the camera and floor, each effector's own for its marker).
+    around all its effectors' boxes and its body at rest for the camera and floor, each effector's
+    own box for its marker).
 
     limits: one (x, y, z) range triple per end effector; gizmo: the markers' size (on a tree at most
     0.8 x the smallest distance between two effectors at rest, so a hand's fingertips keep apart);
     point: the population's point size."""
     lo3, hi3 = (arm.to_3d(b).reshape(-1, 3) for b in arm.workspace_bounds)  # (E, 3) each
     box_lo, box_hi = lo3.min(axis=0), hi3.max(axis=0)
+    if arm.is_tree:  # the camera and floor take in the whole robot, not only where its effectors go
+        body_lo, body_hi = body_bounds(arm)
+        box_lo, box_hi = np.minimum(box_lo, body_lo), np.maximum(box_hi, body_hi)
     size = float(np.max((box_hi - box_lo)[list(arm.task_axes)]))
     center = 0.5 * (box_lo + box_hi)
     margin = 0.25 * (hi3 - lo3)  # markers may leave the workspace: unreachable goals are allowed
