@@ -33,7 +33,8 @@ from app.training.live import decimate, lead_line, sample
 from app.training.state import SPEEDS, run_label, speed_label
 
 # a real arm's time budget in the panel: s of optimizer time, within which CMA-ES's defaults for it
-# bring every real arm to about 1 % of its reach (docs/results/budgets.md)
+# bring every real arm to about 1 % of its reach (docs/results/budgets.md); a tree gets it too (not
+# measured there: the panel quotes no expectation for a tree)
 REAL_ARM_BUDGET = 30.0
 
 
