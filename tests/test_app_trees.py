@@ -262,3 +262,32 @@ def test_a_shipped_tree_controller_is_picked_up_and_a_missing_one_is_trained(tmp
     assert note.startswith("shipped (5 generations, median error")
     goals = robots.load("talos-legs").sample_goals(3, seed=1)
     np.testing.assert_allclose(controller(goals), run.controller(goals))
+
+
+def test_a_lesson_link_on_a_tree_opens_it_in_another_tab(app, tab):
+    from urllib.parse import unquote
+
+    from app.classroom.lesson import lesson_params
+    from app.probe import Probe
+
+    panel = app.panel
+    session = session_of(app, tab)
+    on(app, tab, "g1")
+    panel.seed.value = 3
+    params = lesson_params(panel)
+    assert params["robot"] == "g1"
+    assert wait_until(lambda: "Open this lesson" in session.lesson.content and "g1" in session.lesson.content
+                      and "seed 3" in session.lesson.content, 5)
+    link = session.lesson.content.split("](", 1)[1].split(")", 1)[0]
+    on(app, tab, "talos-legs")
+    other = Probe(unquote(link.split("?websocket=", 1)[1]).replace("ws://", "http://")).start()
+    try:
+        other.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+        assert wait_until(lambda: lesson_params(panel) == params, 10), (lesson_params(panel), params)
+        assert app.state.arm.name == "g1"
+        assert wait_until(lambda: marker_name(0, 3) in {m["name"] for _t, m in list(other.messages)
+                                                         if m["type"] == "TransformControlsMessage"}, 10)
+    finally:
+        other.close()
+        panel.seed.value = 0
+        on(app, tab, "talos-legs")
