@@ -68,7 +68,7 @@ def parse(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m app", description="Neuro-IK Lab in the browser (viser).")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
     p.add_argument("--port", type=int, default=8080, help="port; viser takes the next free one when taken")
-    p.add_argument("--robot", default="planar", help="the arm shown first")
+    p.add_argument("--robot", default="planar", help="the arm (or tree of several end effectors: g1, allegro, ...) shown first")
     p.add_argument("--notebook", default=os.path.join("recordings", "notebook.db"),
                    help="the runs list (SQLite; a notebook.json of earlier versions is imported once), kept across restarts")
     p.add_argument("--recordings", default="recordings", help="folder of the runs' Rerun recordings")
@@ -117,8 +117,9 @@ def main(argv=None) -> int:
         return 2
     import robots
 
-    if args.robot not in robots.names():
-        print(f"error: unknown robot {args.robot!r}; known robots: {', '.join(robots.names())}", file=sys.stderr)
+    if args.robot not in robots.names(trees=True):
+        print(f"error: unknown robot {args.robot!r}; known robots: {', '.join(robots.names(trees=True))}",
+              file=sys.stderr)
         return 2
     if not 0 <= args.port < 65536:
         print(f"error: --port must be in 0..65535, got {args.port}", file=sys.stderr)

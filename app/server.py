@@ -34,7 +34,7 @@ from app.classroom.lesson import lesson_link, lesson_params, open_lesson
 from app.classroom.limits import limits_for
 from app.panels.runs import RunsPanel
 from app.panels.train import TrainingPanel, notify
-from app.panels.views import error_map, map_grid, network_svg
+from app.panels.views import error_map, has_map, map_grid, network_svg
 from app.tab.goals import MORE, REDRAW_PERIOD, TabSession, fmt_len
 from app.tab.replay import TabReplay
 from app.tab.scene import frame_workspace
@@ -164,7 +164,7 @@ class LabApp:
             self.runs = RunsPanel(gui, self)
         with tabs.add_tab("About", viser.Icon.INFO_CIRCLE):
             gui.add_markdown(MORE)
-        self.show_map.on_update(lambda e: setattr(self._map, "visible", self.show_map.value))
+        self.show_map.on_update(lambda e: setattr(self._map, "visible", self.show_map.value and has_map(self.state.arm)))
         self._drawn = (-1, None)  # (shown version, arm) of the map and the network
         # the render loop and callers must not interleave draws, nor rebuilds of the shared scene (two
         # threads adding /floor at once make viser remove the handle the other is still setting up)
@@ -254,12 +254,14 @@ class LabApp:
         scene.add_grid("/floor", width=1.6 * size, height=1.6 * size, cell_size=ws["cell"],
                        section_size=10 * ws["cell"], position=(ws["center"][0], ws["center"][1], ws["floor_z"]))
         goals = self.training_goals()
+        # a tree's goals are a point per effector each (4 x 70 on a humanoid): smaller, so the robot shows
         scene.add_point_cloud("/training_goals", points=goals.astype(np.float32), colors=(200, 30, 30),
-                              point_size=0.008 * size, point_shape="circle")
+                              point_size=(0.004 if arm.is_tree else 0.008) * size, point_shape="circle")
         self._map_z = -0.05 * size  # just under the planar arm (its visuals reach z = -0.04 size)
         self._floor_z = ws["floor_z"] + 0.002 * size  # a spatial arm's map lies on the floor
         if self._drawn[1] is not arm:  # each arm opens with its own default
             self.show_map.value = len(arm.task_axes) == 2
+            self.show_map.disabled = not has_map(arm)  # a tree's goal is a point per effector: no map
         self._map = scene.add_image("/error_map", np.zeros((1, 1, 4), np.uint8), 1.0, 1.0, visible=False)
         self._drawn = (-1, arm)  # built for this arm: the render loop draws the views, without a second build
 
@@ -268,7 +270,7 @@ class LabApp:
         arm = self.state.arm
         r = self.state.runner
         goals = r.problem.train_goals if r is not None and r.problem.arm is arm else arm.sample_goals(70, seed=0)
-        return arm.to_3d(goals)
+        return arm.to_3d(goals).reshape(-1, 3)  # a tree's: every effector's point of every goal
 
     def _draw_views(self) -> None:
         """Error map and network of the shown controller, when it has changed."""
@@ -282,6 +284,13 @@ class LabApp:
         if self._drawn[1] is not shown.arm:
             self._build_shared()
         self._drawn = (shown.version, shown.arm)
+        self.network.content = network_svg(shown.controller)
+        if not has_map(shown.arm):
+            self._map.visible = False
+            self.map_legend.content = (
+                f"No error map on the {shown.arm.name}: a goal there is a point for each of its "
+                f"{shown.arm.n_effectors} end effectors, not one point of a plane.")
+            return
         image, err, scale = error_map(shown.arm, shown.controller)
         grid = map_grid(shown.arm)
         z = self._floor_z if len(shown.arm.task_axes) == 3 else self._map_z
@@ -298,7 +307,6 @@ class LabApp:
             + (f"Median {fmt_len(arm, float(np.median(finite)))}, max {fmt_len(arm, float(finite.max()))}."
                if len(finite) else "No controller.")
         )
-        self.network.content = network_svg(shown.controller)
 
     # ------------------------------------------------------------------ render loop
     def _loop(self) -> None:

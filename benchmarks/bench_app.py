@@ -3,12 +3,14 @@
     python benchmarks/bench_app.py                  # 10 tabs, one dragging; 4 rounds of 6 s each
     python benchmarks/bench_app.py --clients 10 --dragging 10 --hz 10   # every tab drags
     python benchmarks/bench_app.py --no-population  # the tabs' population view off (it is on by default)
+    python benchmarks/bench_app.py --robot g1       # another arm or a tree (g1: 29 joints, 4 effectors)
 
 Two numbers, measured side by side in rounds (headless then app, app then headless, ...):
 
 1. Marker update -> pose sent, with `--clients` tabs connected while a run trains. Every tab
    is a headless websocket client (app/probe.py) in a separate process; `--dragging` of them
-   drag their own goal marker `--hz` times a second; for each drag it times from sending the update to receiving
+   drag their own goal marker `--hz` times a second (on a tree, one effector's marker at a time, to
+   reachable goals); for each drag it times from sending the update to receiving
    the arm's new pose (the loopback round trip, client decoding included), and the server
    side is timed from the update's arrival in viser's event loop (a handler placed first in
    its handler list) to the new pose being flushed to the sender, in the marker callback.
@@ -151,7 +153,7 @@ def with_app(app, clients: int, dragging: int, seconds: float, hz: float, popula
 
     sys.setswitchinterval(SWITCH_INTERVAL)
     proc = subprocess.Popen([sys.executable, __file__, "--serve-clients", app.url, str(clients), str(dragging),
-                             str(seconds), str(hz)],
+                             str(seconds), str(hz), CONFIG["robot"]],
                             stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().strip() == "connected"
     deadline = time.monotonic() + 30
@@ -185,7 +187,27 @@ def with_app(app, clients: int, dragging: int, seconds: float, hz: float, popula
                 app_cpu=(cpu1 - cpu0) / (t1 - t0), client_cpu=out["cores"])
 
 
-def serve_clients(url: str, clients: int, dragging: int, seconds: float, hz: float) -> None:
+def drag_targets(robot: str, seed: int):
+    """An endless stream of (marker name, 3D position) a dragging tab sends: the planar arm's goals
+    drawn over its workspace and beyond, as before; another arm's or a tree's, reachable goals (on
+    a tree each drag moves one effector's marker, in turn)."""
+    import robots
+    from app.tab.goals import marker_name
+
+    rng = np.random.default_rng(seed)
+    if robot == "planar":
+        while True:
+            yield marker_name(0), (rng.uniform(-5, 20), rng.uniform(-15, 20), 0.0)
+    arm = robots.load(robot)
+    points = arm.to_3d(arm.sample_goals(500, seed=seed)).reshape(500, -1, 3)
+    k = 0
+    while True:
+        e = k % points.shape[1]
+        yield marker_name(0, e), tuple(points[rng.integers(len(points)), e])
+        k += 1
+
+
+def serve_clients(url: str, clients: int, dragging: int, seconds: float, hz: float, robot: str = "planar") -> None:
     """The client process: `clients` tabs, the first `dragging` of them dragging their marker `hz`
     times a second (the others only receive what the server sends)."""
     import asyncio
@@ -208,12 +230,12 @@ def serve_clients(url: str, clients: int, dragging: int, seconds: float, hz: flo
     lock = threading.Lock()
 
     def drag(k: int, probe) -> None:
-        rng = np.random.default_rng(k)
+        targets = drag_targets(robot, k)
         end, period = time.perf_counter() + seconds, 1.0 / hz
         while time.perf_counter() < end:
             t = time.perf_counter()
-            goal = (rng.uniform(-5, 20), rng.uniform(-15, 20), 0.0)
-            dt = probe.drag("/tab/goal0/marker", goal)
+            name, goal = next(targets)
+            dt = probe.drag(name, goal)
             with lock:
                 rtts.append(dt)
             time.sleep(max(0.0, period - (time.perf_counter() - t)))
@@ -329,11 +351,11 @@ def soak(app, seconds: float, tabs: int = 10, run_seconds: float = 20.0) -> None
             probe.messages[:] = [(t, m) for t, m in probe.messages if keep(m)]
 
     def drag() -> None:
-        rng = np.random.default_rng(0)
+        targets = drag_targets(CONFIG["robot"], 0)
         while not stop.is_set():
-            trim(probes[0], keep=lambda m: m.get("name") == "/tab/goal0/marker")
+            trim(probes[0], keep=lambda m: m.get("name", "").startswith("/tab/goal0/marker"))
             try:
-                probes[0].drag("/tab/goal0/marker", (rng.uniform(-5, 20), rng.uniform(-15, 20), 0.0))
+                probes[0].drag(*next(targets))
             except TimeoutError:
                 pass
             stop.wait(0.1)
@@ -388,10 +410,13 @@ def pct(x, q) -> float:
 
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--serve-clients":
-        serve_clients(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), float(sys.argv[5]), float(sys.argv[6]))
+        serve_clients(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), float(sys.argv[5]), float(sys.argv[6]),
+                      sys.argv[7])
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--clients", type=int, default=10)
+    ap.add_argument("--robot", default=CONFIG["robot"],
+                    help="the arm (or tree) shown, trained and dragged (default: %(default)s)")
     ap.add_argument("--seconds", type=float, default=6.0)
     ap.add_argument("--rounds", type=int, default=4)
     ap.add_argument("--dragging", type=int, default=1, help="how many of the tabs drag their marker")
@@ -406,11 +431,17 @@ def main() -> None:
     ap.add_argument("--run-seconds", type=float, default=20.0,
                     help="--soak: each run's length (as long as the soak: one long run)")
     args = ap.parse_args()
+    import robots
     from app.server import LabApp
+
+    if args.robot not in robots.names(trees=True):
+        ap.error(f"unknown robot {args.robot!r}; known robots: {', '.join(robots.names(trees=True))}")
+    CONFIG["robot"] = args.robot
 
     tracebacks = count_tracebacks()
     folder = tempfile.mkdtemp(prefix="bench-app-")
-    app = LabApp(port=0, notebook=os.path.join(folder, "notebook.json"), recordings=folder, record=args.record,
+    app = LabApp(port=0, robot=args.robot, notebook=os.path.join(folder, "notebook.json"), recordings=folder,
+                 record=args.record,
                  presenter_token="bench-presenter" if args.classroom else None)
     if args.cycles or args.soak:
         try:
@@ -447,7 +478,7 @@ def main() -> None:
     per_cpu_h = np.mean([h["rate"] / h["runner_cpu"] for h in heads])
     per_cpu_a = np.mean([a["rate"] / a["runner_cpu"] for a in apps])
     print(f"\n{args.clients} tabs connected (population view {'on' if args.population else 'off'}), "
-          f"{args.dragging} dragging at {args.hz:g} Hz, while planar CMA-ES "
+          f"{args.dragging} dragging at {args.hz:g} Hz, while {args.robot} CMA-ES "
           f"(population 50) trains{', both recording' if args.record else ''}, "
           f"{args.rounds} x {args.seconds:g} s, {os.cpu_count()} cores, load average before {load[0]:.1f}, "
           f"after {os.getloadavg()[0]:.1f}")

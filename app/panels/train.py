@@ -33,13 +33,15 @@ from app.training.live import decimate, lead_line, sample
 from app.training.state import SPEEDS, run_label, speed_label
 
 # a real arm's time budget in the panel: s of optimizer time, within which CMA-ES's defaults for it
-# bring every real arm to about 1 % of its reach (docs/results/budgets.md)
+# bring every real arm to about 1 % of its reach (docs/results/budgets.md); a tree gets it too (not
+# measured there: the panel quotes no expectation for a tree)
 REAL_ARM_BUDGET = 30.0
 
 
 def budget_for(robot: str) -> float:
-    """The time budget field's value when `robot` is picked: REAL_ARM_BUDGET on a real arm, else 0 (none)."""
-    return REAL_ARM_BUDGET if robots.kind(robot) == "real" else 0.0
+    """The time budget field's value when `robot` is picked: REAL_ARM_BUDGET on a real arm or a tree
+    (a real robot of several end effectors), else 0 (none)."""
+    return REAL_ARM_BUDGET if robots.kind(robot) in ("real", "tree") else 0.0
 
 def expectation(robot: str, method: str, seconds: float | None) -> str:
     """What `method` is measured to reach on `robot` in `seconds` (lab.experiments.budgets), in words,
@@ -81,7 +83,7 @@ class TrainingPanel:
         # what a presenter uses comes first, so that it is in view on a projector (1366 x 768): the
         # arm and method, the run controls, the speed, the progress and the convergence plot; the
         # numbers behind a run, the race and the method's views follow
-        self.robot = gui.add_dropdown("Robot", robots.names(), initial_value=state.arm.name)
+        self.robot = gui.add_dropdown("Robot", robots.names(trees=True), initial_value=state.arm.name)
         self.method = gui.add_dropdown("Method", tuple(m.label for m in methods.all_methods()),
                                        initial_value=methods.get(d.method).label)
         self.expected = gui.add_markdown(expectation(d.robot, d.method, d.seconds))  # what it will be worth

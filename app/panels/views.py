@@ -44,10 +44,17 @@ class MapGrid:
         return np.array([*(self.origin + 0.5 * self.n * self.cell), self.z])
 
 
+def has_map(arm: robots.Arm) -> bool:
+    """Whether the arm has an error map: one end effector (a tree's goal is a point per effector)."""
+    return not arm.is_tree
+
+
 @functools.lru_cache(maxsize=16)
 def map_grid(arm: robots.Arm, n: int | None = None) -> MapGrid:
     """The plane: 64 x 64 cells from 20,000 joint samples; a 3D arm's slice: 40 x 40 cells from
-    400,000 samples (a slab one cell thick holds few of them)."""
+    400,000 samples (a slab one cell thick holds few of them). ValueError on a tree (has_map)."""
+    if not has_map(arm):
+        raise ValueError(f"{arm.name} has {arm.n_effectors} end effectors: an error map needs one")
     planar = len(arm.task_axes) == 2
     n = n or (GRID if planar else GRID_3D)
     samples = arm.fk(arm.sample_q(20_000 if planar else 400_000, seed=4321))  # (k, 3)

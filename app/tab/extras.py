@@ -30,39 +30,53 @@ class GoalExtras:
             view.visible = False
             self.partner_error = np.nan
             return
-        q = controller(self.goal[None])[0]
-        self.partner_error = float(np.linalg.norm(self.tab.arm.reach(q) - self.goal))
+        goal = self.goal
+        q = controller(goal[None])[0]
+        self.partner_error = float(np.max(np.linalg.norm(self.tab.arm.reach(q) - goal, axis=-1)))  # the worst effector
         with self.tab.client.atomic():
             view.set_q(q)
             if not view.visible:
                 view.visible = True
 
     def draw_population(self, reach: np.ndarray | None, q: np.ndarray | None, colors, faint: bool) -> None:
-        """The population's end-effector points (n, 3) at this goal, and with `faint` each candidate's
-        arm as a faint polyline (q: (n, nq)); reach None hides them."""
+        """The population's end-effector points (n, 3) at this goal ((n, E, 3) on a tree: every
+        effector's), and with `faint` each candidate's arm as faint segments (q: (n, nq); a tree's
+        each joint to its parent, arm.point_parents); reach None hides them. colors: (n, 3), one per
+        candidate."""
         scene, size, base = self.tab.client.scene, self.tab.ws["size"], f"/tab/goal{self.index}"
         if reach is None:
             for h in (self.cloud, self.faint):
                 if h is not None:
                     h.visible = False
             return
-        points = np.ascontiguousarray(reach, dtype=np.float32)
-        colors = np.ascontiguousarray(colors, dtype=np.uint8)
+        points = np.ascontiguousarray(np.reshape(reach, (-1, 3)), dtype=np.float32)
+        per_candidate = np.asarray(colors, dtype=np.uint8)
+        colors = np.ascontiguousarray(np.repeat(per_candidate, len(points) // max(len(per_candidate), 1), axis=0))
         if self.cloud is not None and len(np.asarray(self.cloud.points)) == len(points):
             # the same node, new values: about 0.1 ms against 0.7 ms for adding it again
             self.cloud.points, self.cloud.colors = points, colors
             if not self.cloud.visible:
                 self.cloud.visible = True
         else:
-            self.cloud = scene.add_point_cloud(f"{base}/population", points, colors, point_size=0.015 * size,
+            self.cloud = scene.add_point_cloud(f"{base}/population", points, colors, point_size=self.tab.ws["point"],
                                                point_shape="circle", precision="float32")
         if faint:
-            chain = self.tab.arm.joint_positions(q)  # (n, nq + 2, 3)
-            segments = np.stack([chain[:, :-1], chain[:, 1:]], axis=2).reshape(-1, 2, 3)
-            light = (0.45 * np.asarray(colors, float) + 0.55 * 255).astype(np.uint8)
-            seg_colors = np.repeat(light, chain.shape[1] - 1, axis=0)[:, None, :].repeat(2, axis=1)
-            self.faint = scene.add_line_segments(f"{base}/population_arms", segments.astype(np.float32), seg_colors,
-                                                 thickness=0.003 * size)
+            arm = self.tab.arm
+            chain = arm.joint_positions(q)  # (n, 1 + nq + E, 3): the base, the joints, the effectors
+            parents = arm.point_parents
+            child = np.flatnonzero(parents >= 0)  # a serial arm: a polyline, each point to the one before
+            segments = np.stack([chain[:, parents[child]], chain[:, child]], axis=2).reshape(-1, 2, 3)
+            light = (0.45 * per_candidate.astype(float) + 0.55 * 255).astype(np.uint8)
+            seg_colors = np.repeat(light, len(child), axis=0)[:, None, :].repeat(2, axis=1)
+            segments = segments.astype(np.float32)
+            if self.faint is not None and np.shape(self.faint.points) == segments.shape:
+                # the same node, new values (as the cloud): a tree's faint arms are thousands of segments
+                self.faint.points, self.faint.colors = segments, seg_colors
+                if not self.faint.visible:
+                    self.faint.visible = True
+            else:
+                self.faint = scene.add_line_segments(f"{base}/population_arms", segments, seg_colors,
+                                                     thickness=0.003 * size)
         elif self.faint is not None:
             self.faint.visible = False
 
@@ -124,7 +138,7 @@ class TabExtras:
                                               False)
             return
         q = population.joints(goals)  # (n, goals, nq)
-        reach = self.arm.fk(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:2], 3)
+        reach = self.arm.fk(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:2], -1, 3)  # (n, goals, E, 3)
         colors = candidate_colors(population, self.by_species.value)
         with self.client.atomic():
             for k, g in enumerate(self.goals):

@@ -1,8 +1,10 @@
 """One browser tab: its own goal markers, the arms at the controller's pose, the IK ghost.
 
-Each goal is a transform gizmo constrained to the task axes (the plane z = 0 for the planar
-arm), an arm drawn at q = controller(goal) (the first solid, the others translucent) and a
-label with the end-effector error ||goal - reach(q)||. The first goal also has two ghost arms:
+Each goal is a transform gizmo per end effector (one on a serial arm; a foot, a hand, a fingertip
+each on a tree), constrained to the task axes (the plane z = 0 for the planar arm), an arm drawn
+at q = controller(goal) (the first solid, the others translucent) and a label with the
+end-effector error ||goal - reach(q)|| (on a tree the worst effector's, beside the marker dragged
+last). The first goal also has two ghost arms:
 the network's answer refined by one closed-form turn of the base joint and at most 3 Gauss-Newton
 steps (robots.ik.refine: the practical use of a learned IK), and damped least squares from the rest pose (robots.ik.dls_ik), each with
 its error and time.
@@ -38,6 +40,8 @@ from app.viser_private import set_pose
 
 MAX_GOALS = 8
 INTRO = "**Drag the arrows** to move the goal: the arm follows a neural network. **Start** trains a new one."
+INTRO_TREE = ("**Drag the arrows** of a foot, a hand or a fingertip: the whole robot follows a neural network. "
+              "**Start** trains a new one.")
 ABOUT = ("A small tanh network maps a goal to joint angles. It is never shown a right answer: its "
          "fitness is the arm's error over 70 fixed goals, through forward kinematics. CMA-ES evolves "
          "its weights; NEAT its wiring too. After Martín, de Lope and Santos (2009).")
@@ -70,36 +74,67 @@ def fmt_len(arm: robots.Arm, d: float) -> str:
     return f"{1000 * d:.1f} mm" if d >= 1e-3 else f"{1e6 * d:.0f} µm"
 
 
+def marker_name(index: int, effector: int = 0) -> str:
+    """The scene node of goal `index`'s marker for one end effector: /tab/goal{index}/marker for the
+    first (a serial arm's only one), /tab/goal{index}/marker{effector} for the others of a tree."""
+    return f"/tab/goal{index}/marker{effector or ''}"
+
+
+def effector_errors(arm: robots.Arm, q, goal) -> np.ndarray:
+    """(E,) each end effector's distance ||goal - reach(q)|| (one entry on a serial arm)."""
+    return np.atleast_1d(np.linalg.norm(arm.reach(q) - goal, axis=-1))
+
+
 class GoalView(GoalExtras):
     def __init__(self, tab: "TabSession", index: int, position: np.ndarray):
+        """position: the goal's 3D point (3,), or one per end effector (E, 3) on a tree."""
         self.tab, self.index = tab, index
         arm, scene, ws = tab.arm, tab.client.scene, tab.ws
         base = f"/tab/goal{index}"
-        self.marker = scene.add_transform_controls(
-            f"{base}/marker", scale=0.2 * ws["size"], position=position, disable_rotations=True,
-            active_axes=tuple(k in arm.task_axes for k in range(3)), translation_limits=ws["limits"],
-            depth_test=False)
+        points = np.asarray(position, float).reshape(-1, 3)
+        if len(points) != arm.n_effectors:
+            raise ValueError(f"{arm.name}: a goal is {arm.n_effectors} point(s) (one per end effector), "
+                             f"got {len(points)}")
+        self.markers = [scene.add_transform_controls(
+            marker_name(index, e), scale=ws["gizmo"], position=p, disable_rotations=True,
+            active_axes=tuple(k in arm.task_axes for k in range(3)), translation_limits=ws["limits"][e],
+            depth_test=False) for e, p in enumerate(points)]
+        self.marker = self.markers[0]
+        self.dragged = 0  # the effector whose marker moved last: the label stands beside it
         self.arm_view = ArmView(scene, arm, f"{base}/arm", opacity=None if index == 0 else 0.35)
-        self.label = scene.add_label(f"{base}/label", "", position=position, anchor="bottom-left")
+        self.label = scene.add_label(f"{base}/label", "", position=points[0], anchor="bottom-left")
         self.ghost = ArmView(scene, arm, f"{base}/ik", opacity=0.3, tint=GHOST) if index == 0 else None
         self.refined = ArmView(scene, arm, f"{base}/refined", opacity=0.45, tint=REFINED) if index == 0 else None
         self.cloud = self.faint = None  # the population: end-effector points, faint arms
         self.partner_view = None  # a race partner's arm (goal 1 only), made when a race starts
         self.partner_error = np.nan
-        self.error, self.net_s = np.nan, np.nan
+        self.error, self.net_s = np.nan, np.nan  # error: the worst effector's
+        self.errors = np.full(arm.n_effectors, np.nan)  # each effector's
         self.ik = None
-        self.seeded = None  # (error, steps, seconds) of the network's answer refined
-        self.marker.on_update(self._on_update)
+        self.ik_error = np.nan  # the DLS answer's worst effector error
+        self.seeded = None  # (worst effector error, steps, seconds) of the network's answer refined
+        for e, marker in enumerate(self.markers):
+            marker.on_update(self._callback(e))
+
+    def _callback(self, effector: int):
+        async def moved(event) -> None:
+            await self._on_update(event, effector)
+        return moved
 
     @property
     def goal(self) -> np.ndarray:
-        return np.asarray(self.marker.position, float)[list(self.tab.arm.task_axes)]
+        """The goal in task coordinates: (len(task_axes),), or (E, len(task_axes)) on a tree."""
+        axes = list(self.tab.arm.task_axes)
+        if len(self.markers) == 1:
+            return np.asarray(self.marker.position, float)[axes]
+        return np.array([m.position for m in self.markers], float)[:, axes]
 
-    async def _on_update(self, _event) -> None:
+    async def _on_update(self, _event, effector: int = 0) -> None:
         """Runs in viser's event loop, which saves the hop to its thread pool (slow while training
         keeps the cores busy: docs/results/app-speed.md); when a redraw holds the tab's lock, the
         update goes to the thread pool rather than block the loop."""
         t0 = time.perf_counter()
+        self.dragged = effector
         if self.tab.lock.acquire(blocking=False):
             try:
                 self._move(t0)
@@ -113,7 +148,7 @@ class GoalView(GoalExtras):
             self._move(t0)
 
     def _move(self, t0: float) -> None:
-        if self.tab.closed or all(m is not self.marker for m in self.tab.markers()):
+        if self.tab.closed or all(g is not self for g in self.tab.goals):
             return
         self.update(self.tab.controller())
         if self.partner_view is not None:
@@ -130,29 +165,38 @@ class GoalView(GoalExtras):
         in every joint are not sent again."""
         arm, goal = self.tab.arm, self.goal
         if controller is None:
-            q, self.error, self.net_s = arm.rest, np.nan, np.nan
+            q, self.net_s = arm.rest, np.nan
+            self.errors = np.full(arm.n_effectors, np.nan)
         else:
             t = time.perf_counter()
             q = controller(goal[None])[0]
             self.net_s = time.perf_counter() - t
-            self.error = float(np.linalg.norm(arm.reach(q) - goal))
+            self.errors = effector_errors(arm, q, goal)
+        self.error = float(self.errors.max())
         with self.tab.client.atomic():  # one wake-up of the sender for all the messages
             if moved or self.arm_view.q is None or np.max(np.abs(q - self.arm_view.q)) > SAME_POSE:
                 self.arm_view.set_q(q)
             if moved:
-                set_pose(self.label, np.asarray(self.marker.position) + self.tab.ws["label_offset"], IDENTITY)
-            text = f"net {fmt_len(arm, self.error)}" if controller is not None else "no controller"
+                at = np.asarray(self.markers[min(self.dragged, len(self.markers) - 1)].position)
+                set_pose(self.label, at + self.tab.ws["label_offset"], IDENTITY)
+            text = "no controller" if controller is None else f"net {fmt_len(arm, self.error)}" + (
+                f" (worst of {len(self.markers)})" if len(self.markers) > 1 else "")
             if text != self.label.text:
                 self.label.text = text
 
-    def set_ik(self, result, seeded=None) -> None:
-        """The DLS answer (robots.ik.IKResult), and the refined network answer (RefineResult or None)."""
+    def set_ik(self, result, seeded=None, goal=None) -> None:
+        """The DLS answer (robots.ik.IKResult), and the refined network answer (RefineResult or None),
+        for `goal` (the goal they were solved for; by default the marker's); their errors as the
+        network's: the worst effector's distance."""
+        arm, goal = self.tab.arm, self.goal if goal is None else goal
         self.ik = result
+        self.ik_error = float(effector_errors(arm, result.q, goal).max())
         with self.tab.client.atomic():
             self.ghost.set_q(result.q)
             self.ghost.visible = True
             if seeded is not None:
-                self.seeded = (float(seeded.error[0]), int(seeded.steps[0]), seeded.seconds)
+                self.seeded = (float(effector_errors(arm, seeded.q[0], goal).max()), int(seeded.steps[0]),
+                               seeded.seconds)
                 self.refined.set_q(seeded.q[0])
             else:
                 self.seeded = None
@@ -165,7 +209,8 @@ class GoalView(GoalExtras):
         for h in (self.cloud, self.faint):
             if h is not None:
                 h.remove()
-        self.marker.remove()
+        for marker in self.markers:
+            marker.remove()
         self.label.remove()
 
 
@@ -182,7 +227,7 @@ class TabSession(TabExtras):
         self.goals: list[GoalView] = []
         gui = client.gui
         # what the lab is and what to do, above the shared panels (each tab its own copy)
-        self.intro = gui.add_markdown(INTRO, order=0)
+        self.intro = gui.add_markdown(INTRO, order=0)  # build() says what to drag on a tree
         with gui.add_folder("About this lab", order=0.5):
             self.about = gui.add_markdown(ABOUT)
         self.folder = gui.add_folder("Goals and what to draw (this tab)", order=2)
@@ -236,7 +281,7 @@ class TabSession(TabExtras):
         return shown.controller if shown.arm is self.arm else None
 
     def markers(self):
-        return [g.marker for g in self.goals]
+        return [m for g in self.goals for m in g.markers]
 
     def build(self) -> None:
         """(Re)build the goals for the state's current arm; camera framed on its workspace."""
@@ -246,6 +291,9 @@ class TabSession(TabExtras):
             self.goals = []
             self.arm = self.state.arm
             self.ws = frame_workspace(self.arm)
+            intro = INTRO_TREE if self.arm.is_tree else INTRO
+            if self.intro.content != intro:
+                self.intro.content = intro
             self.client.camera.position = self.ws["camera"]
             self.client.camera.look_at = self.ws["center"]
             self.add_goal(self._default_goal(0))
@@ -301,7 +349,7 @@ class TabSession(TabExtras):
             seeded = dataclasses.replace(seeded, seconds=time.perf_counter() - t0)
         with self.lock:
             if self.goals and self.goals[0] is goal and not self.closed:
-                goal.set_ik(result, seeded)
+                goal.set_ik(result, seeded, target)
                 self.client.flush()
                 self.table_dirty = True
                 if not np.allclose(goal.goal, target):
@@ -351,23 +399,30 @@ class TabSession(TabExtras):
         return True
 
     def write_table(self, shown=None) -> None:
-        """The error of the network's answer at each goal; the classical solvers' errors and the
-        timings in the details fold."""
+        """The error of the network's answer at each goal (a tree's: its worst effector's, each
+        effector's in the details fold); the classical solvers' errors and the timings in the
+        details fold."""
         shown, arm = shown or self.shown, self.arm
         errors = ", ".join(f"goal {g.index + 1}: **{fmt_len(arm, g.error)}**" for g in self.goals)
         g0_partner = (self.goals[0] if self.goals and self.goals[0].partner_view is not None
                       and self.goals[0].partner_view.visible else None)
         partner = f"; race partner (purple), goal 1: {fmt_len(arm, g0_partner.partner_error)}" if g0_partner else ""
-        self.table.content = f"Network: {shown.source}  \nDistance to the goal: {errors}{partner}"
+        what = f"the worst of {arm.n_effectors} effectors" if arm.is_tree else "the goal"
+        self.table.content = f"Network: {shown.source}  \nDistance to {what}: {errors}{partner}"
         rows = ["| goal | network | refined | DLS |", "|---|---|---|---|"]
         show = self.show_ik.value
         for g in self.goals:
             first = g.index == 0 and show
-            ik = fmt_len(arm, g.ik.error) if first and g.ik is not None else ""
+            ik = fmt_len(arm, g.ik_error) if first and g.ik is not None else ""
             seeded = fmt_len(arm, g.seeded[0]) if first and g.seeded is not None else ""
             rows.append(f"| {g.index + 1} | {fmt_len(arm, g.error)} | {seeded} | {ik} |")
         lines = ["Refined: the network's answer made exact by at most 3 Gauss-Newton steps; DLS: damped "
-                 "least squares from the rest pose (turn on *Classical IK beside it*).", "", *rows]
+                 "least squares from the rest pose (turn on *Classical IK beside it*)."
+                 + (" On this robot each is the worst of its effectors' distances." if arm.is_tree else ""),
+                 "", *rows]
+        if arm.is_tree:  # each effector's distance under the network's answer
+            lines += ["", "| goal | " + " | ".join(arm.effectors) + " |", "|---" * (1 + arm.n_effectors) + "|"]
+            lines += [f"| {g.index + 1} | " + " | ".join(fmt_len(arm, e) for e in g.errors) + " |" for g in self.goals]
         g0 = self.goals[0] if self.goals else None
         if g0 is not None and g0.ik is not None and show and np.isfinite(g0.net_s):
             line = f"Goal 1: network, one forward pass {1e6 * g0.net_s:.0f} µs"

@@ -11,12 +11,13 @@ poses, whatever the number of meshes.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pinocchio as pin
 
 import robots
 from app.viser_private import set_pose
-from robots.ik import workspace_size
 from robots.visual import se3_pose, visual_geometry
 
 
@@ -67,21 +68,54 @@ class ArmView:
 
 
 def to_world(arm: robots.Arm, goal) -> np.ndarray:
-    """Task coordinates (len(task_axes),) -> a 3D point (other coordinates 0)."""
+    """Task coordinates (len(task_axes),) -> a 3D point (other coordinates 0); a tree's goal
+    (E, len(task_axes)) -> (E, 3)."""
     return arm.to_3d(goal)
 
 
+@functools.lru_cache(maxsize=16)
+def body_bounds(arm: robots.Arm) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (3,) of the arm's visual geometry at rest: its meshes' vertices, its primitives'
+    centres (a tree's body: a humanoid's torso and head stand far above its feet's workspace)."""
+    data = arm.model.createData()
+    pin.forwardKinematics(arm.model, data, arm.to_pinocchio(arm.rest))
+    points = [np.zeros((1, 3))]
+    for j, pos, wxyz, kind, params, _rgba in visual_geometry(arm):
+        M = data.oMi[j]
+        local = params[0].astype(np.float64) if kind == "Mesh" else np.zeros((1, 3))
+        R = pin.Quaternion(float(wxyz[0]), float(wxyz[1]), float(wxyz[2]), float(wxyz[3])).toRotationMatrix()
+        points.append((local @ R.T + pos) @ M.rotation.T + M.translation)
+    points = np.concatenate(points)
+    return points.min(axis=0), points.max(axis=0)
+
+
 def frame_workspace(arm: robots.Arm) -> dict:
-    """Camera, floor and goal-marker limits for an arm, from its workspace bounds."""
-    lo3, hi3 = (arm.to_3d(b) for b in arm.workspace_bounds)
-    size = workspace_size(arm)
-    center = 0.5 * (lo3 + hi3)
-    span = hi3 - lo3
-    margin = 0.25 * span  # markers may leave the workspace: unreachable goals are allowed
-    limits = tuple((float(a - m), float(b + m)) if k in arm.task_axes else (0.0, 0.0)
-                   for k, (a, b, m) in enumerate(zip(lo3, hi3, margin)))
-    floor_z = float(lo3[2] - 0.08 * size) if 2 in arm.task_axes else -0.12 * size
+    """Camera, floor and goal-marker limits for an arm, from its workspace bounds (a tree's: the box
+    around all its effectors' boxes and its body at rest for the camera and floor, each effector's
+    own box for its marker).
+
+    limits: one (x, y, z) range triple per end effector; gizmo: the markers' size (on a tree at most
+    0.8 x the smallest distance between two effectors at rest, so a hand's fingertips keep apart);
+    point: the population's point size."""
+    lo3, hi3 = (arm.to_3d(b).reshape(-1, 3) for b in arm.workspace_bounds)  # (E, 3) each
+    box_lo, box_hi = lo3.min(axis=0), hi3.max(axis=0)
+    if arm.is_tree:  # the camera and floor take in the whole robot, not only where its effectors go
+        body_lo, body_hi = body_bounds(arm)
+        box_lo, box_hi = np.minimum(box_lo, body_lo), np.maximum(box_hi, body_hi)
+    size = float(np.max((box_hi - box_lo)[list(arm.task_axes)]))
+    center = 0.5 * (box_lo + box_hi)
+    margin = 0.25 * (hi3 - lo3)  # markers may leave the workspace: unreachable goals are allowed
+    limits = [tuple((float(a - m), float(b + m)) if k in arm.task_axes else (0.0, 0.0)
+                    for k, (a, b, m) in enumerate(zip(lo, hi, mg))) for lo, hi, mg in zip(lo3, hi3, margin)]
+    floor_z = float(box_lo[2] - 0.08 * size) if 2 in arm.task_axes else -0.12 * size
+    gizmo, point, view = 0.2 * size, 0.015 * size, np.array([-0.15, -0.75, 0.65])
+    if arm.is_tree:
+        rest = arm.fk(arm.rest)  # (E, 3)
+        apart = np.linalg.norm(rest[:, None] - rest[None], axis=-1)[np.triu_indices(len(rest), 1)]
+        gizmo = min(gizmo, 0.8 * float(apart.min()))
+        point = 0.4 * point  # E points per candidate: smaller, so that the feet and fingers still show
+        view = np.array([0.35, -0.8, 0.4])  # lower and more from the front: a standing robot, a hand
     return dict(
         center=center, size=size, limits=limits, floor_z=floor_z, label_offset=np.array([0.03, 0.03, 0.0]) * size,
-        camera=center + size * np.array([-0.15, -0.75, 0.65]), cell=10 ** np.floor(np.log10(size / 4)),
+        camera=center + size * view, cell=10 ** np.floor(np.log10(size / 4)), gizmo=gizmo, point=point,
     )
