@@ -117,8 +117,8 @@ def main(argv=None) -> int:
         return 2
     import robots
 
-    if args.robot not in robots.names(trees=True):
-        print(f"error: unknown robot {args.robot!r}; known robots: {', '.join(robots.names(trees=True))}",
+    if args.robot not in robots.names():
+        print(f"error: unknown robot {args.robot!r}; known robots: {', '.join(robots.names())}",
               file=sys.stderr)
         return 2
     if not 0 <= args.port < 65536:

@@ -1,12 +1,12 @@
 """The controllers the app opens with, one per arm, so the first drag already shows something sensible.
 
-The app ships app/pretrained/<robot>-<method>.json for every arm in robots.names(), each trained
+The app ships app/pretrained/<robot>-<method>.json for every robot in robots.names(), each trained
 with that arm's default method and settings (`lab.evolve(robot)`): the file holds the settings,
 the training and held-out MSE, the held-out position error (lab.experiments.arms) and the
 controller. When an arm's file is missing or no longer loads, a quick run (QUICK) is trained
 instead. Regenerate them all (the real arms take minutes each; times in docs/app.md) with
 
-    python -m app.startup                     # every arm
+    python -m app.startup                     # every robot
     python -m app.startup --robots planar,ur5 # some of them
 """
 
@@ -27,8 +27,9 @@ log = logging.getLogger(__name__)
 
 PRETRAINED_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "pretrained")
 QUICK = dict(generations=400, population=20, seed=0)
-# the paper's arms and the snakes train in seconds: give them four times the paper's budget (real arms: their default)
-SHIPPED = {"paper": dict(generations=4000), "snake": dict(generations=4000)}
+# the paper's arms and the snakes train in seconds: give them four times the paper's budget (real arms: their
+# default); a tree (several end effectors) ten minutes of its budget defaults
+SHIPPED = {"paper": dict(generations=4000), "snake": dict(generations=4000), "tree": dict(seconds=600)}
 
 
 def default_method(robot: str) -> str:
@@ -96,7 +97,7 @@ def main(argv=None) -> None:
     from lab.experiments import arms
 
     ap = argparse.ArgumentParser(prog="python -m app.startup", description="Train and write the app's shipped controllers.")
-    ap.add_argument("--robots", default=",".join(robots.names()), help="comma-separated (default: every arm)")
+    ap.add_argument("--robots", default=",".join(robots.names()), help="comma-separated (default: every robot)")
     args = ap.parse_args(argv)
     for robot in args.robots.split(","):
         run = lab.evolve(robot, seed=0, **SHIPPED.get(robots.kind(robot), {}))

@@ -434,8 +434,8 @@ def main() -> None:
     import robots
     from app.server import LabApp
 
-    if args.robot not in robots.names(trees=True):
-        ap.error(f"unknown robot {args.robot!r}; known robots: {', '.join(robots.names(trees=True))}")
+    if args.robot not in robots.names():
+        ap.error(f"unknown robot {args.robot!r}; known robots: {', '.join(robots.names())}")
     CONFIG["robot"] = args.robot
 
     tracebacks = count_tracebacks()

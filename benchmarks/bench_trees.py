@@ -29,7 +29,7 @@ import lab  # noqa: E402
 import robots  # noqa: E402
 from lab.experiments import arms  # noqa: E402
 
-TREES = tuple(n for n in robots.names(trees=True) if robots.kind(n) == "tree")
+TREES = tuple(n for n in robots.names() if robots.kind(n) == "tree")
 
 
 def _value(text: str):

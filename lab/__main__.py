@@ -48,7 +48,7 @@ def _train_parser(sub) -> None:
     p = sub.add_parser("train", help="evolve one controller and print its training and held-out MSE",
                        description="Evolve one neuro-controller; shows a progress bar, then the final "
                                    "training and held-out MSE.")
-    p.add_argument("--robot", default="planar", help=f"one of: {', '.join(robots.names(trees=True))}")
+    p.add_argument("--robot", default="planar", help=f"one of: {', '.join(robots.names())}")
     p.add_argument("--method", default=methods.DEFAULT_METHOD,
                    help="; ".join(f"{m.name}: {m.summary}" for m in methods.all_methods()))
     p.add_argument("--generations", type=int, default=None, help="default: the method's for the arm (the paper: 1000)")

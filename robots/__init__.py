@@ -1,7 +1,7 @@
 """Robots: Pinocchio models of serial arms and trees, with batched forward kinematics.
 
     import robots
-    robots.names()                  # the serial arms load() accepts; names(trees=True): the trees too
+    robots.names()                  # every robot load() accepts; names(trees=False): the serial arms alone
     arm = robots.load("planar")     # also "scara", "ur5", "panda", ...
     arm.fk(q)                       # (..., nq) -> (..., 3) end-effector positions
     arm.jacobian(q)                 # (..., nq) -> (..., 3, nq) positional Jacobian of fk

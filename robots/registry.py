@@ -77,9 +77,9 @@ SPECS: dict[str, ArmSpec] = {
 }
 
 
-def names(trees: bool = False) -> tuple[str, ...]:
-    """The serial arms `load` accepts, the ones the lab trains on; trees=True: every name `load`
-    accepts, the trees of several end effectors (kind "tree") included."""
+def names(trees: bool = True) -> tuple[str, ...]:
+    """Every robot `load` knows by name, the trees of several end effectors (kind "tree") last;
+    trees=False: the serial arms alone (one end effector)."""
     return tuple(n for n, spec in SPECS.items() if trees or spec.kind != "tree")
 
 
@@ -101,7 +101,7 @@ def in_metres(name: str) -> bool:
 def load(name: str) -> Arm:
     """The arm registered under `name` (see `names()`); built once, then shared."""
     if not isinstance(name, str) or name not in SPECS:
-        raise ValueError(f"unknown robot {name!r}; known robots: {', '.join(names(trees=True))}")
+        raise ValueError(f"unknown robot {name!r}; known robots: {', '.join(names())}")
     return _build(name)
 
 

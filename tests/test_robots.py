@@ -10,7 +10,7 @@ import pytest
 import robots
 from conftest import fmt_xyz, random_joints
 
-ALL = robots.names()
+ALL = robots.names(trees=False)  # the serial arms (the trees: tests/test_trees.py)
 
 
 def pinocchio_fk(arm, q):
@@ -427,7 +427,7 @@ def test_ik_gives_each_arm_its_own_pinocchio_data():
 def test_paper_arms_snakes_and_real_arms_are_told_apart():
     assert [robots.kind(n) for n in ("planar", "scara")] == ["paper", "paper"]
     assert [robots.kind(n) for n in ("planar-10", "planar-20")] == ["snake", "snake"]
-    others = set(robots.names()) - {"planar", "scara", "planar-10", "planar-20"}
+    others = set(robots.names(trees=False)) - {"planar", "scara", "planar-10", "planar-20"}
     assert others and all(robots.kind(n) == "real" for n in others)
     assert robots.kind("my-own-urdf") == "custom"
     # lengths: the paper's units for its arms and the snakes, metres for the rest

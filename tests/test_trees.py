@@ -54,10 +54,9 @@ def random_tree_urdf(seed: int) -> str:
 
 
 # ---------------------------------------------------------------- the trees by name
-def test_trees_load_by_name_and_stay_out_of_the_arms_list():
-    assert not set(TREES) & set(robots.names())  # the lab trains on serial arms only (for now)
-    everything = robots.names(trees=True)
-    assert set(TREES) <= set(everything) and set(robots.names()) <= set(everything)
+def test_trees_load_by_name_and_are_listed_after_the_serial_arms():
+    everything, serial = robots.names(), robots.names(trees=False)
+    assert everything == serial + tuple(TREES) and not set(TREES) & set(serial)
     for name in TREES:
         assert robots.kind(name) == "tree" and robots.in_metres(name)
     with pytest.raises(ValueError, match="known robots: .*g1"):

@@ -3,8 +3,8 @@
 The lab's own bounds (lab.running.config.LIMITS: population 10,000, hidden 256, 10^9 generations)
 keep one run within one machine, not a class's server beside it (what a run at those bounds costs:
 docs/classroom.md). A server reachable beyond loopback (`--host 0.0.0.0`) accepts at most CLASSROOM
-instead, which every arm's and method's defaults fit (the real arms: 32 hidden units, 300 goals,
-40,000 generations). A run with a time budget (TrainConfig.seconds) is bounded by its seconds
+instead, which every robot's and method's defaults fit (the real arms: 32 hidden units, 300 goals,
+40,000 generations; a tree: 64 hidden units, the gradient method 3,000 goals). A run with a time budget (TrainConfig.seconds) is bounded by its seconds
 instead of its generations (UNBOUNDED, 10^9, unless given). `python -m app --limit population=1000`
 raises one at start.
 """
@@ -14,7 +14,7 @@ from __future__ import annotations
 import lab.running.config as config_mod
 
 # name -> the TrainConfig field it bounds, and its classroom value
-CLASSROOM = {"population": 200, "hidden": 64, "goals": 1000, "generations": 100_000, "seconds": 600}
+CLASSROOM = {"population": 200, "hidden": 64, "goals": 3000, "generations": 100_000, "seconds": 600}
 FIELD = {"population": "population", "hidden": "hidden", "goals": "targets", "generations": "generations",
          "seconds": "seconds"}
 LAB = {"population": config_mod.LIMITS["population"], "hidden": config_mod.LIMITS["hidden"],

@@ -173,7 +173,7 @@ class RunsPanel:
         return msg
 
     def _show(self, robot: str, controller, source: str, client) -> str | None:
-        if robot not in robots.names(trees=True):
+        if robot not in robots.names():
             return self.refuse(client, f"refused: unknown robot {robot!r} in this run")
         if robot != self.state.arm.name:
             msg = self.app.switch_robot(robot)

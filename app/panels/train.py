@@ -83,7 +83,7 @@ class TrainingPanel:
         # what a presenter uses comes first, so that it is in view on a projector (1366 x 768): the
         # arm and method, the run controls, the speed, the progress and the convergence plot; the
         # numbers behind a run, the race and the method's views follow
-        self.robot = gui.add_dropdown("Robot", robots.names(trees=True), initial_value=state.arm.name)
+        self.robot = gui.add_dropdown("Robot", robots.names(), initial_value=state.arm.name)
         self.method = gui.add_dropdown("Method", tuple(m.label for m in methods.all_methods()),
                                        initial_value=methods.get(d.method).label)
         self.expected = gui.add_markdown(expectation(d.robot, d.method, d.seconds))  # what it will be worth

@@ -85,8 +85,8 @@ class TrainConfig:
 
     def __post_init__(self):
         method = methods.get(self.method)
-        if not isinstance(self.robot, str) or self.robot not in robots.names(trees=True):
-            raise ValueError(f"unknown robot {self.robot!r}; known robots: {', '.join(robots.names(trees=True))}")
+        if not isinstance(self.robot, str) or self.robot not in robots.names():
+            raise ValueError(f"unknown robot {self.robot!r}; known robots: {', '.join(robots.names())}")
         self._check(method)  # what was given, before any arm is loaded
         arm = robots.load(self.robot)
         budget = {} if self.seconds is None else {"generations": UNBOUNDED}
