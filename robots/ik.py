@@ -125,11 +125,11 @@ def workspace_size(arm: Arm) -> float:
 
 
 def default_tolerance(arm: Arm) -> float:
-    """refine's tolerance when none is given [length]: 1e-4 m (0.1 mm) on a serial arm in metres
-    (robots.in_metres: the real arms, an arm from a URDF of another name); 1e-4 x workspace_size
-    otherwise (the paper's arms and the snakes, in the paper's units, and a tree, whose tolerance
-    bounds all its effectors' errors stacked)."""
-    if not arm.is_tree and in_metres(arm.name):
+    """refine's tolerance when none is given [length]: 1e-4 m (0.1 mm) on a robot in metres
+    (robots.in_metres: the real arms, the trees, an arm from a URDF of another name; on a tree it
+    bounds all its effectors' errors stacked, so each is within it); 1e-4 x workspace_size otherwise
+    (the paper's arms and the snakes, in the paper's units)."""
+    if in_metres(arm.name):
         return 1e-4
     return 1e-4 * workspace_size(arm)
 

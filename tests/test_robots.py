@@ -609,12 +609,12 @@ def test_refine_with_several_proposals_keeps_the_one_on_the_right_branch():
 def test_refine_stops_at_a_tenth_of_a_millimetre_on_a_real_arm_by_default():
     """refine's default tolerance (robots.ik.default_tolerance): 1e-4 m on a real arm, the figure the
     docs promise (not 1e-4 x its workspace size, 0.19 mm on the UR5); 1e-4 x the workspace size on
-    the paper's arms and the snakes (their units) and on a tree."""
+    the paper's arms and the snakes (their units); 1e-4 m on a tree (each effector within it)."""
     from robots.ik import default_tolerance, refine, workspace_size
 
-    for name in ("ur5", "so100", "kinova"):
+    for name in ("ur5", "so100", "kinova", "solo12", "allegro"):
         assert default_tolerance(robots.load(name)) == 1e-4
-    for name in ("planar", "scara", "planar-10", "solo12"):
+    for name in ("planar", "scara", "planar-10"):
         arm = robots.load(name)
         assert default_tolerance(arm) == 1e-4 * workspace_size(arm)
     arm = robots.load("ur5")

@@ -13,7 +13,7 @@ import pytest
 
 import robots
 from conftest import fmt_xyz, random_joints
-from robots.ik import _curvature, _data, _task_jacobian, _task_jacobian_axes, dls_ik, refine, workspace_size
+from robots.ik import _curvature, _data, _task_jacobian, _task_jacobian_axes, default_tolerance, dls_ik, refine, workspace_size
 
 TREES = {  # name: (joints, effector frames)
     "talos-legs": (12, ("left_sole_link", "right_sole_link")),
@@ -267,15 +267,16 @@ def test_dls_ik_reaches_goals_of_every_effector(name):
 
 @pytest.mark.parametrize("name", TREES)
 def test_refine_makes_seeds_a_twentieth_of_a_radian_off_exact(name):
-    """Seeds 0.05 rad off (every joint) of reachable goals: within tolerance (1e-4 x workspace size,
-    all effectors' errors stacked) in at most 5 steps on >= 95 % of goals (measured 98.5-100 %),
-    at most 3 steps on >= 90 % (measured 93-98.5 %)."""
+    """Seeds 0.05 rad off (every joint) of reachable goals: within refine's default tolerance (0.1 mm,
+    all effectors' errors stacked) in at most 5 steps on >= 95 % of goals,
+    at most 3 steps on >= 90 %."""
     arm = robots.load(name)
     rng = np.random.default_rng(3)
     q_true = arm.sample_q(200, seed=11)
     goals = arm.reach(q_true)
     seeds = arm.within_limits(q_true + 0.05 * rng.standard_normal(q_true.shape))
-    tol = 1e-4 * workspace_size(arm)
+    tol = default_tolerance(arm)
+    assert tol == 1e-4
     five = refine(arm, goals, seeds, steps=5)
     assert five.q.shape == (200, arm.nq) and five.error.shape == (200,) and np.all(five.steps <= 5)
     np.testing.assert_allclose(five.error, np.linalg.norm((arm.reach(five.q) - goals).reshape(200, -1), axis=-1),
