@@ -232,6 +232,10 @@ def test_wiring_is_refused_where_it_means_nothing():
         lab.TrainConfig(robot="ur5", method="cmaes", wiring=True)
     with pytest.raises(ValueError, match="wiring is for MLP networks"):
         lab.TrainConfig(robot="g1", method="neat", wiring=True)
+    with pytest.raises(ValueError, match="at least one hidden unit for each of its 4 limb groups"):
+        lab.TrainConfig(robot="solo12", method="cmaes", hidden=3)
+    assert lab.TrainConfig(robot="solo12", method="cmaes").wiring is True  # CMA-ES's tree default
+    assert lab.TrainConfig(robot="solo12", method="cmaes").replace(method="neat").wiring is False
     arm = robots.load("solo12")
     with pytest.raises(ValueError, match="at least one hidden unit for each of its 4 limb groups"):
         Wiring.for_arm(arm, 24, 3)

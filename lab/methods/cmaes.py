@@ -34,12 +34,10 @@ MULTI_HEAD_ARMS = {"ur5": dict(heads=2, generations=32_000), "so100": dict(heads
                    "so101": dict(heads=4, generations=20_000), "z1": dict(heads=2, generations=32_000)}
 # a tree's settings (tree_defaults), with margin_of's margin (0.3 where every joint turns less than a turn: 0 on
 # solo12, whose joints turn +-10 rad)
-TREE_SETTINGS = dict(features="reach", hidden=32, targets=300, population=50, sigma0=0.05, separable=True)
+TREE_SETTINGS = dict(features="reach", hidden=32, targets=300, population=50, sigma0=0.05, separable=True, wiring=True)
 log = logging.getLogger(__name__)
 SHORT_BUDGET, SHORT_POPULATION = 15.0, 20  # a real arm's budget of at most 15 s: a population of 20
 BUDGET_HEADS = {"so100": 2, "so101": 2}  # a real arm's heads with a time budget (the others: one)
-import os
-_SPLIT = os.environ.get("LAB_WIRED_SPLIT", "1") == "1"  # TEMPORARY: measuring
 STALL = 150  # generations without 1% improvement that end a start (restarts only)
 _STOP_IGNORED = {"maxiter", "maxfevals", "ftarget"}
 
@@ -85,7 +83,7 @@ class CMAESBackend(Backend):
         self.wiring = (Wiring.for_arm(problem.arm, problem.encoding.n_inputs, config.hidden)
                        if getattr(config, "wiring", False) else None)
         self.dim = self.shape.n_params if self.wiring is None else self.wiring.dim
-        self._dims = (self.dim,) if self.wiring is None or not _SPLIT else self.wiring.sizes
+        self._dims = (self.dim,) if self.wiring is None else self.wiring.sizes
         self.rng = np.random.default_rng(config.seed)
         self.restarts = 0
         self._start()

@@ -106,6 +106,13 @@ class TrainConfig:
             raise ValueError(f"wiring is for trees (several end effectors): {self.robot} has one")
         if self.wiring and method.controller != "mlp":
             raise ValueError(f"wiring is for MLP networks: {method.label} does not train one")
+        if self.wiring:
+            from lab.problem.wiring import limb_groups
+
+            groups = len(limb_groups(arm))
+            if self.hidden < groups:
+                raise ValueError(f"a wired network of {self.robot} needs at least one hidden unit for each of its "
+                                 f"{groups} limb groups, got hidden={self.hidden}")
 
     def _check(self, method) -> None:
         """Every field that is set (None: a default still to come) is valid, by name."""
@@ -183,6 +190,8 @@ class TrainConfig:
         d = self.to_dict()
         if "method" in changes and changes["method"] != self.method:
             d = {k: v for k, v in d.items() if k not in self.options.names()}
+            if methods.get(changes["method"]).controller != "mlp":  # a wired network is an MLP's
+                d.pop("wiring", None)
         return TrainConfig.from_dict({**d, **changes})
 
     def to_dict(self) -> dict:
