@@ -259,3 +259,14 @@ def test_a_wired_run_repeats_its_run_keeps_its_zeros_and_its_config_round_trips(
     assert a.train_mse == pytest.approx(float(np.mean(np.sum(
         (robots.load("g1").fk(a.controller(a_goals := robots.load("g1").sample_goals(30, seed=0)))
          - a_goals) ** 2, axis=(-2, -1)))), rel=1e-9)
+
+
+def test_a_tree_joint_of_more_than_a_turn_is_mapped_over_two_turns_within_its_limits():
+    """solo12's joints turn +-10 rad: each is mapped as a continuous joint (two turns about its middle,
+    wrapped into its range); the other trees' joints keep the plain mapping."""
+    arm = robots.load("solo12")
+    enc = Encoding.for_arm(arm, "reach", 0.0)
+    assert enc.wrap.all() and np.allclose(enc.q_scale, 2 * np.pi)
+    q = enc.joints(np.linspace(-1, 1, 7)[:, None] * np.ones(arm.nq))
+    assert np.all((q >= arm.lower) & (q <= arm.upper))
+    assert not Encoding.for_arm(robots.load("g1"), "reach", 0.3).wrap.any()

@@ -20,6 +20,10 @@ effector's own workspace:
                   and elevation; "bearings" the bearing from behind too; "cylindrical" r, phi and the
                   height along the axis. Their task coordinates are then the limb frame's.
 
+Outputs: Encoding's mapping, with every joint whose range exceeds a full turn (solo12's +-10 rad)
+mapped as a continuous joint (two turns about its middle, wrapped into its range): one output then
+sweeps every angle without spanning the three turns of such a range.
+
 Goals of any other shape than (n, E, m) are refused, naming the shape expected. A tree has no
 closed-form turn (no one joint turns every effector) and no multi-head networks here.
 """
@@ -107,8 +111,11 @@ class TreeEncoding(Encoding):
         lo, hi = raw.min(axis=0), raw.max(axis=0)
         flat = hi - lo < 1e-9
         lo, hi = np.where(flat, lo - 0.5, lo), np.where(flat, hi + 0.5, hi)
+        # a joint that turns more than a turn between its limits (solo12's +-10 rad) is mapped as a
+        # continuous one: two turns about its middle, taken modulo a turn into its range
+        wrap = np.asarray(arm.chain.continuous, bool) | ((arm.upper - arm.lower) > 2 * np.pi + 1e-9)
         return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy(), float(margin),
-                   wrap=np.asarray(arm.chain.continuous, bool).copy(), effectors=arm.n_effectors, **limbs)
+                   wrap=wrap, effectors=arm.n_effectors, **limbs)
 
     @property
     def input_names(self) -> list[str]:
