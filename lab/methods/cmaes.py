@@ -33,8 +33,9 @@ REAL_ARM_GENERATIONS = 45_000  # a real arm's budget: about 4-5 minutes on two c
 MULTI_HEAD_ARMS = {"ur5": dict(heads=2, generations=32_000), "so100": dict(heads=3, generations=26_000),
                    "so101": dict(heads=4, generations=20_000), "z1": dict(heads=2, generations=32_000)}
 # a tree's settings (tree_defaults), with margin_of's margin (0.3 where every joint turns less than a turn: 0 on
-# solo12, whose joints turn +-10 rad)
-TREE_SETTINGS = dict(features="reach", hidden=32, targets=300, population=50, sigma0=0.05, separable=True, wiring=True)
+# solo12, whose joints turn +-10 rad); wired per limb group (lab/problem/wiring.py), so hidden is shared out
+# over the groups
+TREE_SETTINGS = dict(features="reach", hidden=64, targets=300, population=50, sigma0=0.05, separable=True, wiring=True)
 log = logging.getLogger(__name__)
 SHORT_BUDGET, SHORT_POPULATION = 15.0, 20  # a real arm's budget of at most 15 s: a population of 20
 BUDGET_HEADS = {"so100": 2, "so101": 2}  # a real arm's heads with a time budget (the others: one)
@@ -275,8 +276,11 @@ def defaults(arm) -> dict:
 def tree_defaults(arm) -> dict:
     """The settings CMA-ES runs with on a tree of several end effectors (robots' kind "tree": legs, a
     hand, a humanoid) when none are given: one network answers all joints for all effectors' goals
-    (lab/problem/tree_encoding.py), the real arms' search (sep-CMA-ES, population 50, 300 goals),
-    TREE_SETTINGS chosen by short budgeted runs (the comparison and its figures: docs/log.md)."""
+    (lab/problem/tree_encoding.py), wired per limb group (lab/problem/wiring.py: each group of limbs
+    that share no joint its own hidden units, hearing only its effectors' goals, and its own search on
+    its own share of the error), the real arms' search otherwise (sep-CMA-ES, population 50, 300 goals,
+    sigma0 0.05), 64 hidden units over the groups. TREE_SETTINGS chosen by budgeted runs (the
+    comparison and its figures: docs/log.md)."""
     return {**TREE_SETTINGS, "margin": margin_of(arm), "generations": REAL_ARM_GENERATIONS}
 
 
