@@ -267,6 +267,31 @@ def test_a_tree_joint_of_more_than_a_turn_is_mapped_over_two_turns_within_its_li
     arm = robots.load("solo12")
     enc = Encoding.for_arm(arm, "reach", 0.0)
     assert enc.wrap.all() and np.allclose(enc.q_scale, 2 * np.pi)
-    q = enc.joints(np.linspace(-1, 1, 7)[:, None] * np.ones(arm.nq))
-    assert np.all((q >= arm.lower) & (q <= arm.upper))
+    a = np.linspace(-1, 1, 7)[:, None] * np.ones(arm.nq)
+    q = enc.joints(a)
+    assert np.all(np.abs(q) <= np.pi)  # the turn about the middle (0), away from the limits
+    raw = enc.q_offset + (a + 1.0) * enc.q_scale  # what the kernels compose: the same poses
+    np.testing.assert_allclose(arm.fk(q), arm.fk(raw), atol=1e-12)
     assert not Encoding.for_arm(robots.load("g1"), "reach", 0.3).wrap.any()
+
+
+@pytest.mark.parametrize("robot", TREES)
+def test_every_shipped_tree_controller_fits_its_tree_and_has_the_error_its_file_records(robot):
+    """app/pretrained/<tree>-cmaes.json (benchmarks/bench_trees.py --write-pretrained): a wired MLP made
+    with CMA-ES's tree defaults, whose held-out errors per effector (2,000 goals) are the file's."""
+    from app.startup import pretrained_path
+    from lab.problem.wiring import Wiring
+
+    with open(pretrained_path(robot, "cmaes"), encoding="utf-8") as f:
+        doc = json.load(f)
+    arm = robots.load(robot)
+    controller = controller_from_dict(doc["controller"])
+    config = lab.TrainConfig.from_dict(doc["settings"])
+    assert config.robot == robot and config.wiring and isinstance(controller.encoding, TreeEncoding)
+    mask = Wiring.for_arm(arm, controller.encoding.n_inputs, controller.hidden).mask
+    assert np.all(controller.weights[~mask] == 0)
+    again = arms.held_out(arm, controller)
+    assert again["median_pct"] == pytest.approx(doc["held_out"]["median_pct"], rel=1e-9)
+    for mine, theirs in zip(again["effectors"], doc["held_out"]["effectors"]):
+        for key in ("median", "p90", "p99"):
+            assert mine[key] == pytest.approx(theirs[key], rel=1e-9), (mine["effector"], key)
