@@ -10,6 +10,7 @@ squares from the rest pose (200 goals). One JSON line per run (--json), else a t
 
     .venv/bin/python benchmarks/bench_trees.py --robots talos-legs --seconds 60 --set "features=cartesian;features=sphere"
     .venv/bin/python benchmarks/bench_trees.py --robots talos-legs,solo12 --seconds 120       # the defaults
+    .venv/bin/python benchmarks/bench_trees.py --robots g1 --seconds 600 --refine --write-pretrained   # shipped
 """
 
 from __future__ import annotations
@@ -50,7 +51,8 @@ def settings(text: str) -> list[dict]:
     return out or [{}]
 
 
-def measure(robot: str, method: str, seconds: float, seed: int, setting: dict, refine: bool) -> dict:
+def measure(robot: str, method: str, seconds: float, seed: int, setting: dict, refine: bool,
+            refine_goals: int = 200, write: bool = False) -> dict:
     arm = robots.load(robot)
     t = time.perf_counter()
     run = lab.evolve(robot, method, seconds=seconds, seed=seed, **setting)
@@ -63,11 +65,15 @@ def measure(robot: str, method: str, seconds: float, seed: int, setting: dict, r
            "effectors": {e["effector"]: {k: round(e[k], 3) for k in ("median_pct", "p90_pct", "p99_pct", "median")}
                          for e in stats["effectors"]}}
     if refine:
-        goals = arms.held_out_goals(arm, 200)
+        goals = arms.held_out_goals(arm, refine_goals)
         r = arms.refined(arm, run.controller, goals)
         d = arms.dls_from_rest(arm, goals, max_iter=200)
-        row.update(refined_success=r["success"], refined_us=r["us_per_goal"], dls_success=d["success"],
-                   dls_us=d["us_per_goal"])
+        row.update(refine_goals=refine_goals, refined_success=r["success"], refined_us=r["us_per_goal"],
+                   dls_success=d["success"], dls_us=d["us_per_goal"])
+    if write:
+        from app.startup import write_pretrained
+
+        row["wrote"] = write_pretrained(run, stats)
     return row
 
 
@@ -79,12 +85,19 @@ def main() -> None:
     ap.add_argument("--seeds", default="0", help="comma-separated training seeds")
     ap.add_argument("--set", default="", help="settings to compare: 'name=value,...;name=value,...' (none: the defaults)")
     ap.add_argument("--refine", action="store_true", help="also refine the answers and run damped least squares")
+    ap.add_argument("--refine-goals", type=int, default=200, help="held-out goals refined (--refine)")
+    ap.add_argument("--write-pretrained", action="store_true",
+                    help="also write each run as the app's shipped controller (app/pretrained/<robot>-<method>.json, "
+                         "with the held-out stats of every effector)")
     ap.add_argument("--json", action="store_true", help="one JSON line per run")
     args = ap.parse_args()
+    if args.refine_goals < 1:
+        raise ValueError(f"--refine-goals must be a positive number of goals, got {args.refine_goals}")
     for robot in args.robots.split(","):
         for setting in settings(args.set):
             for seed in (int(s) for s in args.seeds.split(",")):
-                row = measure(robot, args.method, args.seconds, seed, setting, args.refine)
+                row = measure(robot, args.method, args.seconds, seed, setting, args.refine, args.refine_goals,
+                              args.write_pretrained)
                 if args.json:
                     print(json.dumps(row), flush=True)
                     continue

@@ -189,3 +189,109 @@ def test_a_tree_run_records_and_reloads(tmp_path):
     assert np.array_equal(load_controller(tmp_path / "tree.rrd")(goals), summary.controller(goals))
     rec = read_recording(tmp_path / "tree.rrd")
     assert rec.population_at(3).points.shape == (8, 4, 3)
+
+
+@pytest.mark.parametrize("robot", TREES)
+def test_a_wired_genome_is_an_mlp_zero_off_its_limbs_with_the_dense_fitness(robot):
+    """lab.problem.wiring: the groups share no joint (g1's arms and waist one group, each leg its own);
+    the expanded weights are zero off the wiring, each joint hears only its group's effectors' inputs,
+    and the groups' shares of the error add up to the dense kernel's fitness of the same weights."""
+    from lab.problem.wiring import Wiring, limb_groups
+
+    arm = robots.load(robot)
+    groups = limb_groups(arm)
+    assert sorted(e for g in groups for e in g) == list(range(arm.n_effectors))
+    for a in range(len(groups)):
+        for b in range(a + 1, len(groups)):
+            ja = {int(j) for e in groups[a] for j in arm.chain.path(e)}
+            assert not ja & {int(j) for e in groups[b] for j in arm.chain.path(e)}
+    if robot == "g1":
+        assert groups == [[0, 1], [2], [3]]
+    enc = Encoding.for_arm(arm, "reach", 0.3)
+    problem = Problem(arm, enc, targets=25, test_goals=10)
+    wiring = Wiring.for_arm(arm, enc.n_inputs, 9)
+    assert sum(len(u) for u in wiring.units) == 9 and wiring.dim < wiring.size
+    rng = np.random.default_rng(2)
+    G = rng.normal(0, 0.5, (5, wiring.dim))
+    W = wiring.expand(G)
+    assert np.all(W[:, ~wiring.mask] == 0) and np.array_equal(wiring.genome(W), G)
+    np.testing.assert_allclose(problem.wired_mse(G, wiring).sum(axis=1), problem.mlp_mse(W, 9), rtol=1e-12)
+    # a goal of one group's effectors moves only that group's joints
+    net = MLPController(enc, 9, W[0])
+    goals = arm.sample_goals(2, seed=5)
+    moved = goals.copy()
+    moved[:, groups[-1]] = goals[::-1][:, groups[-1]]
+    changed = np.any(net(goals) != net(moved), axis=0)
+    assert set(np.flatnonzero(changed)) <= set(wiring.joints[-1].tolist())
+
+
+def test_wiring_is_refused_where_it_means_nothing():
+    from lab.problem.wiring import Wiring
+
+    with pytest.raises(ValueError, match="wiring is for trees"):
+        lab.TrainConfig(robot="ur5", method="cmaes", wiring=True)
+    with pytest.raises(ValueError, match="wiring is for MLP networks"):
+        lab.TrainConfig(robot="g1", method="neat", wiring=True)
+    with pytest.raises(ValueError, match="at least one hidden unit for each of its 4 limb groups"):
+        lab.TrainConfig(robot="solo12", method="cmaes", hidden=3)
+    assert lab.TrainConfig(robot="solo12", method="cmaes").wiring is True  # CMA-ES's tree default
+    assert lab.TrainConfig(robot="solo12", method="cmaes").replace(method="neat").wiring is False
+    arm = robots.load("solo12")
+    with pytest.raises(ValueError, match="at least one hidden unit for each of its 4 limb groups"):
+        Wiring.for_arm(arm, 24, 3)
+    with pytest.raises(ValueError, match="one equal input block per effector"):
+        Wiring.for_arm(arm, 23, 8)
+
+
+@pytest.mark.parametrize("method", ["cmaes", "gradient"])
+def test_a_wired_run_repeats_its_run_keeps_its_zeros_and_its_config_round_trips(method):
+    from lab.problem.wiring import Wiring
+
+    kw = dict(generations=40 if method == "gradient" else 8, population=12, seed=3, wiring=True, hidden=8, **FAST)
+    a, b = (lab.evolve("g1", method, **kw) for _ in range(2))
+    assert a.history[-1] < a.history[0]
+    assert np.array_equal(a.history, b.history) and a.test_mse == b.test_mse
+    mask = Wiring.for_arm(robots.load("g1"), a.controller.encoding.n_inputs, 8).mask
+    assert np.all(a.controller.weights[~mask] == 0) and np.any(a.controller.weights[mask] != 0)
+    d = a.config.to_dict()
+    assert d["wiring"] is True and lab.TrainConfig.from_dict(d) == a.config
+    assert "wiring" not in lab.TrainConfig(robot="g1", method=method, wiring=False).to_dict()
+    assert a.train_mse == pytest.approx(float(np.mean(np.sum(
+        (robots.load("g1").fk(a.controller(a_goals := robots.load("g1").sample_goals(30, seed=0)))
+         - a_goals) ** 2, axis=(-2, -1)))), rel=1e-9)
+
+
+def test_a_tree_joint_of_more_than_a_turn_is_mapped_over_two_turns_within_its_limits():
+    """solo12's joints turn +-10 rad: each is mapped as a continuous joint (two turns about its middle,
+    wrapped into its range); the other trees' joints keep the plain mapping."""
+    arm = robots.load("solo12")
+    enc = Encoding.for_arm(arm, "reach", 0.0)
+    assert enc.wrap.all() and np.allclose(enc.q_scale, 2 * np.pi)
+    a = np.linspace(-1, 1, 7)[:, None] * np.ones(arm.nq)
+    q = enc.joints(a)
+    assert np.all(np.abs(q) <= np.pi)  # the turn about the middle (0), away from the limits
+    raw = enc.q_offset + (a + 1.0) * enc.q_scale  # what the kernels compose: the same poses
+    np.testing.assert_allclose(arm.fk(q), arm.fk(raw), atol=1e-12)
+    assert not Encoding.for_arm(robots.load("g1"), "reach", 0.3).wrap.any()
+
+
+@pytest.mark.parametrize("robot", TREES)
+def test_every_shipped_tree_controller_fits_its_tree_and_has_the_error_its_file_records(robot):
+    """app/pretrained/<tree>-cmaes.json (benchmarks/bench_trees.py --write-pretrained): a wired MLP made
+    with CMA-ES's tree defaults, whose held-out errors per effector (2,000 goals) are the file's."""
+    from app.startup import pretrained_path
+    from lab.problem.wiring import Wiring
+
+    with open(pretrained_path(robot, "cmaes"), encoding="utf-8") as f:
+        doc = json.load(f)
+    arm = robots.load(robot)
+    controller = controller_from_dict(doc["controller"])
+    config = lab.TrainConfig.from_dict(doc["settings"])
+    assert config.robot == robot and config.wiring and isinstance(controller.encoding, TreeEncoding)
+    mask = Wiring.for_arm(arm, controller.encoding.n_inputs, controller.hidden).mask
+    assert np.all(controller.weights[~mask] == 0)
+    again = arms.held_out(arm, controller)
+    assert again["median_pct"] == pytest.approx(doc["held_out"]["median_pct"], rel=1e-9)
+    for mine, theirs in zip(again["effectors"], doc["held_out"]["effectors"]):
+        for key in ("median", "p90", "p99"):
+            assert mine[key] == pytest.approx(theirs[key], rel=1e-9), (mine["effector"], key)

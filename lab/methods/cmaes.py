@@ -24,6 +24,7 @@ from lab.methods.base import (BEARINGS_ARMS, LIMITED_MARGIN, Backend, Options, S
 from lab.methods.registry import LivePlot, Method, SpeedReference, register
 from lab.problem.checks import flag, real, whole
 from lab.problem.controllers import MAX_HEADS, MLPController, mlp_size
+from lab.problem.wiring import Wiring
 
 REAL_ARM_GENERATIONS = 45_000  # a real arm's budget: about 4-5 minutes on two cores for 5-7 joints
 # arms whose goals lie on several IK branches that no single-head run serves: their heads, and fewer
@@ -32,8 +33,9 @@ REAL_ARM_GENERATIONS = 45_000  # a real arm's budget: about 4-5 minutes on two c
 MULTI_HEAD_ARMS = {"ur5": dict(heads=2, generations=32_000), "so100": dict(heads=3, generations=26_000),
                    "so101": dict(heads=4, generations=20_000), "z1": dict(heads=2, generations=32_000)}
 # a tree's settings (tree_defaults), with margin_of's margin (0.3 where every joint turns less than a turn: 0 on
-# solo12, whose joints turn +-10 rad)
-TREE_SETTINGS = dict(features="reach", hidden=32, targets=300, population=50, sigma0=0.05, separable=True)
+# solo12, whose joints turn +-10 rad); wired per limb group (lab/problem/wiring.py), so hidden is shared out
+# over the groups
+TREE_SETTINGS = dict(features="reach", hidden=64, targets=300, population=50, sigma0=0.05, separable=True, wiring=True)
 log = logging.getLogger(__name__)
 SHORT_BUDGET, SHORT_POPULATION = 15.0, 20  # a real arm's budget of at most 15 s: a population of 20
 BUDGET_HEADS = {"so100": 2, "so101": 2}  # a real arm's heads with a time budget (the others: one)
@@ -77,7 +79,12 @@ class CMAESBackend(Backend):
         super().__init__(problem, config)
         self.shape = mlp_shape(problem, config)  # a zero-weight MLP of this run's hidden size and heads
         self.offsets = None if self.shape.heads == 1 else self.shape.offsets
-        self.dim = self.shape.n_params
+        # a tree's limb-wired network (lab/problem/wiring.py): the search is over the wired weights alone,
+        # one CMA-ES per limb group on that group's share of the error (the groups share no weight)
+        self.wiring = (Wiring.for_arm(problem.arm, problem.encoding.n_inputs, config.hidden)
+                       if getattr(config, "wiring", False) else None)
+        self.dim = self.shape.n_params if self.wiring is None else self.wiring.dim
+        self._dims = (self.dim,) if self.wiring is None else self.wiring.sizes
         self.rng = np.random.default_rng(config.seed)
         self.restarts = 0
         self._start()
@@ -88,7 +95,15 @@ class CMAESBackend(Backend):
                         "(docs/log.md); fixed goals train better here", self.dim, tpa)
 
     def _start(self) -> None:
-        x0 = self.rng.normal(0.0, 0.1, self.dim)
+        self.searches = [self._search(d) for d in self._dims]
+        self.es = self.searches[0]
+        self._start_best = np.inf
+        self._start_best_gen = self.generation
+        self._group_best = [np.inf] * len(self.searches)  # a split search: each group's best so far
+        self._group_x = [None] * len(self.searches)
+
+    def _search(self, dim: int):
+        x0 = self.rng.normal(0.0, 0.1, dim)
         opts = {
             "popsize": self.config.population,
             "randn": lambda *shape: self.rng.standard_normal(shape),
@@ -100,28 +115,30 @@ class CMAESBackend(Backend):
             # diagonal-only start of `diagonal` generations (0: full C from the first)
             "CMA_diagonal": True if self.options.separable else self.options.diagonal,
         }
-        self.es = _cma().CMAEvolutionStrategy(x0, self.options.sigma0, opts)
-        self._start_best = np.inf
-        self._start_best_gen = self.generation
+        return _cma().CMAEvolutionStrategy(x0, self.options.sigma0, opts)
 
     @classmethod
     def settings(cls, problem, config) -> dict:
         o = config.options
+        wired = ({"wiring": True, "dim": Wiring.for_arm(problem.arm, problem.encoding.n_inputs, config.hidden).dim}
+                 if getattr(config, "wiring", False) else {})
         return {"dim": mlp_size(problem.encoding.n_inputs, config.hidden, problem.encoding.n_outputs * config.heads),
-                "hidden": config.hidden, **({"heads": config.heads} if config.heads > 1 else {}),
+                **wired, "hidden": config.hidden, **({"heads": config.heads} if config.heads > 1 else {}),
                 "sigma0": o.sigma0, "diagonal": o.diagonal, "popsize": config.population, "restarts": o.restarts,
                 "separable": o.separable, "stall_generations": STALL, "cma": _cma().__version__}
 
     def _step(self) -> StepResult:
+        if len(self.searches) > 1:
+            return self._split_step()
         X = np.asarray(self.es.ask())
-        f = self.problem.mlp_mse(X, self.config.hidden, offsets=self.offsets)
+        if self.wiring is None:
+            f = self.problem.mlp_mse(X, self.config.hidden, offsets=self.offsets)
+        else:
+            f = self.problem.wired_mse(X, self.wiring).sum(axis=1)
         finite = np.isfinite(f)
         worst = f[finite].max() if finite.any() else 1.0
         self.es.tell(list(X), np.where(finite, f, 10.0 * worst + 1e6).tolist())
-        if self.es.sm.randn is np.random.randn:
-            # pycma 4.x switches from the diagonal to the full sampler (CMA_diagonal) with a new
-            # sampler that draws from numpy's global, unseeded generator: give it ours back
-            self.es.sm.randn = self.es.opts["randn"]
+        self._mend_sampler(self.es)
         i = int(np.argmin(f))
         self._offer(f[i], lambda: self.mlp(X[i].copy()))
         self._asked = X
@@ -134,18 +151,60 @@ class CMAESBackend(Backend):
             self._start()
         return StepResult(f, extras)
 
+    def _split_step(self) -> StepResult:
+        """One generation of a wired tree's searches, one per limb group: candidate p is every group's
+        p-th sample; each search is told its group's share of the error."""
+        parts = [np.asarray(es.ask()) for es in self.searches]
+        X = np.concatenate(parts, axis=1)
+        F = self.problem.wired_mse(X, self.wiring)  # (P, groups)
+        for k, es in enumerate(self.searches):
+            f = F[:, k]
+            finite = np.isfinite(f)
+            worst = f[finite].max() if finite.any() else 1.0
+            es.tell(list(parts[k]), np.where(finite, f, 10.0 * worst + 1e6).tolist())
+            self._mend_sampler(es)
+        f = F.sum(axis=1)
+        if self.problem.resampling:  # this generation's best of each group, scored on the reference goals
+            best = np.concatenate([parts[k][int(np.argmin(F[:, k]))] for k in range(len(parts))])
+            self._offer(float(np.min(F, axis=0).sum()), lambda: self.mlp(best))
+        else:  # the groups share no weight: the best of each so far make the best network so far
+            for k in range(len(parts)):
+                i = int(np.argmin(F[:, k]))
+                if F[i, k] < self._group_best[k]:
+                    self._group_best[k], self._group_x[k] = float(F[i, k]), parts[k][i].copy()
+            if all(x is not None for x in self._group_x):
+                combined = np.concatenate(self._group_x)
+                self._offer(float(sum(self._group_best)), lambda: self.mlp(combined))
+        self._asked = X
+        extras = {"sigma": float(np.mean([es.sigma for es in self.searches])), "restarts": self.restarts,
+                  "weight_spread": float(np.mean(np.std(X, axis=0)))}
+        if self.options.restarts and self._start_is_over(float(np.min(F, axis=0).sum())):
+            self.restarts += 1
+            self._start()
+        return StepResult(f, extras)
+
+    @staticmethod
+    def _mend_sampler(es) -> None:
+        if es.sm.randn is np.random.randn:
+            # pycma 4.x switches from the diagonal to the full sampler (CMA_diagonal) with a new
+            # sampler that draws from numpy's global, unseeded generator: give it ours back
+            es.sm.randn = es.opts["randn"]
+
     keeps_candidates = True
 
     def mlp(self, weights) -> MLPController:
         """An MLP of this run's shape with these weights."""
         s = self.shape
+        if self.wiring is not None:
+            weights = self.wiring.expand(weights)
         return MLPController(s.encoding, s.hidden, weights, s.heads, s.anchors, s.chain)
 
     def _candidate_controllers(self):
         return [self.mlp(x) for x in self._asked]
 
     def _candidate_joints(self, goals):
-        return mlp_joints(self.problem.encoding, self.config.hidden, self._asked, goals, self.shape)
+        W = self._asked if self.wiring is None else self.wiring.expand(self._asked)
+        return mlp_joints(self.problem.encoding, self.config.hidden, W, goals, self.shape)
 
     def _start_is_over(self, gen_best: float) -> bool:
         if gen_best < 0.99 * self._start_best:
@@ -217,8 +276,11 @@ def defaults(arm) -> dict:
 def tree_defaults(arm) -> dict:
     """The settings CMA-ES runs with on a tree of several end effectors (robots' kind "tree": legs, a
     hand, a humanoid) when none are given: one network answers all joints for all effectors' goals
-    (lab/problem/tree_encoding.py), the real arms' search (sep-CMA-ES, population 50, 300 goals),
-    TREE_SETTINGS chosen by short budgeted runs (the comparison and its figures: docs/log.md)."""
+    (lab/problem/tree_encoding.py), wired per limb group (lab/problem/wiring.py: each group of limbs
+    that share no joint its own hidden units, hearing only its effectors' goals, and its own search on
+    its own share of the error), the real arms' search otherwise (sep-CMA-ES, population 50, 300 goals,
+    sigma0 0.05), 64 hidden units over the groups. TREE_SETTINGS chosen by budgeted runs (the
+    comparison and its figures: docs/log.md)."""
     return {**TREE_SETTINGS, "margin": margin_of(arm), "generations": REAL_ARM_GENERATIONS}
 
 

@@ -30,6 +30,7 @@ from lab.methods.base import Backend, Options, StepResult, option, real_arm_io
 from lab.methods.registry import LivePlot, Method, register
 from lab.problem.checks import real
 from lab.problem.controllers import MLPController, mlp_size
+from lab.problem.wiring import Wiring
 
 
 TREE_TARGETS = 3000  # a tree's training goals (defaults)
@@ -61,6 +62,11 @@ class GradientBackend(Backend):
         self.dim = mlp_size(enc.n_inputs, config.hidden, enc.n_outputs)
         self.rng = np.random.default_rng(config.seed)
         self.w = self.rng.normal(0.0, self.options.init_scale, self.dim)
+        # a tree's limb-wired network (lab/problem/wiring.py): the weights off the wiring stay zero
+        self.mask = (Wiring.for_arm(problem.arm, enc.n_inputs, config.hidden).mask
+                     if getattr(config, "wiring", False) else None)
+        if self.mask is not None:
+            self.w = np.where(self.mask, self.w, 0.0)
         self.m = np.zeros(self.dim)
         self.v = np.zeros(self.dim)
 
@@ -88,6 +94,8 @@ class GradientBackend(Backend):
         self._evaluated = w
         self._offer(f, lambda: MLPController(self.problem.encoding, hidden, w.copy()))
         _, g = self.problem.mlp_gradient(w, hidden)
+        if self.mask is not None:
+            g = np.where(self.mask, g, 0.0)
         norm = float(np.linalg.norm(g))
         lr = self.learning_rate(self.generation)
         if np.isfinite(norm):  # a NaN gradient (weights blown up) moves nothing

@@ -131,6 +131,52 @@ class Problem:
             job.result()
         return out
 
+    def wired_mse(self, G: np.ndarray, wiring, test: bool = False) -> np.ndarray:
+        """(P, groups): each limb group's share of the MSE of the wired networks G (P, wiring.dim)
+        (lab.problem.wiring): the mean over goals of the summed squared errors of that group's
+        effectors, by its own small MLP on its own joints. The row sums are mlp_mse of
+        wiring.expand(G) (to rounding): the other weights are zero, and no group moves another's effectors."""
+        XT, goalsT = self._split(test)
+        G = np.ascontiguousarray(G, dtype=np.float64)
+        if G.ndim != 2 or G.shape[1] != wiring.dim:
+            raise ValueError(f"wired genomes must be (P, {wiring.dim}), got shape {G.shape}")
+        parts = self._wired_parts(wiring)
+        out = np.empty((len(G), len(parts)))
+        jobs = []
+        for k, ((rows, goal_rows, qmap, tree), W) in enumerate(zip(parts, wiring.split(G))):
+            args = (np.ascontiguousarray(XT[rows]), np.ascontiguousarray(goalsT[goal_rows]), self._axes,
+                    np.ascontiguousarray(W), len(wiring.units[k]), qmap, tree)
+            jobs.append((args, k))
+        results = np.empty((len(parts), len(G)))
+        if self.threads <= 1:
+            for args, k in jobs:
+                kernels.tree_mlp_mse(*args, results[k])
+        else:
+            futures = [_pool(self.threads).submit(kernels.tree_mlp_mse, *args, results[k]) for args, k in jobs]
+            for f in futures:
+                f.result()
+        out[:] = results.T
+        return np.where(np.isfinite(out), out, np.inf)
+
+    def _wired_parts(self, wiring) -> list:
+        """Per limb group: (input rows, goal rows, output mapping, tree) as the tree kernels take them."""
+        cache = self.__dict__.setdefault("_wired_cache", {})
+        key = (id(wiring), wiring.n_inputs, wiring.hidden)
+        if key in cache and cache[key][0] is wiring:
+            return cache[key][1]
+        m = len(self.arm.task_axes)
+        enc, parts = self.encoding, []
+        for g, js, ins in zip(wiring.groups, wiring.joints, wiring.inputs):
+            where = {int(j): i for i, j in enumerate(js)}
+            paths = [[where[int(j)] for j in self.arm.chain.path(e)] for e in g]
+            tree = kernels.pack_tree([self.arm.chain.effector_arrays(e) for e in g], paths, len(js))
+            qmap = tuple(np.ascontiguousarray(a[js]) for a in (enc.q_offset, enc.q_scale, enc.clip_lo, enc.clip_hi)) \
+                + (enc.turn_spec,)
+            goal_rows = np.concatenate([np.arange(e * m, (e + 1) * m) for e in g])
+            parts.append((np.asarray(ins), goal_rows, qmap, tree))
+        cache[key] = (wiring, parts)
+        return parts
+
     def mlp_gradient(self, w: np.ndarray, hidden: int, test: bool = False) -> tuple[float, np.ndarray]:
         """(MSE, d MSE / d w) of one MLP weight vector w (D,) on the goals, by backpropagation.
 

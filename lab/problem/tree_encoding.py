@@ -20,6 +20,10 @@ effector's own workspace:
                   and elevation; "bearings" the bearing from behind too; "cylindrical" r, phi and the
                   height along the axis. Their task coordinates are then the limb frame's.
 
+Outputs: Encoding's mapping, with every joint whose range exceeds a full turn (solo12's +-10 rad)
+mapped as a continuous joint (two turns about its middle, wrapped into the turn about its middle):
+one output then sweeps every angle without spanning the three turns of such a range.
+
 Goals of any other shape than (n, E, m) are refused, naming the shape expected. A tree has no
 closed-form turn (no one joint turns every effector) and no multi-head networks here.
 """
@@ -107,8 +111,24 @@ class TreeEncoding(Encoding):
         lo, hi = raw.min(axis=0), raw.max(axis=0)
         flat = hi - lo < 1e-9
         lo, hi = np.where(flat, lo - 0.5, lo), np.where(flat, hi + 0.5, hi)
+        # a joint that turns more than a turn between its limits (solo12's +-10 rad) is mapped as a
+        # continuous one: two turns about its middle, taken modulo a turn into its range
+        wrap = np.asarray(arm.chain.continuous, bool) | ((arm.upper - arm.lower) > 2 * np.pi + 1e-9)
         return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy(), float(margin),
-                   wrap=np.asarray(arm.chain.continuous, bool).copy(), effectors=arm.n_effectors, **limbs)
+                   wrap=wrap, effectors=arm.n_effectors, **limbs)
+
+    def mapped(self, a: np.ndarray) -> np.ndarray:
+        """Encoding's output mapping, with a wrapped joint taken modulo a turn into the turn about its
+        middle (its range's whole turn when it is continuous): a joint of a wider range then lies away
+        from its limits, where a refinement's steps are not held (the same pose: the kinematics are
+        periodic in it)."""
+        a = np.asarray(a, dtype=np.float64)
+        if not self.wrap.any():
+            return super().mapped(a)
+        q = self.q_offset + (a + 1.0) * self.q_scale
+        mid = 0.5 * (self.q_lo + self.q_hi)
+        q = np.where(self.wrap, mid - np.pi + np.mod(q - mid + np.pi, 2 * np.pi), q)
+        return np.clip(q, self.q_lo, self.q_hi)
 
     @property
     def input_names(self) -> list[str]:

@@ -35,12 +35,12 @@ from lab.problem.encoding import FEATURES
 # hang in pycma's or neat's setup; hidden 256 is a CMA-ES search space of about 2,300 weights)
 LIMITS = {"population": 10_000, "goals": 1_000_000, "hidden": 256}
 # the paper's protocol: what a field left at None becomes when the method's defaults say nothing
-PROTOCOL = {"generations": 1000, "population": 50, "targets": 70, "heads": 1, "turn": False}
+PROTOCOL = {"generations": 1000, "population": 50, "targets": 70, "heads": 1, "turn": False, "wiring": False}
 # the generations of a run with a time budget and no generation bound: the most a run may have (10^9;
 # the recordings and the app's history thin long runs already), so that every reader of
 # config.generations keeps an int
 UNBOUNDED = 10**9
-_PER_METHOD = ("generations", "population", "targets", "features", "margin", "hidden", "heads", "turn")
+_PER_METHOD = ("generations", "population", "targets", "features", "margin", "hidden", "heads", "turn", "wiring")
 
 
 @dataclass(frozen=True, init=False)
@@ -65,13 +65,14 @@ class TrainConfig:
     resample: bool = False  # new training goals every generation (the paper: fixed; lab.problem.fitness)
     seconds: float | None = None  # time budget: s of optimizer time (None: none; generations then default to UNBOUNDED)
     turn: bool | None = None  # the first joint turned in closed form toward the goal (lab/problem/encoding.py; None: the method's default)
+    wiring: bool | None = None  # a tree's MLP wired per limb group (lab/problem/wiring.py; None: the method's default)
 
     def __init__(self, robot: str = "planar", method: str = methods.DEFAULT_METHOD, generations: int | None = None,
                  population: int | None = None, targets: int | None = None, seed: int = 0, test_goals: int = 1000,
                  goal_seed: int = 0, features: str | None = None, margin: float | None = None,
                  hidden: int | None = None, options: Options | dict | None = None, paper: bool = False,
                  resample: bool = False, heads: int | None = None, seconds: float | None = None,
-                 turn: bool | None = None, **option_values):
+                 turn: bool | None = None, wiring: bool | None = None, **option_values):
         if option_values:
             base = options.to_dict() if isinstance(options, Options) else dict(options or {})
             options = {**base, **option_values}
@@ -79,7 +80,8 @@ class TrainConfig:
                             ("population", population), ("targets", targets), ("seed", seed),
                             ("test_goals", test_goals), ("goal_seed", goal_seed), ("features", features),
                             ("margin", margin), ("hidden", hidden), ("options", options), ("paper", paper),
-                            ("resample", resample), ("heads", heads), ("seconds", seconds), ("turn", turn)):
+                            ("resample", resample), ("heads", heads), ("seconds", seconds), ("turn", turn),
+                            ("wiring", wiring)):
             object.__setattr__(self, name, value)
         self.__post_init__()
 
@@ -100,6 +102,17 @@ class TrainConfig:
             raise ValueError(f"{self.robot} is a tree of {arm.n_effectors} end effectors: "
                              + ("multi-head MLPs (heads > 1) are for serial arms only" if self.heads > 1 else
                                 "it has no closed-form turn (no one joint turns every effector)"))
+        if self.wiring and not arm.is_tree:
+            raise ValueError(f"wiring is for trees (several end effectors): {self.robot} has one")
+        if self.wiring and method.controller != "mlp":
+            raise ValueError(f"wiring is for MLP networks: {method.label} does not train one")
+        if self.wiring:
+            from lab.problem.wiring import limb_groups
+
+            groups = len(limb_groups(arm))
+            if self.hidden < groups:
+                raise ValueError(f"a wired network of {self.robot} needs at least one hidden unit for each of its "
+                                 f"{groups} limb groups, got hidden={self.hidden}")
 
     def _check(self, method) -> None:
         """Every field that is set (None: a default still to come) is valid, by name."""
@@ -127,6 +140,8 @@ class TrainConfig:
         flag(self, "resample")
         if self.turn is not None:
             flag(self, "turn")
+        if self.wiring is not None:
+            flag(self, "wiring")
         if self.seconds is not None:
             real(self, "seconds", 0, float("inf"), "a positive finite number of seconds (optimizer time) or None",
                  closed_below=False)
@@ -175,6 +190,8 @@ class TrainConfig:
         d = self.to_dict()
         if "method" in changes and changes["method"] != self.method:
             d = {k: v for k, v in d.items() if k not in self.options.names()}
+            if methods.get(changes["method"]).controller != "mlp":  # a wired network is an MLP's
+                d.pop("wiring", None)
         return TrainConfig.from_dict({**d, **changes})
 
     def to_dict(self) -> dict:
@@ -187,4 +204,6 @@ class TrainConfig:
             del d["seconds"]
         if not d["turn"]:  # no turn: likewise, as before the turn existed
             del d["turn"]
+        if not d["wiring"]:  # no wiring: likewise, as before wired networks existed
+            del d["wiring"]
         return {**d, **self.options.to_dict()}
