@@ -122,3 +122,18 @@ def random_joints(rng, parents) -> tuple[list, list]:
                       f'<axis xyz="{fmt_xyz(axis / np.linalg.norm(axis))}"/>{limit}</joint>')
         links.append(f'<link name="l{k}"/>')
     return links, joints
+
+
+def session_of(app, probe):
+    """The app's TabSession behind a headless tab (its goal marker's owner)."""
+    owner = int(probe.owner("/tab/goal0/marker"))
+    assert wait_until(lambda: owner in app.sessions)
+    return app.sessions[owner]
+
+
+def last_pose(probe, name):
+    """(position, wxyz) last sent for a scene node."""
+    msgs = list(probe.messages)
+    pos = next(m["position"] for _t, m in reversed(msgs) if m["type"] == "SetPositionMessage" and m["name"] == name)
+    wxyz = next(m["wxyz"] for _t, m in reversed(msgs) if m["type"] == "SetOrientationMessage" and m["name"] == name)
+    return np.array(pos), np.array(wxyz)

@@ -24,7 +24,7 @@ from app.server import LabApp
 from app.startup import made_for
 from app.tab.goals import fmt_len
 from app.training.notebook import Notebook, NotebookError
-from conftest import wait_or_kill, wait_until
+from conftest import last_pose, session_of, wait_or_kill, wait_until
 
 import lab
 import robots
@@ -32,20 +32,6 @@ import robots
 # the render loop may redraw a tab in the instant between its socket closing and its session ending
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 
-
-
-def session_of(app, probe):
-    owner = int(probe.owner("/tab/goal0/marker"))
-    assert wait_until(lambda: owner in app.sessions)
-    return app.sessions[owner]
-
-
-def last_pose(probe, name):
-    """(position, wxyz) last sent for a scene node."""
-    msgs = list(probe.messages)
-    pos = next(m["position"] for _t, m in reversed(msgs) if m["type"] == "SetPositionMessage" and m["name"] == name)
-    wxyz = next(m["wxyz"] for _t, m in reversed(msgs) if m["type"] == "SetOrientationMessage" and m["name"] == name)
-    return np.array(pos), np.array(wxyz)
 
 
 def test_url_is_the_port_served(app):

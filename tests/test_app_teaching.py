@@ -10,7 +10,7 @@ import pytest
 from viser import _messages
 
 from app.probe import Probe
-from conftest import wait_until
+from conftest import session_of, wait_until
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 
@@ -38,12 +38,6 @@ def set_field(probe, kind: str, label: str, value) -> None:
     """Change a GUI field as the browser does (a GuiUpdateMessage for its uuid)."""
     msg = probe.wait_for(lambda m: m["type"] == kind and m["props"]["label"] == label)
     probe.send(_messages.GuiUpdateMessage(uuid=msg["uuid"], updates={"value": value}))
-
-
-def session_of(app, probe):
-    owner = int(probe.owner("/tab/goal0/marker"))
-    assert wait_until(lambda: owner in app.sessions)
-    return app.sessions[owner]
 
 
 def generations(app) -> int:

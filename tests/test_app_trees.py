@@ -18,7 +18,7 @@ import lab
 import robots
 from app.tab.goals import fmt_len, marker_name
 from app.training.notebook import label
-from conftest import METHODS, make_app, open_tab, wait_until
+from conftest import METHODS, last_pose, make_app, open_tab, session_of, wait_until
 from lab.recording.replay import load_controller
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
@@ -48,19 +48,6 @@ def on(app, tab, robot: str) -> None:
     session = session_of(app, tab)
     assert app.switch_robot(robot) is None
     assert wait_until(lambda: session.arm.name == robot and session.goals, 30)
-
-
-def session_of(app, probe):
-    owner = int(probe.owner("/tab/goal0/marker"))
-    assert wait_until(lambda: owner in app.sessions)
-    return app.sessions[owner]
-
-
-def last_pose(probe, name):
-    msgs = list(probe.messages)
-    pos = next(m["position"] for _t, m in reversed(msgs) if m["type"] == "SetPositionMessage" and m["name"] == name)
-    wxyz = next(m["wxyz"] for _t, m in reversed(msgs) if m["type"] == "SetOrientationMessage" and m["name"] == name)
-    return np.array(pos), np.array(wxyz)
 
 
 def set_field(probe, kind: str, label_: str, value) -> None:
