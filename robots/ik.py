@@ -388,8 +388,9 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
         (a serial arm's one), not the stacked norm, so within tol means every effector within it."""
         return float(np.sqrt(max(e[k:k + m] @ e[k:k + m] for k in range(0, len(e), m))))
 
-    def close(e):
-        return worst(e) < tol
+    def close(e, err):
+        """Within tolerance: err (the stacked norm) is the one effector's distance on a serial arm."""
+        return err < tol if m == len(e) else worst(e) < tol
 
     bearing = _bearing(arm) if turn and not arm.is_tree else None
     if bearing is not None:  # Python floats for _turned's scalar math
@@ -411,7 +412,7 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
         """At most `most` steps; stuck: no step length lowered the error (a local minimum, or a goal
         out of reach)."""
         k = 0
-        while not close(e) and k < most:
+        while not close(e, err) and k < most:
             if curved:
                 J, parts = _task_jacobian_axes(arm, data, to_pin(qi), axes)  # (m, nq)
             else:
@@ -445,9 +446,9 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
             state = descend(*seed, goal, first)
             if best is None or state[2] < best[2]:
                 best, choice[i], before = state, j, seed[2]
-            if close(best[1]):  # done: the later proposals cannot do better than within tolerance
+            if close(best[1], best[2]):  # done: the later proposals cannot do better than within tolerance
                 break
-        if first and flippable and not close(best[1]) and best[2] > 0.1 * before:
+        if first and flippable and not close(best[1], best[2]) and best[2] > 0.1 * before:
             # the best first step took less than 90 % of the error off: the seed may sit on the wrong
             # side of a fold (a wrist turning its offset away from a goal near full reach); the best
             # proposal with one joint turned by half a turn (within its limits) is another proposal
@@ -464,12 +465,12 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
                 state = descend(qs, es, errs, goal, first)
                 if state[2] < best[2]:
                     best, choice[i] = state, len(q) + j - 1
-                if close(best[1]):
+                if close(best[1], best[2]):
                     break
         qi, e, err, k, stuck = best
         if not stuck and k < steps:
             qi, e, err, more, _ = descend(qi, e, err, goal, steps - k)
             k += more
-        out_q[i], out_err[i], taken[i] = qi, worst(e), k
+        out_q[i], out_err[i], taken[i] = qi, err if m == len(e) else worst(e), k
     several = len(q) > 1 or bool(first and flippable)
     return RefineResult(out_q, out_err, taken, time.perf_counter() - t0, choice if several else None)

@@ -18,7 +18,7 @@ import lab
 import robots
 from app.tab.goals import fmt_len, marker_name
 from app.training.notebook import label
-from conftest import METHODS, last_pose, make_app, open_tab, session_of, wait_until
+from conftest import METHODS, last_pose, make_app, session_of, wait_until
 from lab.recording.replay import load_controller
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
@@ -34,10 +34,8 @@ def app(tmp_path_factory):
 
 
 @pytest.fixture
-def tab(app):
-    probe = open_tab(app)
-    yield probe
-    probe.close()
+def tab(tab, app):  # conftest's tab and this module's app
+    yield tab
     app.state.reset()
     app.panel.race.enabled.value = False
     app.runs.live()

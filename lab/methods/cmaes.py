@@ -135,10 +135,7 @@ class CMAESBackend(Backend):
             f = self.problem.mlp_mse(X, self.config.hidden, offsets=self.offsets)
         else:
             f = self.problem.wired_mse(X, self.wiring).sum(axis=1)
-        finite = np.isfinite(f)
-        worst = f[finite].max() if finite.any() else 1.0
-        self.es.tell(list(X), np.where(finite, f, 10.0 * worst + 1e6).tolist())
-        self._mend_sampler(self.es)
+        self._tell(self.es, X, f)
         i = int(np.argmin(f))
         self._offer(f[i], lambda: self.mlp(X[i].copy()))
         self._asked = X
@@ -158,11 +155,7 @@ class CMAESBackend(Backend):
         X = np.concatenate(parts, axis=1)
         F = self.problem.wired_mse(X, self.wiring)  # (P, groups)
         for k, es in enumerate(self.searches):
-            f = F[:, k]
-            finite = np.isfinite(f)
-            worst = f[finite].max() if finite.any() else 1.0
-            es.tell(list(parts[k]), np.where(finite, f, 10.0 * worst + 1e6).tolist())
-            self._mend_sampler(es)
+            self._tell(es, parts[k], F[:, k])
         f = F.sum(axis=1)
         if self.problem.resampling:  # this generation's best of each group, scored on the reference goals
             best = np.concatenate([parts[k][int(np.argmin(F[:, k]))] for k in range(len(parts))])
@@ -184,7 +177,11 @@ class CMAESBackend(Backend):
         return StepResult(f, extras)
 
     @staticmethod
-    def _mend_sampler(es) -> None:
+    def _tell(es, X, f) -> None:
+        """Tell a search its candidates' errors (a non-finite one ranked below every finite one)."""
+        finite = np.isfinite(f)
+        worst = f[finite].max() if finite.any() else 1.0
+        es.tell(list(X), np.where(finite, f, 10.0 * worst + 1e6).tolist())
         if es.sm.randn is np.random.randn:
             # pycma 4.x switches from the diagonal to the full sampler (CMA_diagonal) with a new
             # sampler that draws from numpy's global, unseeded generator: give it ours back
