@@ -141,7 +141,6 @@ class Problem:
         if G.ndim != 2 or G.shape[1] != wiring.dim:
             raise ValueError(f"wired genomes must be (P, {wiring.dim}), got shape {G.shape}")
         parts = self._wired_parts(wiring)
-        out = np.empty((len(G), len(parts)))
         jobs = []
         for k, ((rows, goal_rows, qmap, tree), W) in enumerate(zip(parts, wiring.split(G))):
             args = (np.ascontiguousarray(XT[rows]), np.ascontiguousarray(goalsT[goal_rows]), self._axes,
@@ -155,8 +154,7 @@ class Problem:
             futures = [_pool(self.threads).submit(kernels.tree_mlp_mse, *args, results[k]) for args, k in jobs]
             for f in futures:
                 f.result()
-        out[:] = results.T
-        return np.where(np.isfinite(out), out, np.inf)
+        return np.where(np.isfinite(results.T), results.T, np.inf)
 
     def _wired_parts(self, wiring) -> list:
         """Per limb group: (input rows, goal rows, output mapping, tree) as the tree kernels take them."""
