@@ -66,9 +66,15 @@ def test_a_serial_arm_as_a_tree_of_one_effector_gives_the_same_bits(robot):
     W = np.random.default_rng(2).normal(0, 0.7, (5, mlp_size(enc.n_inputs, 5, enc.n_outputs)))
     serial, tree = np.empty(5), np.empty(5)
     kernels.mlp_mse(XT, goalsT, problem._axes, W, 5, problem._qmap, arm.chain.arrays, serial)
-    kernels.tree_mlp_mse(XT, goalsT, problem._axes, W, 5, problem._qmap, one, tree)
+    kernels.tree_mlp_mse(XT, goalsT, problem._axes, W, 5, problem._qmap[:4] + (kernels.NO_TURN[None],), one, tree)
     assert np.array_equal(serial, tree)
     assert np.array_equal(problem.mlp_mse(W, 5), serial)
+    if robot == "ur5":  # and the turn: a tree's limb is turned by the serial arm's turn, bit for bit
+        turned = Problem(arm, Encoding.for_arm(arm, "reach", 0.5, turn=True), targets=30, test_goals=5)
+        kernels.mlp_mse(XT, goalsT, problem._axes, W, 5, turned._qmap, arm.chain.arrays, serial)
+        kernels.tree_mlp_mse(XT, goalsT, problem._axes, W, 5, turned._qmap[:4] + (turned.encoding.turn[None],), one,
+                             tree)
+        assert np.array_equal(serial, tree)
 
 
 def test_the_tree_arrays_are_each_effectors_own_chain():
@@ -118,13 +124,9 @@ def test_goals_of_the_wrong_shape_are_refused_by_name():
     assert run.controller(arm.sample_goals(2, seed=0)).shape == (2, arm.nq)
 
 
-def test_heads_and_the_turn_are_refused_on_a_tree():
+def test_heads_are_refused_on_a_tree():
     with pytest.raises(ValueError, match="tree of 2 end effectors: multi-head"):
         lab.TrainConfig(robot="talos-legs", method="cmaes", heads=2)
-    with pytest.raises(ValueError, match="no closed-form turn"):
-        lab.TrainConfig(robot="talos-legs", method="cmaes", turn=True)
-    with pytest.raises(ValueError, match="no closed-form turn"):
-        Encoding.for_arm(robots.load("solo12"), "cartesian", turn=True)
 
 
 def test_the_tree_encoding_round_trips_and_scales_each_effector_by_its_own_workspace():
@@ -216,6 +218,12 @@ def test_a_wired_genome_is_an_mlp_zero_off_its_limbs_with_the_dense_fitness(robo
     W = wiring.expand(G)
     assert np.all(W[:, ~wiring.mask] == 0) and np.array_equal(wiring.genome(W), G)
     np.testing.assert_allclose(problem.wired_mse(G, wiring).sum(axis=1), problem.mlp_mse(W, 9), rtol=1e-12)
+    # the candidates sliced over threads: the same numbers, bit for bit
+    many = Problem(arm, enc, targets=400, test_goals=10, threads=1)
+    G = rng.normal(0, 0.5, (24, wiring.dim))
+    one = many.wired_mse(G, wiring)
+    many.threads = 3
+    assert np.array_equal(many.wired_mse(G, wiring), one)
     # a goal of one group's effectors moves only that group's joints
     net = MLPController(enc, 9, W[0])
     goals = arm.sample_goals(2, seed=5)

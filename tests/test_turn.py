@@ -64,8 +64,9 @@ def test_turned_controller_round_trips_through_json():
     np.testing.assert_array_equal(back(goals), c(goals))
 
 
-def test_gradient_through_the_turn_matches_finite_differences():
-    arm = robots.load("ur5")
+@pytest.mark.parametrize("name", ["ur5", "solo12"])  # a serial arm's first joint; each leg's hip of a tree
+def test_gradient_through_the_turn_matches_finite_differences(name):
+    arm = robots.load(name)
     enc = Encoding.for_arm(arm, "sphere", 0.0, turn=True)
     problem = Problem(arm, enc, targets=30, test_goals=10, threads=1)
     w = np.random.default_rng(4).normal(0.0, 0.2, mlp_size(enc.n_inputs, 4, arm.nq))

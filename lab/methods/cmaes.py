@@ -34,8 +34,9 @@ MULTI_HEAD_ARMS = {"ur5": dict(heads=2, generations=32_000), "so100": dict(heads
                    "so101": dict(heads=4, generations=20_000), "z1": dict(heads=2, generations=32_000)}
 # a tree's settings (tree_defaults), with margin_of's margin (0.3 where every joint turns less than a turn: 0 on
 # solo12, whose joints turn +-10 rad); wired per limb group (lab/problem/wiring.py), so hidden is shared out
-# over the groups
-TREE_SETTINGS = dict(features="reach", hidden=64, targets=300, population=50, sigma0=0.05, separable=True, wiring=True)
+# over the groups; each limb that moves one effector alone turned in closed form (lab/problem/tree_encoding.py)
+TREE_SETTINGS = dict(features="sphere", hidden=64, targets=300, population=50, sigma0=0.05, separable=True, wiring=True,
+                     turn=True)
 log = logging.getLogger(__name__)
 SHORT_BUDGET, SHORT_POPULATION = 15.0, 20  # a real arm's budget of at most 15 s: a population of 20
 BUDGET_HEADS = {"so100": 2, "so101": 2}  # a real arm's heads with a time budget (the others: one)
@@ -275,8 +276,10 @@ def tree_defaults(arm) -> dict:
     hand, a humanoid) when none are given: one network answers all joints for all effectors' goals
     (lab/problem/tree_encoding.py), wired per limb group (lab/problem/wiring.py: each group of limbs
     that share no joint its own hidden units, hearing only its effectors' goals, and its own search on
-    its own share of the error), the real arms' search otherwise (sep-CMA-ES, population 50, 300 goals,
-    sigma0 0.05), 64 hidden units over the groups. TREE_SETTINGS chosen by budgeted runs (the
+    its own share of the error), the first joint of every limb that moves one effector alone turned
+    in closed form toward its goal (a leg's hip, a finger's base; not a humanoid's waist), the real
+    arms' search otherwise (sep-CMA-ES, population 50, 300 goals, sigma0 0.05), 64 hidden units over
+    the groups. TREE_SETTINGS chosen by budgeted runs (the
     comparison and its figures: docs/log.md)."""
     return {**TREE_SETTINGS, "margin": margin_of(arm), "generations": REAL_ARM_GENERATIONS}
 

@@ -129,12 +129,14 @@ def defaults(arm) -> dict:
     in closed form toward the goal, whose gradient is then stationary in that joint), output margin 0
     (a margin clips, and a clipped output passes no gradient), the default learning rate and 20,000
     steps (about 20-30 s).
-    Trees (several end effectors): "sphere" inputs in each limb frame, no turn, TREE_TARGETS training
-    goals: with 300, a full-batch descent fits them and generalizes badly (the comparison: docs/log.md)."""
+    Trees (several end effectors): "sphere" inputs in each limb frame, each limb that moves one
+    effector alone turned in closed form (as CMA-ES's trees), TREE_TARGETS training goals: with 300,
+    a full-batch descent fits them and generalizes badly (the comparisons: docs/log.md)."""
     if robots.kind(arm.name) in ("paper", "snake"):
         return dict(features="reach", margin=2.0, hidden=5, population=1, generations=3000, learning_rate=0.03)
     if robots.kind(arm.name) == "tree":
-        return dict(features="sphere", margin=0.0, hidden=32, targets=TREE_TARGETS, population=1, generations=20_000)
+        return dict(features="sphere", margin=0.0, hidden=32, targets=TREE_TARGETS, population=1, generations=20_000,
+                    turn=True)
     return dict(real_arm_io(arm), margin=0.0, hidden=32, targets=300, population=1, generations=20_000)
 
 

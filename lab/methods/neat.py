@@ -452,12 +452,16 @@ def defaults(arm) -> dict:
     """The settings NEAT runs with on an arm when none are given (the comparisons behind them:
     docs/results/paper-budget.md, docs/results/budgets.md; their figures: docs/log.md).
 
-    The paper's arms, the snakes and the trees: polar inputs, output margin 0.5, no hidden node at first.
+    The paper's arms, the snakes and the trees: polar inputs, output margin 0.5, no hidden node at first;
+    on a tree, each limb that moves one effector alone turned in closed form (as every method's trees:
+    the comparison in docs/log.md).
     A real arm: the real-arm inputs and output mapping every method shares (real_arm_io: the first
     joint turned in closed form), 300 goals, a population of 100, weight perturbations of 0.1 and
     structural mutations 25-50 times the paper's (add node 0.05, add connection 0.1), so that
     networks grow within minutes, from no hidden node; REAL_ARM_GENERATIONS generations."""
-    if robots.kind(arm.name) != "real":  # the paper's arms, the snakes and the trees
+    if robots.kind(arm.name) == "tree":  # and each limb that moves one effector alone turned, as every method's trees
+        return dict(features="polar", margin=0.5, hidden=0, turn=True)
+    if robots.kind(arm.name) != "real":  # the paper's arms and the snakes
         return dict(features="polar", margin=0.5, hidden=0)
     return dict(real_arm_io(arm), hidden=0, targets=300, population=100, generations=REAL_ARM_GENERATIONS,
                 mutation_power=0.1, add_node=0.05, add_connection=0.1)

@@ -130,6 +130,11 @@ class Encoding:
         """The turn as the kernels take it (kernels.NO_TURN when off)."""
         return self.turn if self.turn is not None else kernels.NO_TURN
 
+    @property
+    def turned_joints(self) -> np.ndarray:
+        """The joints turned in closed form: the first one when the encoding turns, else none."""
+        return np.zeros(1 if self.turn is not None else 0, np.int64)
+
     @staticmethod
     def turn_for(arm: robots.Arm) -> np.ndarray:
         """The turn of arm's first joint: [1, axis point, axis direction, lower, upper, continuous];

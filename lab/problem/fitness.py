@@ -141,17 +141,22 @@ class Problem:
         if G.ndim != 2 or G.shape[1] != wiring.dim:
             raise ValueError(f"wired genomes must be (P, {wiring.dim}), got shape {G.shape}")
         parts = self._wired_parts(wiring)
+        results = np.empty((len(parts), len(G)))
+        # each group's candidates in as many slices as threads (the groups differ in cost: g1's arms
+        # and waist cost more than both legs together), every slice its own job
+        slices = max(1, min(self.threads, len(G) * XT.shape[1] // _MIN_SLICE, len(G)))
+        edges = np.linspace(0, len(G), slices + 1).astype(int)
         jobs = []
         for k, ((rows, goal_rows, qmap, tree), W) in enumerate(zip(parts, wiring.split(G))):
-            args = (np.ascontiguousarray(XT[rows]), np.ascontiguousarray(goalsT[goal_rows]), self._axes,
-                    np.ascontiguousarray(W), len(wiring.units[k]), qmap, tree)
-            jobs.append((args, k))
-        results = np.empty((len(parts), len(G)))
+            X_k, goals_k, W = (np.ascontiguousarray(XT[rows]), np.ascontiguousarray(goalsT[goal_rows]),
+                               np.ascontiguousarray(W))
+            for a, b in zip(edges[:-1], edges[1:]):
+                jobs.append((X_k, goals_k, self._axes, W[a:b], len(wiring.units[k]), qmap, tree, results[k, a:b]))
         if self.threads <= 1:
-            for args, k in jobs:
-                kernels.tree_mlp_mse(*args, results[k])
+            for args in jobs:
+                kernels.tree_mlp_mse(*args)
         else:
-            futures = [_pool(self.threads).submit(kernels.tree_mlp_mse, *args, results[k]) for args, k in jobs]
+            futures = [_pool(self.threads).submit(kernels.tree_mlp_mse, *args) for args in jobs]
             for f in futures:
                 f.result()
         return np.where(np.isfinite(results.T), results.T, np.inf)
@@ -169,7 +174,7 @@ class Problem:
             paths = [[where[int(j)] for j in self.arm.chain.path(e)] for e in g]
             tree = kernels.pack_tree([self.arm.chain.effector_arrays(e) for e in g], paths, len(js))
             qmap = tuple(np.ascontiguousarray(a[js]) for a in (enc.q_offset, enc.q_scale, enc.clip_lo, enc.clip_hi)) \
-                + (enc.turn_spec,)
+                + (np.ascontiguousarray(enc.turn_spec[list(g)]),)
             goal_rows = np.concatenate([np.arange(e * m, (e + 1) * m) for e in g])
             parts.append((np.asarray(ins), goal_rows, qmap, tree))
         cache[key] = (wiring, parts)
@@ -197,14 +202,14 @@ class Problem:
         raw = enc.q_offset + (A + 1.0) * enc.q_scale
         q = np.clip(raw, enc.clip_lo, enc.clip_hi)
         if enc.turns:  # the first joint turned in closed form: at the turn the error is stationary in it
-            q = enc.turned(q, goals)
+            q = enc.turned(q, goals.reshape(n, -1, 3) if self.arm.is_tree else goals)
         axes = list(self.arm.task_axes)
         err = self.arm.fk(q)[..., axes].reshape(n, -1) - goals  # (n, k); a tree's (n, E k), the errors stacked
         mse = float(np.mean(np.sum(err * err, axis=1)))
         J = self.arm.jacobian(q)[..., axes, :].reshape(n, err.shape[1], -1)  # (n, k, nq), a tree's stacked
         dq = (2.0 / n) * np.einsum("gk,gkj->gj", err, J)
-        if enc.turns:  # the network's first output is unused
-            dq[:, 0] = 0.0
+        if enc.turns:  # the network's outputs for the turned joints are unused
+            dq[:, enc.turned_joints] = 0.0
         dA = dq * ((raw >= enc.clip_lo) & (raw <= enc.clip_hi)) * enc.q_scale
         dZo = dA * (1.0 - A * A)
         dZh = (dZo @ w_o.T) * (1.0 - H * H)
@@ -217,7 +222,7 @@ class Problem:
         QT = np.ascontiguousarray(self.encoding.mapped(np.asarray(A, dtype=np.float64)).transpose(0, 2, 1))
         out = np.empty(len(QT))
         if self.arm.is_tree:
-            kernels.tree_joints_mse(QT, goalsT, self._axes, self._chain, out)
+            kernels.tree_joints_mse(QT, goalsT, self._axes, self._chain, self.encoding.turn_spec, out)
         else:
             kernels.joints_mse(QT, goalsT, self._axes, self._chain, self.encoding.turn_spec, out)
         return out

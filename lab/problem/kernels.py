@@ -422,10 +422,12 @@ def mlp_heads_mse(XT, goalsT, axes, W, nh, offsets, qmap, chain, out):
 
 
 @numba.njit(**_JIT)
-def tree_sq_errors(Q, goalsT, axes, tree, E):
+def tree_sq_errors(Q, goalsT, axes, tree, turns, E):
     """E (N,) <- the sum over effectors of each one's squared task-space error, joint values Q (nq, N),
-    goals (E m, N): each effector's chain composed by fk_sq_errors (the serial arm's path, unchanged)
-    on its own rows of Q, the errors added in effector order."""
+    goals (E m, N): each effector's chain composed by fk_turned_sq_errors (the serial arm's path,
+    unchanged) on its own rows of Q, the errors added in effector order. turns (E, 10): row e the
+    serial turn (NO_TURN's layout) of effector e's limb, whose first joint moves that effector alone;
+    unset: not turned."""
     rot, pos, kind, identity, ee_pos, joints, starts = tree
     n, m = Q.shape[1], axes.shape[0]
     longest = 0
@@ -438,14 +440,31 @@ def tree_sq_errors(Q, goalsT, axes, tree, E):
         a, b = starts[e], starts[e + 1]
         for k in range(b - a):
             Qe[k] = Q[joints[a + k]]
-        fk_sq_errors(Qe[:b - a], goalsT[e * m:(e + 1) * m], axes,
-                     (rot[a:b], pos[a:b], kind[a:b], identity[a:b], ee_pos[e]), Ee)
+        fk_turned_sq_errors(Qe[:b - a], goalsT[e * m:(e + 1) * m], axes,
+                            (rot[a:b], pos[a:b], kind[a:b], identity[a:b], ee_pos[e]), turns[e], Ee)
         for g in range(n):
             E[g] += Ee[g]
 
 
 @numba.njit(**_JIT)
-def _tree_side_by_side_mse(Q, goalsT, axes, tree, out):
+def tree_turn_joints(Q, goalsT, tree, turns):
+    """Q's rows of the turned limbs' first joints <- each turned toward its effector's goal (goalsT
+    (3 E, N)), as the fitness turns it (turn_first_joint on that effector's chain)."""
+    rot, pos, kind, identity, ee_pos, joints, starts = tree
+    for e in range(ee_pos.shape[0]):
+        if turns[e, 0] == 0.0:
+            continue
+        a, b = starts[e], starts[e + 1]
+        Qe = np.empty((b - a, Q.shape[1]))
+        for k in range(b - a):
+            Qe[k] = Q[joints[a + k]]
+        turn_first_joint(Qe, goalsT[3 * e:3 * e + 3], (rot[a:b], pos[a:b], kind[a:b], identity[a:b], ee_pos[e]),
+                         turns[e])
+        Q[joints[a]] = Qe[0]
+
+
+@numba.njit(**_JIT)
+def _tree_side_by_side_mse(Q, goalsT, axes, tree, turns, out):
     """Q (nq, P n): joint values of P controllers side by side -> out (P,) <- each one's mean over the
     goals of the summed squared effector errors."""
     n = goalsT.shape[1]
@@ -454,16 +473,16 @@ def _tree_side_by_side_mse(Q, goalsT, axes, tree, out):
     for p in range(P):
         tiled[:, p * n:(p + 1) * n] = goalsT
     E = np.empty(P * n)
-    tree_sq_errors(Q, tiled, axes, tree, E)
+    tree_sq_errors(Q, tiled, axes, tree, turns, E)
     _segment_means(E, n, out)
 
 
 @numba.njit(**_JIT)
 def _tree_population_mse(A, goalsT, axes, qmap, tree, out):
-    """_population_mse on a tree: A (nq, P n) outputs -> out (P,)."""
+    """_population_mse on a tree: A (nq, P n) outputs -> out (P,); qmap[4] the turns (E, 10)."""
     for o in range(A.shape[0]):
         _to_joints_row(A[o], o, qmap)
-    _tree_side_by_side_mse(A, goalsT, axes, tree, out)
+    _tree_side_by_side_mse(A, goalsT, axes, tree, qmap[4], out)
 
 
 @numba.njit(**_JIT)
@@ -488,13 +507,13 @@ def tree_graph_mse(XT, goalsT, axes, program, qmap, tree, out):
 
 
 @numba.njit(**_JIT)
-def tree_joints_mse(QT, goalsT, axes, tree, out):
-    """joints_mse on a tree: joint values QT (P, nq, n), goals (E m, n) -> out (P,)."""
+def tree_joints_mse(QT, goalsT, axes, tree, turns, out):
+    """joints_mse on a tree: joint values QT (P, nq, n), goals (E m, n) -> out (P,) (turns as tree_sq_errors)."""
     P, nq, n = QT.shape
     Q = np.empty((nq, P * n))
     for p in range(P):
         Q[:, p * n:(p + 1) * n] = QT[p]
-    _tree_side_by_side_mse(Q, goalsT, axes, tree, out)
+    _tree_side_by_side_mse(Q, goalsT, axes, tree, turns, out)
 
 
 def pack_tree(chains, paths, nq: int) -> tuple:

@@ -24,8 +24,14 @@ Outputs: Encoding's mapping, with every joint whose range exceeds a full turn (s
 mapped as a continuous joint (two turns about its middle, wrapped into the turn about its middle):
 one output then sweeps every angle without spanning the three turns of such a range.
 
-Goals of any other shape than (n, E, m) are refused, naming the shape expected. A tree has no
-closed-form turn (no one joint turns every effector) and no multi-head networks here.
+The turn (turn=True): the first joint of every limb that moves one effector alone (a leg's hip, a
+finger's first joint; not g1's waist, which moves both hands) is turned in closed form toward that
+effector's goal, as a serial arm's first joint is (lab/problem/encoding.py), on that effector's own
+chain. The network's output for such a joint only chooses among whole turns and limits; the other
+joints answer the goal's distance from that joint's axis and its height along it.
+
+Goals of any other shape than (n, E, m) are refused, naming the shape expected. No multi-head
+networks here.
 """
 
 from __future__ import annotations
@@ -35,9 +41,11 @@ from dataclasses import dataclass
 import numpy as np
 
 import robots
+from lab.problem import kernels
 from lab.problem.encoding import FEATURES, Encoding, _enclosing_sphere, _raw_features
 
 _LIMB_FIELDS = ("limb_origin", "limb_frame", "limb_r_max", "limb_z_c", "limb_rho_max", "limb_facing")
+_TREE_FIELDS = ("rot", "pos", "kind", "identity", "ee_pos", "joints", "starts")  # kernels.pack_tree's arrays
 _FEATURE_COUNT = {"cartesian": 3, "polar": 5, "cylindrical": 3, "reach": 6, "sphere": 9, "bearings": 10}
 
 
@@ -64,7 +72,7 @@ class TreeEncoding(Encoding):
         if tuple(self.task_axes) != (0, 1, 2):
             raise ValueError(f"a tree's encoding needs the task axes x, y, z, got {self.task_axes!r}")
         if self.turn is not None:
-            raise ValueError("a tree has no closed-form turn (no one joint turns every effector)")
+            self._check_tree_turn()
         if not 0 <= self.margin < 10:
             raise ValueError(f"margin must be in [0, 10), got {self.margin!r}")
         wrap = np.zeros(len(self.q_lo), bool) if self.wrap is None else np.asarray(self.wrap, bool).reshape(-1)
@@ -86,14 +94,78 @@ class TreeEncoding(Encoding):
             if not (lo.shape == hi.shape == (n,) and np.all(np.isfinite(lo) & np.isfinite(hi)) and np.all(lo < hi)):
                 raise ValueError(f"{what} must be {n} finite (lo < hi) pairs, got lo {lo.tolist()}, hi {hi.tolist()}")
 
+    def _check_tree_turn(self) -> None:
+        E = self.effectors
+        turn = np.ascontiguousarray(np.asarray(self.turn, dtype=np.float64))
+        if turn.shape != (E, 10) or not np.all(np.isfinite(turn)) or not np.all(np.isin(turn[:, 0], (0.0, 1.0))) \
+                or not turn[:, 0].any():
+            raise ValueError(f"a tree's turn must be {E} rows of 10 finite numbers [on (0 or 1), axis point (3), axis "
+                             f"direction (3), lower, upper, continuous], one row on at least, got {self.turn!r}")
+        on = turn[:, 0] == 1.0
+        if np.any(np.abs(np.linalg.norm(turn[on, 4:7], axis=1) - 1.0) > 1e-9):
+            raise ValueError("a tree's turn needs a unit axis direction for every turned effector")
+        if self.chain is None:
+            raise ValueError("an encoding that turns a tree's limbs needs the tree's kinematic arrays (kernels.pack_tree)")
+        try:
+            rot, pos, kind, identity, ee_pos, joints, starts = (np.asarray(a) for a in (
+                self.chain.values() if isinstance(self.chain, dict) else self.chain))
+        except (TypeError, ValueError):
+            raise ValueError("a tree's chain must be (rot, pos, kind, identity, ee_pos, joints, starts)") from None
+        if starts.shape != (E + 1,) or ee_pos.shape != (E, 3):
+            raise ValueError(f"a tree's chain must describe {E} effectors, got {len(starts) - 1}")
+        paths = [joints[starts[e]:starts[e + 1]] for e in range(E)]
+        for e in np.flatnonzero(on):
+            if any(paths[e][0] in paths[f] for f in range(E) if f != e):
+                raise ValueError(f"effector {e}'s first joint (joint {paths[e][0]}) moves other effectors too: "
+                                 "only a limb that moves one effector alone is turned")
+        chains = [(rot[a:b], pos[a:b], kind[a:b], identity[a:b], ee_pos[e])
+                  for e, (a, b) in enumerate(zip(starts[:-1], starts[1:]))]
+        object.__setattr__(self, "turn", turn)
+        object.__setattr__(self, "chain", kernels.pack_tree(chains, paths, len(self.q_lo)))
+
+    @property
+    def turn_spec(self) -> np.ndarray:
+        """The turns as the tree kernels take them: (E, 10), a row per effector (all unset when off)."""
+        return self.turn if self.turn is not None else np.zeros((self.effectors, 10))
+
+    @property
+    def turned_joints(self) -> np.ndarray:
+        """The joints turned in closed form (the first joint of every turned effector's limb), ascending."""
+        if self.turn is None:
+            return np.zeros(0, np.int64)
+        joints, starts = self.chain[5], self.chain[6]
+        return np.unique([joints[starts[e]] for e in range(self.effectors) if self.turn[e, 0] == 1.0]).astype(np.int64)
+
+    @staticmethod
+    def turns_for(arm: robots.Arm) -> np.ndarray:
+        """(E, 10): each effector's limb's first joint (on the fixed root) as its turn, [1, axis point,
+        axis direction, lower, upper, continuous] (kernels.NO_TURN's layout); a joint of more than a
+        turn between its limits (solo12's) is turned as a continuous one into the turn about its
+        middle, as mapped() wraps it. Not turned (the row unset): a prismatic first joint, and one that
+        moves other effectors too (g1's waist: turning it for both hands made the hands worse, docs/log.md)."""
+        moves = [set(int(j) for j in arm.chain.path(e)) for e in range(arm.n_effectors)]
+        shared = {j for e, js in enumerate(moves) for j in js if any(j in moves[f] for f in range(len(moves)) if f != e)}
+        rows = []
+        for e in range(arm.n_effectors):
+            k = int(arm.chain.path(e)[0])
+            if arm.is_prismatic[k] or k in shared:
+                rows.append(np.zeros(10))
+                continue
+            rot, pos = arm.chain.effector_arrays(e)[:2]
+            w = np.asarray(rot[0], dtype=np.float64)[:, 2]
+            lo, hi, cont = float(arm.lower[k]), float(arm.upper[k]), bool(arm.chain.continuous[k])
+            if cont or hi - lo > 2 * np.pi + 1e-9:
+                mid = 0.5 * (lo + hi)
+                lo, hi, cont = mid - np.pi, mid + np.pi, True
+            rows.append(np.concatenate([[1.0], np.asarray(pos[0], dtype=np.float64), w / np.linalg.norm(w),
+                                        [lo, hi, float(cont)]]))
+        return np.asarray(rows)
+
     @classmethod
     def for_arm(cls, arm: robots.Arm, features: str = "cartesian", margin: float = 0.0,
                 turn: bool = False) -> "TreeEncoding":
         if not arm.is_tree:
             raise ValueError(f"{arm.name} has one end effector: its encoding is Encoding.for_arm's")
-        if turn:
-            raise ValueError(f"{arm.name} is a tree of {arm.n_effectors} end effectors: it has no closed-form turn "
-                             "(no one joint turns every effector)")
         if features not in FEATURES:
             raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {features!r}")
         goals = arm.sample_goals(20_000, seed=12345)  # (N, E, 3), the samples of arm.workspace_bounds
@@ -114,8 +186,11 @@ class TreeEncoding(Encoding):
         # a joint that turns more than a turn between its limits (solo12's +-10 rad) is mapped as a
         # continuous one: two turns about its middle, taken modulo a turn into its range
         wrap = np.asarray(arm.chain.continuous, bool) | ((arm.upper - arm.lower) > 2 * np.pi + 1e-9)
+        turns = cls.turns_for(arm) if turn else None
+        tree = kernels.pack_tree([arm.chain.effector_arrays(e) for e in range(arm.n_effectors)],
+                                 [arm.chain.path(e) for e in range(arm.n_effectors)], arm.nq) if turn else None
         return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy(), float(margin),
-                   wrap=wrap, effectors=arm.n_effectors, **limbs)
+                   wrap=wrap, turn=turns, chain=tree, effectors=arm.n_effectors, **limbs)
 
     def mapped(self, a: np.ndarray) -> np.ndarray:
         """Encoding's output mapping, with a wrapped joint taken modulo a turn into the turn about its
@@ -129,6 +204,20 @@ class TreeEncoding(Encoding):
         mid = 0.5 * (self.q_lo + self.q_hi)
         q = np.where(self.wrap, mid - np.pi + np.mod(q - mid + np.pi, 2 * np.pi), q)
         return np.clip(q, self.q_lo, self.q_hi)
+
+    def turned(self, q: np.ndarray, goals: np.ndarray) -> np.ndarray:
+        """Joint values q (..., n, nq) with every turned limb's first joint turned toward goals (n, E, 3)."""
+        goals = np.asarray(goals, dtype=np.float64)
+        q = np.asarray(q, dtype=np.float64)
+        nq = len(self.q_lo)
+        if goals.ndim != 3 or goals.shape[1:] != (self.effectors, 3) or q.ndim < 2 or q.shape[-2:] != (len(goals), nq):
+            raise ValueError(f"the turn needs joint values (..., {len(goals)}, {nq}) for goals (n, {self.effectors}, 3), "
+                             f"got joint values {q.shape} for goals {goals.shape}")
+        QT = np.ascontiguousarray(q.reshape(-1, nq).T)
+        goalsT = goals.reshape(len(goals), -1).T
+        tiled = np.ascontiguousarray(np.tile(goalsT, (1, QT.shape[1] // len(goals))))
+        kernels.tree_turn_joints(QT, tiled, self.chain, self.turn)
+        return QT.T.reshape(q.shape)
 
     @property
     def input_names(self) -> list[str]:
@@ -156,6 +245,8 @@ class TreeEncoding(Encoding):
             "q_lo": self.q_lo.tolist(), "q_hi": self.q_hi.tolist(), "margin": self.margin,
             **({"wrap": self.wrap.tolist()} if self.wrap.any() else {}),
             "effectors": self.effectors, **{name: getattr(self, name).tolist() for name in _LIMB_FIELDS},
+            **({"turn": self.turn.tolist(), "tree": dict(zip(_TREE_FIELDS, (np.asarray(x).tolist() for x in self.chain)))}
+               if self.turn is not None else {}),
         }
 
     @classmethod
@@ -163,6 +254,7 @@ class TreeEncoding(Encoding):
         return cls(d["features"], tuple(d["task_axes"]),
                    *(np.atleast_1d(np.asarray(d[k], float)) for k in ("in_lo", "in_hi", "q_lo", "q_hi")),
                    float(d.get("margin", 0.0)), wrap=d.get("wrap"), effectors=d["effectors"],
+                   turn=d.get("turn"), chain=None if "tree" not in d else tuple(d["tree"][k] for k in _TREE_FIELDS),
                    **{name: d[name] for name in _LIMB_FIELDS})
 
 

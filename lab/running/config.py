@@ -64,7 +64,7 @@ class TrainConfig:
     paper: bool = False  # record that this is the paper's literal method (see preset)
     resample: bool = False  # new training goals every generation (the paper: fixed; lab.problem.fitness)
     seconds: float | None = None  # time budget: s of optimizer time (None: none; generations then default to UNBOUNDED)
-    turn: bool | None = None  # the first joint turned in closed form toward the goal (lab/problem/encoding.py; None: the method's default)
+    turn: bool | None = None  # the first joint (a tree: each lone limb's) turned toward the goal in closed form (None: the default)
     wiring: bool | None = None  # a tree's MLP wired per limb group (lab/problem/wiring.py; None: the method's default)
 
     def __init__(self, robot: str = "planar", method: str = methods.DEFAULT_METHOD, generations: int | None = None,
@@ -98,10 +98,9 @@ class TrainConfig:
                 object.__setattr__(self, name, defaults[name])
         object.__setattr__(self, "options", method.options_for(arm, self.options, self.seconds))
         self._check(method)  # and the defaults filled in
-        if arm.is_tree and (self.heads > 1 or self.turn):
+        if arm.is_tree and self.heads > 1:
             raise ValueError(f"{self.robot} is a tree of {arm.n_effectors} end effectors: "
-                             + ("multi-head MLPs (heads > 1) are for serial arms only" if self.heads > 1 else
-                                "it has no closed-form turn (no one joint turns every effector)"))
+                             "multi-head MLPs (heads > 1) are for serial arms only")
         if self.wiring and not arm.is_tree:
             raise ValueError(f"wiring is for trees (several end effectors): {self.robot} has one")
         if self.wiring and method.controller != "mlp":
