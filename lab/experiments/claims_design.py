@@ -17,9 +17,10 @@ METHODS = ("cmaes", "neat", "gradient")
 ROBOTS = ("planar", "scara", "planar-10", "planar-20", "ur5", "panda", "talos-legs", "g1")
 RESAMPLE_ROBOTS = ("planar", "scara")
 # seconds per generation of the reference method with its defaults on each arm, measured on this
-# 2-core machine (2026-11-24, under load ~2-4): the equal-time limit is generations x this
+# 2-core machine (2026-11-24, under load ~2-4; the trees 2026-12-04, idle, with their turn): the
+# equal-time limit is generations x this
 SECONDS_PER_GENERATION = {"planar": 0.003, "scara": 0.003, "planar-10": 0.0035, "planar-20": 0.006,
-                          "ur5": 0.009, "panda": 0.010, "talos-legs": 0.010, "g1": 0.018}
+                          "ur5": 0.009, "panda": 0.010, "talos-legs": 0.012, "g1": 0.023}
 CAP = 10  # equal-time runs: generation cap, x the method's equal-budget generations
 CHECKPOINTS = 12  # held-out error at this many log-spaced points of the budget (and at the end)
 FIRST_CHECKPOINT = 0.01  # the first at 1% of the budget
