@@ -33,6 +33,7 @@ import robots
 from lab.problem import environment, kernels
 from lab.problem.controllers import Controller, compile_programs
 from lab.problem.encoding import Encoding
+from lab.problem.tree_encoding import tree_arrays  # noqa: F401 (the tree kernels' arrays, named here too)
 
 TEST_SEED_OFFSET = 1_000_003  # held-out goals come from another stream than the training goals
 RESAMPLE_STREAM = 2_000_003  # resampled training goals: yet another stream
@@ -252,14 +253,6 @@ def _goals_t(goals: np.ndarray) -> np.ndarray:
     """Goals as the kernels take them: (k, n), a tree's (n, E, k) as (E k, n), effector after effector."""
     goals = np.asarray(goals, dtype=np.float64)
     return _t(goals.reshape(len(goals), -1))
-
-
-def tree_arrays(arm: robots.Arm) -> tuple:
-    """A tree as the tree kernels take it (lab.problem.kernels.pack_tree): each effector's own serial
-    chain (arm.chain.effector_arrays(e)) on its path (arm.chain.path(e))."""
-    E = arm.n_effectors
-    return kernels.pack_tree([arm.chain.effector_arrays(e) for e in range(E)], [arm.chain.path(e) for e in range(E)],
-                             arm.nq)
 
 
 def goal_errors(arm: robots.Arm, controller: Controller, goals: np.ndarray) -> np.ndarray:

@@ -186,9 +186,7 @@ class TreeEncoding(Encoding):
         # a joint that turns more than a turn between its limits (solo12's +-10 rad) is mapped as a
         # continuous one: two turns about its middle, taken modulo a turn into its range
         wrap = np.asarray(arm.chain.continuous, bool) | ((arm.upper - arm.lower) > 2 * np.pi + 1e-9)
-        turns = cls.turns_for(arm) if turn else None
-        tree = kernels.pack_tree([arm.chain.effector_arrays(e) for e in range(arm.n_effectors)],
-                                 [arm.chain.path(e) for e in range(arm.n_effectors)], arm.nq) if turn else None
+        turns, tree = (cls.turns_for(arm), tree_arrays(arm)) if turn else (None, None)
         return cls(features, tuple(arm.task_axes), lo, hi, arm.lower.copy(), arm.upper.copy(), float(margin),
                    wrap=wrap, turn=turns, chain=tree, effectors=arm.n_effectors, **limbs)
 
@@ -256,6 +254,14 @@ class TreeEncoding(Encoding):
                    float(d.get("margin", 0.0)), wrap=d.get("wrap"), effectors=d["effectors"],
                    turn=d.get("turn"), chain=None if "tree" not in d else tuple(d["tree"][k] for k in _TREE_FIELDS),
                    **{name: d[name] for name in _LIMB_FIELDS})
+
+
+def tree_arrays(arm: robots.Arm) -> tuple:
+    """A tree as the tree kernels take it (lab.problem.kernels.pack_tree): each effector's own serial
+    chain (arm.chain.effector_arrays(e)) on its path (arm.chain.path(e))."""
+    E = arm.n_effectors
+    return kernels.pack_tree([arm.chain.effector_arrays(e) for e in range(E)], [arm.chain.path(e) for e in range(E)],
+                             arm.nq)
 
 
 def _limb_frame(arm: robots.Arm, e: int, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
