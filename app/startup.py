@@ -63,7 +63,9 @@ def load_pretrained(robot: str):
     controller(arm.sample_goals(1, seed=0))  # it runs
     err = data.get("held_out")
     what = (f"median error {err['median']:.3g} {err['unit']}" if err else f"held-out MSE {data['test_mse']:.3g}")
-    return controller, f"shipped ({data['settings']['generations']:,} generations, {what})"
+    settings = data["settings"]  # a budgeted run's generations are only its cap: say its time
+    budget = f"{settings['seconds']:g} s" if settings.get("seconds") else f"{settings['generations']:,} generations"
+    return controller, f"shipped ({budget}, {what})"
 
 
 def startup_controller(robot: str = "planar"):
