@@ -10,7 +10,7 @@ import pytest
 import lab
 import robots
 from lab.experiments import arms
-from lab.problem import Encoding, Problem, kernels
+from lab.problem import Encoding, Problem, encoding_for, encoding_from_dict, kernels
 from lab.problem.controllers import MLPController, controller_from_dict, mlp_size
 from lab.problem.fitness import tree_arrays
 from lab.problem.tree_encoding import TreeEncoding
@@ -30,7 +30,7 @@ def reference_mse(arm, q, goals):
 @pytest.mark.parametrize("features", ["cartesian", "sphere"])
 def test_the_kernel_fitness_is_the_summed_effector_errors_through_fk(robot, features):
     arm = robots.load(robot)
-    enc = Encoding.for_arm(arm, features, 0.3)
+    enc = encoding_for(arm, features, 0.3)
     assert isinstance(enc, TreeEncoding) and enc.n_outputs == arm.nq
     problem = Problem(arm, enc, targets=25, test_goals=10)
     rng = np.random.default_rng(1)
@@ -59,7 +59,7 @@ def test_a_serial_arm_as_a_tree_of_one_effector_gives_the_same_bits(robot):
     """The tree kernel composes each effector's chain by the serial kernel: one effector on every joint
     is the serial arm's fitness bit for bit (and a serial arm's Problem keeps the serial kernels)."""
     arm = robots.load(robot)
-    enc = Encoding.for_arm(arm, "reach", 0.5)
+    enc = encoding_for(arm, "reach", 0.5)
     problem = Problem(arm, enc, targets=30, test_goals=5)
     XT, goalsT = problem._train
     one = kernels.pack_tree([arm.chain.arrays], [np.arange(arm.nq)], arm.nq)
@@ -70,7 +70,7 @@ def test_a_serial_arm_as_a_tree_of_one_effector_gives_the_same_bits(robot):
     assert np.array_equal(serial, tree)
     assert np.array_equal(problem.mlp_mse(W, 5), serial)
     if robot == "ur5":  # and the turn: a tree's limb is turned by the serial arm's turn, bit for bit
-        turned = Problem(arm, Encoding.for_arm(arm, "reach", 0.5, turn=True), targets=30, test_goals=5)
+        turned = Problem(arm, encoding_for(arm, "reach", 0.5, turn=True), targets=30, test_goals=5)
         kernels.mlp_mse(XT, goalsT, problem._axes, W, 5, turned._qmap, arm.chain.arrays, serial)
         kernels.tree_mlp_mse(XT, goalsT, problem._axes, W, 5, turned._qmap[:4] + (turned.encoding.turn[None],), one,
                              tree)
@@ -131,13 +131,13 @@ def test_heads_are_refused_on_a_tree():
 
 def test_the_tree_encoding_round_trips_and_scales_each_effector_by_its_own_workspace():
     arm = robots.load("allegro")
-    enc = Encoding.for_arm(arm, "cartesian")
+    enc = encoding_for(arm, "cartesian")
     lo, hi = arm.workspace_bounds
     np.testing.assert_allclose(enc.in_lo, lo.reshape(-1))
     np.testing.assert_allclose(enc.in_hi, hi.reshape(-1))
     for features in ("sphere", "bearings", "polar"):
-        enc = Encoding.for_arm(arm, features, 0.3)
-        back = Encoding.from_dict(json.loads(json.dumps(enc.to_dict())))
+        enc = encoding_for(arm, features, 0.3)
+        back = encoding_from_dict(json.loads(json.dumps(enc.to_dict())))
         goals = arm.sample_goals(50, seed=3)
         assert np.array_equal(back.inputs(goals), enc.inputs(goals))
         assert len(enc.input_names) == enc.n_inputs
@@ -147,7 +147,7 @@ def test_the_tree_encoding_round_trips_and_scales_each_effector_by_its_own_works
 
 def test_the_gradient_on_a_tree_is_the_fitness_gradient():
     arm = robots.load("solo12")
-    problem = Problem(arm, Encoding.for_arm(arm, "sphere", 0.3), targets=20, test_goals=5)
+    problem = Problem(arm, encoding_for(arm, "sphere", 0.3), targets=20, test_goals=5)
     enc = problem.encoding
     w = np.random.default_rng(4).normal(0, 0.3, mlp_size(enc.n_inputs, 3, enc.n_outputs))
     mse, g = problem.mlp_gradient(w, 3)
@@ -209,7 +209,7 @@ def test_a_wired_genome_is_an_mlp_zero_off_its_limbs_with_the_dense_fitness(robo
             assert not ja & {int(j) for e in groups[b] for j in arm.chain.path(e)}
     if robot == "g1":
         assert groups == [[0, 1], [2], [3]]
-    enc = Encoding.for_arm(arm, "reach", 0.3)
+    enc = encoding_for(arm, "reach", 0.3)
     problem = Problem(arm, enc, targets=25, test_goals=10)
     wiring = Wiring.for_arm(arm, enc.n_inputs, 9)
     assert sum(len(u) for u in wiring.units) == 9 and wiring.dim < wiring.size
@@ -273,14 +273,14 @@ def test_a_tree_joint_of_more_than_a_turn_is_mapped_over_two_turns_within_its_li
     """solo12's joints turn +-10 rad: each is mapped as a continuous joint (two turns about its middle,
     wrapped into its range); the other trees' joints keep the plain mapping."""
     arm = robots.load("solo12")
-    enc = Encoding.for_arm(arm, "reach", 0.0)
+    enc = encoding_for(arm, "reach", 0.0)
     assert enc.wrap.all() and np.allclose(enc.q_scale, 2 * np.pi)
     a = np.linspace(-1, 1, 7)[:, None] * np.ones(arm.nq)
     q = enc.joints(a)
     assert np.all(np.abs(q) <= np.pi)  # the turn about the middle (0), away from the limits
     raw = enc.q_offset + (a + 1.0) * enc.q_scale  # what the kernels compose: the same poses
     np.testing.assert_allclose(arm.fk(q), arm.fk(raw), atol=1e-12)
-    assert not Encoding.for_arm(robots.load("g1"), "reach", 0.3).wrap.any()
+    assert not encoding_for(robots.load("g1"), "reach", 0.3).wrap.any()
 
 
 @pytest.mark.parametrize("robot", TREES)

@@ -10,7 +10,7 @@ import pytest
 
 import lab
 import robots
-from lab.problem import Encoding, Problem
+from lab.problem import Problem, encoding_for, encoding_from_dict
 from lab.problem.controllers import MLPController, controller_from_dict, mlp_size
 from lab.problem.wiring import Wiring
 
@@ -32,7 +32,7 @@ def _errors(arm, q, goals, effectors):
 @pytest.mark.parametrize("robot", TREES)
 def test_each_turned_joint_takes_the_best_angle_within_its_limits_and_only_it_moves(robot):
     arm = robots.load(robot)
-    enc = Encoding.for_arm(arm, "reach", 0.0, turn=True)
+    enc = encoding_for(arm, "reach", 0.0, turn=True)
     paths = [arm.chain.path(e) for e in range(arm.n_effectors)]
     alone = [int(p[0]) for p in paths if sum(int(p[0]) in other for other in paths) == 1]
     assert enc.turned_joints.tolist() == sorted(alone) and len(alone) == (2 if robot == "g1" else arm.n_effectors)
@@ -56,12 +56,12 @@ def test_each_turned_joint_takes_the_best_angle_within_its_limits_and_only_it_mo
 @pytest.mark.parametrize("robot", TREES)
 def test_the_kernels_score_the_controllers_turned_answer_wired_or_not(robot):
     arm = robots.load(robot)
-    enc = Encoding.for_arm(arm, "reach", 0.0, turn=True)
+    enc = encoding_for(arm, "reach", 0.0, turn=True)
     problem = Problem(arm, enc, targets=40, test_goals=10, threads=1)
     W = np.random.default_rng(2).normal(0.0, 0.3, (4, mlp_size(enc.n_inputs, 8, arm.nq)))
     fk = [problem.controller_mse(MLPController(enc, 8, w)) for w in W]
     np.testing.assert_allclose(problem.mlp_mse(W, 8), fk, rtol=1e-9)
-    plain = Problem(arm, Encoding.for_arm(arm, "reach", 0.0), targets=40, test_goals=10, threads=1)
+    plain = Problem(arm, encoding_for(arm, "reach", 0.0), targets=40, test_goals=10, threads=1)
     assert np.all(problem.mlp_mse(W, 8) <= plain.mlp_mse(W, 8) * (1 + 1e-12))
     wiring = Wiring.for_arm(arm, enc.n_inputs, 8)
     G = np.random.default_rng(3).normal(0.0, 0.3, (3, wiring.dim))
@@ -71,7 +71,7 @@ def test_the_kernels_score_the_controllers_turned_answer_wired_or_not(robot):
 
 def test_a_turned_tree_controller_round_trips_through_json():
     arm = robots.load("g1")
-    enc = Encoding.for_arm(arm, "reach", 0.0, turn=True)
+    enc = encoding_for(arm, "reach", 0.0, turn=True)
     c = MLPController(enc, 6, np.random.default_rng(0).normal(0, 0.3, mlp_size(enc.n_inputs, 6, arm.nq)))
     back = controller_from_dict(json.loads(json.dumps(c.to_dict())))
     goals = arm.sample_goals(30, seed=1)
@@ -79,11 +79,11 @@ def test_a_turned_tree_controller_round_trips_through_json():
     np.testing.assert_array_equal(back(goals), c(goals))
     bad = {**c.to_dict()["encoding"], "turn": np.zeros((arm.n_effectors, 10)).tolist()}
     with pytest.raises(ValueError, match="one row on at least"):
-        Encoding.from_dict(bad)
+        encoding_from_dict(bad)
     waist = np.array(bad["turn"])
-    waist[0] = Encoding.for_arm(robots.load("solo12"), "reach", turn=True).turn[0]  # any unit axis
+    waist[0] = encoding_for(robots.load("solo12"), "reach", turn=True).turn[0]  # any unit axis
     with pytest.raises(ValueError, match="moves other effectors too"):
-        Encoding.from_dict({**bad, "turn": waist.tolist()})
+        encoding_from_dict({**bad, "turn": waist.tolist()})
 
 
 @pytest.mark.parametrize("method", METHODS)

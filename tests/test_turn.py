@@ -8,7 +8,7 @@ import pytest
 
 import robots
 from lab.problem.controllers import MLPController, controller_from_dict, mlp_size
-from lab.problem.encoding import Encoding
+from lab.problem import encoding_for
 from lab.problem.fitness import Problem
 from robots.ik import _bearing, _turned
 
@@ -23,7 +23,7 @@ def _random_joints(arm, n, seed):
 @pytest.mark.parametrize("name", ARMS)
 def test_turn_is_the_closed_form_turn_of_robots_ik(name):
     arm = robots.load(name)
-    enc = Encoding.for_arm(arm, "sphere", 0.3, turn=True)
+    enc = encoding_for(arm, "sphere", 0.3, turn=True)
     goals, q = arm.sample_goals(300, seed=3), _random_joints(arm, 300, 1)
     turned = enc.turned(q[None], goals)[0]
     ref = np.array([_turned(qi, arm.reach(qi[None])[0], g, _bearing(arm), arm.lower, arm.upper,
@@ -42,7 +42,7 @@ def test_fitness_scores_the_turned_answer(name, heads):
     """The kernel's MSE (closed-form turned error, no second forward kinematics) equals the error of
     the controller's own (turned) joint values through arm.fk."""
     arm = robots.load(name)
-    enc = Encoding.for_arm(arm, "sphere", 0.0, turn=True)
+    enc = encoding_for(arm, "sphere", 0.0, turn=True)
     problem = Problem(arm, enc, targets=60, test_goals=10, threads=1)
     rng = np.random.default_rng(2)
     W = rng.normal(0.0, 0.3, (5, mlp_size(enc.n_inputs, 8, arm.nq * heads)))
@@ -50,13 +50,13 @@ def test_fitness_scores_the_turned_answer(name, heads):
     offsets = nets[0].offsets if heads > 1 else None
     np.testing.assert_allclose(problem.mlp_mse(W, 8, offsets=offsets),
                                [problem.controller_mse(c) for c in nets], rtol=1e-8)
-    plain = Problem(arm, Encoding.for_arm(arm, "sphere", 0.0), targets=60, test_goals=10, threads=1)
+    plain = Problem(arm, encoding_for(arm, "sphere", 0.0), targets=60, test_goals=10, threads=1)
     assert np.all(problem.mlp_mse(W, 8, offsets=offsets) <= plain.mlp_mse(W, 8, offsets=offsets) * (1 + 1e-12))
 
 
 def test_turned_controller_round_trips_through_json():
     arm = robots.load("ur5")
-    enc = Encoding.for_arm(arm, "sphere", 0.0, turn=True)
+    enc = encoding_for(arm, "sphere", 0.0, turn=True)
     c = MLPController(enc, 6, np.random.default_rng(0).normal(0, 0.3, mlp_size(enc.n_inputs, 6, arm.nq)))
     back = controller_from_dict(json.loads(json.dumps(c.to_dict())))
     goals = arm.sample_goals(50, seed=1)
@@ -67,7 +67,7 @@ def test_turned_controller_round_trips_through_json():
 @pytest.mark.parametrize("name", ["ur5", "solo12"])  # a serial arm's first joint; each leg's hip of a tree
 def test_gradient_through_the_turn_matches_finite_differences(name):
     arm = robots.load(name)
-    enc = Encoding.for_arm(arm, "sphere", 0.0, turn=True)
+    enc = encoding_for(arm, "sphere", 0.0, turn=True)
     problem = Problem(arm, enc, targets=30, test_goals=10, threads=1)
     w = np.random.default_rng(4).normal(0.0, 0.2, mlp_size(enc.n_inputs, 4, arm.nq))
     mse, grad = problem.mlp_gradient(w, 4)
@@ -81,7 +81,7 @@ def test_gradient_through_the_turn_matches_finite_differences(name):
 
 def test_turn_refused_where_it_has_no_closed_form():
     with pytest.raises(ValueError, match="3 task axes"):
-        Encoding.for_arm(robots.load("planar"), "cartesian", turn=True)
-    enc = Encoding.for_arm(robots.load("ur5"), "sphere", turn=True)
+        encoding_for(robots.load("planar"), "cartesian", turn=True)
+    enc = encoding_for(robots.load("ur5"), "sphere", turn=True)
     with pytest.raises(ValueError, match="needs the goals"):
         enc.joints(np.zeros((3, 6)))

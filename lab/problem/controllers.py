@@ -20,6 +20,7 @@ import numpy as np
 from lab.problem import kernels
 from lab.problem.kernels import check_chain
 from lab.problem.encoding import Encoding
+from lab.problem.encodings import encoding_from_dict
 
 
 class Controller(Protocol):
@@ -354,7 +355,7 @@ def controller_from_dict(d: dict) -> Controller:
 
 
 def _from_dict(d: dict) -> Controller:
-    enc = Encoding.from_dict(d["encoding"])
+    enc = encoding_from_dict(d["encoding"])
     if d["kind"] == "mlp":
         heads = d.get("heads", 1)
         anchors = d.get("anchors")  # absent: head_anchors' rule

@@ -147,9 +147,9 @@ class Encoding:
     @classmethod
     def for_arm(cls, arm: robots.Arm, features: str = "cartesian", margin: float = 0.0,
                 turn: bool = False) -> "Encoding":
-        if arm.is_tree:  # several end effectors: one block of inputs per effector
-            from lab.problem.tree_encoding import TreeEncoding
-            return TreeEncoding.for_arm(arm, features, margin, turn)
+        if arm.is_tree:  # several end effectors: one block of inputs per effector (tree_encoding.py)
+            raise ValueError(f"{arm.name} is a tree of several end effectors: its encoding is TreeEncoding's "
+                             "(lab.problem.encoding_for picks the kind of any arm)")
         goals = arm.sample_goals(20_000, seed=12345)
         # r and phi about the base axis where it stands upright
         axis_xy = arm.base_axis[0][:2] if arm.base_upright and len(arm.task_axes) >= 2 else np.zeros(2)
@@ -262,8 +262,8 @@ class Encoding:
     @classmethod
     def from_dict(cls, d: dict) -> "Encoding":
         if "effectors" in d:  # a tree's (lab/problem/tree_encoding.py)
-            from lab.problem.tree_encoding import TreeEncoding
-            return TreeEncoding.from_dict(d)
+            raise ValueError("a tree's encoding (it has effectors): TreeEncoding.from_dict reads it "
+                             "(lab.problem.encoding_from_dict reads either kind)")
         return cls(d["features"], tuple(d["task_axes"]),
                    *(np.atleast_1d(np.asarray(d[k], float)) for k in ("in_lo", "in_hi", "q_lo", "q_hi")),
                    float(d.get("margin", 0.0)), float(d.get("r_max", 0.0)), d.get("wrap"),

@@ -165,7 +165,8 @@ class TreeEncoding(Encoding):
     def for_arm(cls, arm: robots.Arm, features: str = "cartesian", margin: float = 0.0,
                 turn: bool = False) -> "TreeEncoding":
         if not arm.is_tree:
-            raise ValueError(f"{arm.name} has one end effector: its encoding is Encoding.for_arm's")
+            raise ValueError(f"{arm.name} has one end effector: its encoding is Encoding.for_arm's "
+                             "(lab.problem.encoding_for picks the kind of any arm)")
         if features not in FEATURES:
             raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {features!r}")
         goals = arm.sample_goals(20_000, seed=12345)  # (N, E, 3), the samples of arm.workspace_bounds

@@ -38,7 +38,7 @@ from lab.running.config import TrainConfig
 from lab.running.decimation import display_goal, population_logged
 from lab.running.history import History
 from lab.problem.controllers import Controller
-from lab.problem.encoding import Encoding
+from lab.problem.encodings import encoding_for
 from lab.problem import Problem
 
 log = logging.getLogger(__name__)
@@ -106,7 +106,7 @@ class RunSummary:
 
 def build_problem(config: TrainConfig) -> Problem:
     arm = robots.load(config.robot)
-    enc = Encoding.for_arm(arm, config.features, config.margin, config.turn)
+    enc = encoding_for(arm, config.features, config.margin, config.turn)
     return Problem(arm, enc, targets=config.targets, test_goals=config.test_goals, goal_seed=config.goal_seed,
                    resample_seed=config.seed if config.resample else None)
 
