@@ -212,6 +212,12 @@ def _message_buffer_class():
 # every GuiUpdateMessage against its element (shared or per-tab) before viser sees it, drops a bad
 # one, and catches whatever a tab's message still raises in any handler: one log line per tab per
 # BAD_LOG_PERIOD seconds, the count of the others in the next line, never a traceback.
+# A frame that is not a viser message at all (not msgpack, no known type, a text frame) ends the tab's
+# connection in viser's reader (viser.infra._infra._message_consumer), which is right, but the error
+# escapes viser's connection handler and websockets logs a 13-line "connection handler failed"
+# traceback per tab: a viewer could fill the teacher's terminal. The gate's reader closes such a tab
+# itself (close code 1003/1007) and logs one line, at most one per BAD_LOG_PERIOD for all such tabs
+# of a server with the count of the others, never a traceback.
 BAD_LOG_PERIOD = 60.0  # s: at most one log line per tab in this while
 MAX_TEXT = 10_000  # characters of a text value a tab may send
 _bad_log: dict = {}  # (event loop id, client id) -> [time of the last line, messages dropped since]
@@ -248,38 +254,86 @@ def gui_update_problem(state, updates) -> str | None:
     return None if ok else f"value {value!r:.40} for a {type(current).__name__} element"
 
 
-def report_bad_message(client_id, what: str) -> None:
-    """Log a tab's dropped message: one line per tab per BAD_LOG_PERIOD (per server: its event loop)."""
-    try:
-        loop = id(asyncio.get_running_loop())
-    except RuntimeError:
-        loop = None
+def _quiet_since(key) -> int | None:
+    """None when a line for `key` was logged less than BAD_LOG_PERIOD ago (this one is counted
+    instead), else the count of those not logged since the last line (a line is due now)."""
     now = time.monotonic()
     with _bad_lock:
         if len(_bad_log) > 10_000:  # tabs come and go: forget those quiet for a while
-            for key in [k for k, (t, _n) in _bad_log.items() if t is None or now - t >= BAD_LOG_PERIOD]:
-                del _bad_log[key]
-        entry = _bad_log.setdefault((loop, client_id), [None, 0])
+            for k in [k for k, (t, _n) in _bad_log.items() if t is None or now - t >= BAD_LOG_PERIOD]:
+                del _bad_log[k]
+        entry = _bad_log.setdefault(key, [None, 0])
         if entry[0] is not None and now - entry[0] < BAD_LOG_PERIOD:
             entry[1] += 1
-            return
+            return None
         dropped, entry[0], entry[1] = entry[1], now, 0
+    return dropped
+
+
+def _loop_id():
+    try:
+        return id(asyncio.get_running_loop())
+    except RuntimeError:
+        return None
+
+
+def report_bad_message(client_id, what: str) -> None:
+    """Log a tab's dropped message: one line per tab per BAD_LOG_PERIOD (per server: its event loop)."""
+    dropped = _quiet_since((_loop_id(), client_id))
+    if dropped is None:
+        return
     more = f" ({dropped} more dropped in the last {BAD_LOG_PERIOD:g} s)" if dropped else ""
     logging.getLogger("app.viser").warning(
         "tab %s sent an invalid message, dropped: %s%s; further ones are logged at most once a minute",
         client_id, what, more)
 
 
+def report_unreadable_frame(address, what: str) -> None:
+    """Log a tab closed for a frame that is not a viser message: one line per BAD_LOG_PERIOD for all
+    such tabs of a server (its event loop), with the count of the others."""
+    dropped = _quiet_since((_loop_id(), "unreadable frames"))
+    if dropped is None:
+        return
+    more = f" ({dropped} more such tabs closed in the last {BAD_LOG_PERIOD:g} s)" if dropped else ""
+    logging.getLogger("app.viser").warning(
+        "a tab from %s sent a frame that is not a viser message (%s) and was closed%s; further ones are logged at "
+        "most once a minute", address or "an unknown address", what, more)
+
+
+async def _read_messages(websocket, handle_message, message_class) -> None:
+    """viser's per-tab reader (viser.infra._infra._message_consumer, viser 1.1.1), except that a frame
+    that is not a viser message closes the tab with one rate-limited log line instead of raising out
+    of the connection handler (websockets' traceback). The next recv() then raises ConnectionClosed,
+    which viser's handler expects: its teardown and disconnect callbacks run as for any closed tab."""
+    while True:
+        raw = await websocket.recv()
+        try:
+            if not isinstance(raw, bytes):
+                raise TypeError(f"a text frame of {len(raw)} characters")
+            message = message_class.deserialize(raw)
+        except Exception as e:  # noqa: BLE001 - anything a tab sends: the tab is closed, told once a minute
+            address = getattr(websocket, "remote_address", None)
+            report_unreadable_frame(address[0] if isinstance(address, tuple) and address else None,
+                                    f"{type(e).__name__}: {e!s:.80}")
+            await websocket.close(1003 if isinstance(raw, str) else 1007, "not a viser message")
+            continue
+        handle_message(message)
+
+
 def install_message_gate() -> None:
     """Check every tab's GUI update against its element before viser applies it, and catch what any
-    tab's message raises in viser's handlers (report_bad_message, no traceback). Process-wide, for
-    every ViserServer and tab created from now on (call it before creating the server); idempotent.
+    tab's message raises in viser's handlers (report_bad_message, no traceback); a frame that is not a
+    viser message closes its tab with one line (report_unreadable_frame, no traceback). Process-wide,
+    for every ViserServer and tab created from now on (call it before creating the server); idempotent.
     ViserChanged, naming it, when what it wraps is gone."""
     try:
         from viser._gui_api import GuiApi
+        from viser.infra import _infra
         from viser.infra._infra import WebsockMessageHandler
     except ImportError as e:
         raise ViserChanged(f"viser changed: {e}; bad messages cannot be dropped") from e
+    if not inspect.iscoroutinefunction(getattr(_infra, "_message_consumer", None)):
+        raise ViserChanged("viser changed: viser.infra._infra._message_consumer is not a coroutine function any more")
     for cls, name in ((GuiApi, "_handle_gui_updates"), (WebsockMessageHandler, "_handle_incoming_message")):
         if not inspect.iscoroutinefunction(getattr(cls, name, None)):
             raise ViserChanged(f"viser changed: {cls.__name__}.{name} is not a coroutine function any more")
@@ -304,6 +358,7 @@ def install_message_gate() -> None:
 
     GuiApi._handle_gui_updates = _handle_gui_updates
     WebsockMessageHandler._handle_incoming_message = _handle_incoming_message
+    _infra._message_consumer = _read_messages  # looked up by name in viser's connection handler, per tab
     GuiApi._lab_gated = True
 
 

@@ -20,12 +20,17 @@ presenters; on loopback every tab is a presenter unless a presenter token is giv
 (hmac.compare_digest), never logged, never written to the notebook or recordings.
 
 Wrong tries (as Jupyter, whose login handler logs each failed login with the client's address and
-never the token; Jupyter has no lockout, the lab adds one): every tab that connects with a wrong
-token is logged with its address; after MAX_WRONG (5) wrong tries from one address within
-WRONG_WINDOW (60 s) further tabs from that address are viewers without their token being compared
-(logged once per lockout) until the window has passed. A token given by the user must be at least
-MIN_TOKEN (16) characters (`token_problem`, checked by `python -m app` at startup; a random one is
-24 bytes, 32 characters, as Jupyter's is 24 random bytes).
+never the token, and has no lockout): the token a tab gives is always compared, and the right one
+always makes a presenter, however many wrong ones came before from its address. A class behind one
+NAT, or students on the teacher's own machine, share the teacher's address: a lockout by address
+(which the lab had) let any of them keep the teacher from the controls by a few wrong tries a
+minute. Only failures are counted, per address: the first MAX_WRONG (5) within WRONG_WINDOW (60 s)
+are logged one line each with the address; beyond that, one line per address per WRONG_WINDOW with
+the count of the others, so guessing cannot fill the log. A wrong try gives a viewer, nothing more.
+What makes guessing hopeless is the token's length, not a limit: a token given by the user must be
+at least MIN_TOKEN (16) characters (`token_problem`, checked by `python -m app` at startup; 16 of
+the 66 allowed characters are about 96 bits: 10^15 years at a million tries a second), a random one
+is 24 bytes, 32 characters, as Jupyter's is 24 random bytes.
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ from app import viser_private
 
 log = logging.getLogger(__name__)
 MIN_TOKEN = 16  # characters of a presenter token the user gives
-MAX_WRONG, WRONG_WINDOW = 5, 60.0  # wrong tries per address in this many seconds, then no comparison
+MAX_WRONG, WRONG_WINDOW = 5, 60.0  # wrong tries per address logged one by one in this many seconds, then summed
 
 VIEWER_LINE = ("**Viewer.** The presenter controls the run and the shared settings; your goal markers, "
                "IK ghosts and camera are your own.")
@@ -81,7 +86,7 @@ class Access:
         self._roles: dict[int, bool] = {}  # client id -> presenter?
         self._viewers: dict[int, dict] = {}  # client id -> {client, since, applied}
         self._wrong: dict[str, list] = {}  # address -> times of its recent wrong tries
-        self._locked_told: dict[str, float] = {}  # address -> when its lockout was logged
+        self._quiet: dict[str, list] = {}  # address -> [when its last summary line was logged, tries not logged since]
         self.clock = clock
         self._lock = threading.Lock()
         self.server = None
@@ -114,33 +119,40 @@ class Access:
         return role
 
     def _try(self, client_id: int, address: str | None, given: str) -> bool:
-        """Whether `given` is the token, for a tab from `address`: a wrong one is logged (address,
-        never the token) and counted; an address with MAX_WRONG wrong tries in WRONG_WINDOW is not
-        compared at all (its tabs are viewers; logged once per lockout)."""
+        """Whether `given` is the token (compared in constant time, always: the right one is never
+        refused), for a tab from `address`. A wrong one is counted and logged by address, never the
+        token: one line each for the first MAX_WRONG in WRONG_WINDOW, then one line per WRONG_WINDOW
+        with the count of the others."""
         if not given:  # no token: an ordinary viewer, not a try
-            return False
-        where = address or "unknown address"
-        now = self.clock()
-        with self._lock:
-            tries = self._wrong.setdefault(where, [])
-            tries[:] = [t for t in tries if now - t < WRONG_WINDOW]
-            locked = len(tries) >= MAX_WRONG
-            tell = locked and now - self._locked_told.get(where, -WRONG_WINDOW) >= WRONG_WINDOW
-            if tell:
-                self._locked_told[where] = now
-        if locked:
-            if tell:
-                log.warning("presenter token: %d wrong tries from %s within %g s; its tabs are viewers without "
-                            "their token being compared until %g s after the last wrong try", MAX_WRONG, where,
-                            WRONG_WINDOW, WRONG_WINDOW)
             return False
         if hmac.compare_digest(given.encode(), self.token.encode()):
             return True
+        where = address or "unknown address"
+        now = self.clock()
         with self._lock:
+            if len(self._wrong) > 10_000:  # addresses come and go: forget those quiet for a window
+                for key in [k for k, t in self._wrong.items() if not t or now - t[-1] >= WRONG_WINDOW]:
+                    self._wrong.pop(key, None)
+                    self._quiet.pop(key, None)
+            tries = self._wrong.setdefault(where, [])
+            tries[:] = [t for t in tries if now - t < WRONG_WINDOW][-MAX_WRONG:]
             tries.append(now)
             n = len(tries)
-        log.warning("presenter token: wrong token from %s (tab %s; %d of %d wrong tries allowed in %g s)",
-                    where, client_id, n, MAX_WRONG, WRONG_WINDOW)
+            told = self._quiet.setdefault(where, [None, 0])  # [time of its last summary line, tries not logged]
+            if n > MAX_WRONG and told[0] is not None and now - told[0] < WRONG_WINDOW:
+                told[1] += 1
+                return False
+            quiet, told[1] = told[1], 0
+            if n > MAX_WRONG:
+                told[0] = now
+        more = f"; {quiet} more not logged since the last line" if quiet else ""
+        if n <= MAX_WRONG:
+            log.warning("presenter token: wrong token from %s (tab %s; wrong try %d in %g s from there%s)",
+                        where, client_id, n, WRONG_WINDOW, more)
+        else:
+            log.warning("presenter token: wrong token from %s (tab %s): more than %d wrong tries in %g s from there%s; "
+                        "further ones are logged at most once a minute with their count (the right token still "
+                        "makes a presenter)", where, client_id, MAX_WRONG, WRONG_WINDOW, more)
         return False
 
     def refusal(self, client_id: int) -> str | None:
