@@ -793,7 +793,7 @@ def test_bad_counts_are_refused_before_any_work(field, value, method, no_work):
 @pytest.mark.parametrize("field,value,why", [
     ("paper", "no", "paper must be True or False"), ("restarts", "no", "restarts must be True or False"),
     ("margin", -5, "margin must be a number in \\[0, 10\\)"), ("margin", float("nan"), "margin must be"),
-    ("goal_seed", 1.5, "goal_seed must be an integer >= 0"), ("sigma0", "x", "sigma0 must be a positive number"),
+    ("goal_seed", 1.5, "goal_seed must be an integer in 0.."), ("sigma0", "x", "sigma0 must be a positive number"),
     ("sigma0", True, "sigma0 must be a positive number"), ("add_node", None, "add_node must be a probability"),
     ("hidden", True, "hidden must be an integer in 1..256"), ("population", 10**9, "population must be an integer in 1..10,000"),
     ("targets", 10**10, "targets must be an integer in 1..1,000,000")])
@@ -801,6 +801,70 @@ def test_bad_settings_are_refused_by_field_name(field, value, why, no_work):
     owner = next((m.name for m in lab.methods.all_methods() if field in m.options.names()), "cmaes")
     with pytest.raises(ValueError, match=why):
         lab.TrainConfig(method=owner, **{field: value})
+
+
+HUGE = 10**400  # float(HUGE) overflows; repr(10**5000) is refused by Python itself (over 4,300 digits)
+
+
+@pytest.mark.parametrize("field,value,why", [
+    ("seconds", HUGE, "seconds must be a positive finite number of seconds .* up to 1,000,000,000, or None, "
+                      "got an integer near 10\\*\\*400$"),
+    ("seconds", -HUGE, "seconds must be .* got an integer near -10\\*\\*400$"),
+    ("seconds", 1e300, "seconds must be .* up to 1,000,000,000"), ("seconds", float("nan"), "seconds must be"),
+    ("seconds", "5" * 10_000, "seconds must be .* got '5{59}\\.\\.\\.$"),
+    ("generations", 10**5000, "generations must be an integer in 1..1,000,000,000, got an integer near 10\\*\\*5000$"),
+    ("population", HUGE, "population must be an integer in 1..10,000"), ("targets", -HUGE, "targets must be an integer in 1.."),
+    ("hidden", float("inf"), "hidden must be an integer in 1..256, got inf"), ("heads", HUGE, "heads must be an integer"),
+    ("seed", HUGE, "seed must be an integer in 0..9,223,372,036,854,775,807, got an integer near 10\\*\\*400$"),
+    ("goal_seed", 2**63, "goal_seed must be an integer in 0..9,223,372,036,854,775,807"),
+    ("seed", True, "seed must be an integer"), ("test_goals", "1000", "test_goals must be an integer"),
+    ("margin", HUGE, "margin must be a number in \\[0, 10\\), got an integer near"),
+    ("sigma0", HUGE, "sigma0 must be a positive number up to 1,000,000, got an integer near"),
+    ("mutation_power", HUGE, "mutation_power must be a positive number up to 1,000,000"),
+    ("learning_rate", -HUGE, "learning_rate must be a positive number up to 10"),
+    ("diagonal", HUGE, "diagonal must be an integer in 0..1,000,000,000"), ("resample", HUGE, "resample must be True or False"),
+    ("features", "x" * 10_000, "features must be one of .*, got 'x{59}\\.\\.\\.$"),
+    ("method", 10**5000, "unknown method an integer near 10\\*\\*5000; known methods: cmaes"),
+    ("robot", 10**5000, "unknown robot an integer near 10\\*\\*5000; known robots: planar")],
+    ids=lambda v: v if isinstance(v, str) and len(v) < 20 else type(v).__name__)
+def test_out_of_range_arguments_of_evolve_are_one_line_naming_the_argument_and_its_range(field, value, why, no_work):
+    """lab.evolve("planar", seconds=10**400) raised a bare OverflowError that did not name seconds;
+    a seed of 10**400 was accepted and then named a recording past 255 bytes. Each numeric argument
+    is refused by name with the range it accepts, the value shown in short, before any work."""
+    owner = next((m.name for m in lab.methods.all_methods() if field in m.options.names()), "cmaes")
+    args = {"method": owner, field: value} if field != "method" else {field: value}
+    with pytest.raises(ValueError, match=why) as refused:
+        lab.evolve(**args)
+    assert type(refused.value) is ValueError and "\n" not in str(refused.value) and len(str(refused.value)) < 300
+    with pytest.raises(ValueError, match=why):
+        lab.TrainConfig.preset(**args)
+
+
+@pytest.mark.parametrize("argv,why", [
+    (["--seconds", "1e400"], "seconds must be .* up to 1,000,000,000, or None, got inf"),
+    (["--seconds", "-5"], "seconds must be"), (["--seed", "9" * 30], "seed must be an integer in 0..9,223,372"),
+    (["--hidden", "9" * 30], "hidden must be an integer in 1..256"),
+    (["--sigma0", "1e400"], "sigma0 must be a positive number up to 1,000,000, got inf")])
+def test_out_of_range_arguments_of_lab_train_are_one_line_and_status_2(argv, why, no_work, capsys):
+    from lab.__main__ import main
+
+    assert main(["train", "--no-recording", "--quiet", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "\n" not in err and __import__("re").search(why, err), err
+
+
+def test_the_largest_seeds_still_train_and_record(tmp_path):
+    """The seed's bound, 2**63 - 1, is a seed numpy, the notebook and a recording's name take."""
+    from lab.recording.logger import RerunLogger
+
+    config = lab.TrainConfig(robot="planar", generations=2, population=8, seed=2**63 - 1, goal_seed=2**63 - 1)
+    runner = lab.Runner(config)
+    logger = RerunLogger(runner, path=tmp_path)
+    runner.subscribe(logger)
+    summary = runner.run()
+    logger.close(wait=True)
+    assert summary.state == "finished" and logger.failure() is None and logger.path.stat().st_size > 0
+    assert json.loads(json.dumps(config.to_dict()))["seed"] == 2**63 - 1
 
 
 def test_numpy_integers_are_whole_numbers_and_stored_as_int():

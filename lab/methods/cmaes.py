@@ -72,7 +72,7 @@ class CMAESOptions(Options):
                                     "the number of weights (pycma CMA_diagonal=True; diagonal is then unused)")
 
     def check(self) -> None:
-        real(self, "sigma0", 0, 1e6, "a positive number", closed_below=False)
+        real(self, "sigma0", 0, 1e6, "a positive number up to 1,000,000", closed_below=False)
         whole(self, "diagonal", 0, 10**9)
         flag(self, "restarts")
         flag(self, "separable")

@@ -67,7 +67,7 @@ class NEATOptions(Options):
     add_connection: float = option(0.002, "probability of an add-connection mutation (paper: 0.002)")
 
     def check(self) -> None:
-        real(self, "mutation_power", 0, 1e6, "a positive number", closed_below=False)
+        real(self, "mutation_power", 0, 1e6, "a positive number up to 1,000,000", closed_below=False)
         for name in ("add_node", "add_connection"):
             real(self, name, 0, 1, "a probability in [0, 1]")
 

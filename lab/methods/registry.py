@@ -23,6 +23,7 @@ from typing import Callable, Mapping
 
 from lab.methods.base import Backend, Options
 from lab.problem import environment
+from lab.problem.checks import shown
 
 DEFAULT_METHOD = "cmaes"
 _REGISTRY: dict[str, "Method"] = {}
@@ -189,7 +190,7 @@ def get(name: str) -> Method:
     _load_environment()
     if isinstance(name, str) and name in _REGISTRY:
         return _REGISTRY[name]
-    raise ValueError(f"unknown method {name!r}; known methods: {', '.join(_REGISTRY)}")
+    raise ValueError(f"unknown method {shown(name)}; known methods: {', '.join(_REGISTRY)}")
 
 
 def names() -> tuple[str, ...]:

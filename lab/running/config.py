@@ -27,13 +27,15 @@ from dataclasses import dataclass
 import robots
 from lab import methods
 from lab.methods import Options
-from lab.problem.checks import flag, real, whole
+from lab.problem.checks import flag, real, shown, whole
 from lab.problem.controllers import MAX_HEADS
 from lab.problem.encoding import FEATURES
 
 # upper bounds that keep a run within this machine's memory and time (a population of 10^9 would
 # hang in pycma's or neat's setup; hidden 256 is a CMA-ES search space of about 2,300 weights)
-LIMITS = {"population": 10_000, "goals": 1_000_000, "hidden": 256}
+# seeds: what numpy, SQLite and a recording's file name take (a seed of 10**400 named a file past 255 bytes);
+# seconds: 10^9 s of optimizer time (32 years; a float of 1e300 s would pass for a budget)
+LIMITS = {"population": 10_000, "goals": 1_000_000, "hidden": 256, "seed": 2**63 - 1, "seconds": 10**9}
 # the paper's protocol: what a field left at None becomes when the method's defaults say nothing
 PROTOCOL = {"generations": 1000, "population": 50, "targets": 70, "heads": 1, "turn": False, "wiring": False}
 # the generations of a run with a time budget and no generation bound: the most a run may have (10^9;
@@ -88,7 +90,7 @@ class TrainConfig:
     def __post_init__(self):
         method = methods.get(self.method)
         if not isinstance(self.robot, str) or self.robot not in robots.names():
-            raise ValueError(f"unknown robot {self.robot!r}; known robots: {', '.join(robots.names())}")
+            raise ValueError(f"unknown robot {shown(self.robot)}; known robots: {', '.join(robots.names())}")
         self._check(method)  # what was given, before any arm is loaded
         arm = robots.load(self.robot)
         budget = {} if self.seconds is None else {"generations": UNBOUNDED}
@@ -116,7 +118,7 @@ class TrainConfig:
     def _check(self, method) -> None:
         """Every field that is set (None: a default still to come) is valid, by name."""
         for name in ("seed", "goal_seed"):
-            whole(self, name, 0)
+            whole(self, name, 0, LIMITS["seed"])
         for name, most in (("generations", 10**9), ("population", LIMITS["population"]),
                            ("targets", LIMITS["goals"]), ("test_goals", LIMITS["goals"])):
             if getattr(self, name) is not None:
@@ -124,7 +126,7 @@ class TrainConfig:
         if self.population is not None and self.population < method.min_population:
             raise ValueError(f"population must be >= {method.min_population} for {method.label}, got {self.population}")
         if self.features is not None and self.features not in FEATURES:
-            raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
+            raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {shown(self.features)}")
         if self.hidden is not None:
             whole(self, "hidden", method.min_hidden, LIMITS["hidden"])
         if self.heads is not None:
@@ -142,8 +144,8 @@ class TrainConfig:
         if self.wiring is not None:
             flag(self, "wiring")
         if self.seconds is not None:
-            real(self, "seconds", 0, float("inf"), "a positive finite number of seconds (optimizer time) or None",
-                 closed_below=False)
+            real(self, "seconds", 0, LIMITS["seconds"], "a positive finite number of seconds (optimizer time) up to "
+                 f"{LIMITS['seconds']:,}, or None", closed_below=False)
         if isinstance(self.options, dict):  # the given values, checked by the method's own dataclass
             method.options(**method.known_options(self.options))
 
