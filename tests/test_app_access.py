@@ -31,9 +31,10 @@ def app(tmp_path_factory):
     lab_app.stop()
 
 
-def tab_of(url):
-    probe = Probe(url).start()
-    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+def tab_of(url, timeout: float = 60.0):
+    """A headless tab of url, once the server has sent its scene (generous: a loaded machine)."""
+    probe = Probe(url).start(timeout)
+    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label", timeout)
     return probe
 
 

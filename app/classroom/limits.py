@@ -21,18 +21,30 @@ LAB = {"population": config_mod.LIMITS["population"], "hidden": config_mod.LIMIT
        "goals": config_mod.LIMITS["goals"], "generations": 10**9, "seconds": 10**9}
 
 
+def _shown(text: str, most: int = 40) -> str:
+    """text as a message shows it: its repr, cut to `most` characters (a value may be megabytes)."""
+    return repr(text) if len(text) <= most else f"{text[:most]!r}... ({len(text):,} characters)"
+
+
 def parse_limit(text: str) -> tuple[str, int]:
-    """'population=1000' -> ('population', 1000); ValueError naming what is wrong."""
+    """'population=1000' -> ('population', 1000); ValueError naming what is wrong (in one short line,
+    whatever was given: NaN, inf, 1e400, a number of 5,000 digits)."""
     name, sep, value = text.partition("=")
     name = name.strip()
     if not sep or name not in CLASSROOM:
-        raise ValueError(f"--limit takes NAME=N with NAME one of {', '.join(CLASSROOM)}, got {text!r}")
+        raise ValueError(f"--limit takes NAME=N with NAME one of {', '.join(CLASSROOM)}, got {_shown(text)}")
+    bound = f"--limit {name}: must be in 1..{LAB[name]:,} (the lab's own bound), got"
     try:
         n = int(value)
     except ValueError:
-        raise ValueError(f"--limit {name}: a whole number, got {value!r}") from None
+        digits = value.strip().lstrip("+-")
+        if digits.isdigit():  # a whole number beyond Python's 4,300 digits
+            raise ValueError(f"{bound} a {'negative ' * value.strip().startswith('-')}number of {len(digits):,} "
+                             f"digits") from None
+        raise ValueError(f"--limit {name}: a whole number, got {_shown(value)}") from None
     if not 1 <= n <= LAB[name]:
-        raise ValueError(f"--limit {name}: must be in 1..{LAB[name]:,} (the lab's own bound), got {n:,}")
+        shown = f"{n:,}" if abs(n) < 10**30 else f"a {'negative ' * (n < 0)}number of {len(str(abs(n))):,} digits"
+        raise ValueError(f"{bound} {shown}")
     return name, n
 
 
