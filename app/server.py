@@ -36,6 +36,7 @@ from app.panels.runs import RunsPanel
 from app.panels.train import TrainingPanel, notify
 from app.panels.views import error_map, has_map, map_grid, network_svg
 from app.tab.goals import MORE, REDRAW_PERIOD, TabSession, fmt_len
+from app.tab.phone import fold_on_phone
 from app.tab.replay import TabReplay
 from app.tab.scene import frame_workspace
 from app.training.notebook import DEFAULT_PATH, Notebook
@@ -45,6 +46,7 @@ from app.viser_private import client_host, client_query, install_loop_safe_wakeu
 log = logging.getLogger(__name__)
 
 FPS = 30.0
+PANEL_LABEL = "Neuro-IK Lab"  # the panel's title (on a phone: the bar that opens it)
 # A lecture hall: every viewer tab redraws the presenter's run (arms, population, table). Together
 # they redraw at most this many times a second (each in turn, a few a frame), so a tab's period
 # grows beyond REDRAW_PERIOD with the number of viewers (100 tabs: each once a second); a tab's own
@@ -149,7 +151,7 @@ class LabApp:
         gui = self.server.gui
         # a classroom shows no "share" button (a public tunnel; only a presenter could use it anyway)
         gui.configure_theme(control_width="large", show_share_button=not self.access.restricted)
-        gui.set_panel_label("Neuro-IK Lab")
+        gui.set_panel_label(PANEL_LABEL)
         tabs = gui.add_tab_group(order=1)
         with tabs.add_tab("Train", viser.Icon.BRAIN):
             self.panel = TrainingPanel(gui, self.state, on_robot=self.switch_robot)
@@ -200,6 +202,7 @@ class LabApp:
         except Exception:  # noqa: BLE001 - a tab without them is an ordinary tab
             log.exception("cannot read the query of tab %s", client.client_id)
             query, host = {}, None
+        fold_on_phone(client.gui, PANEL_LABEL)  # a phone's panel folds to its bar: the arm in view
         session = TabSession(client, self.state, self.latency)
         session.presenter = presenter
         session.page_url = f"http://{host}" if host else self.url

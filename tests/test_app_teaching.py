@@ -188,23 +188,55 @@ def lesson_ws(link: str) -> str:
     return unquote(link.split("?websocket=", 1)[1]).replace("ws://", "http://")
 
 
+def markdown_of(probe, uuid: str) -> str:
+    """The last text a markdown element of the probe's tab was given."""
+    return probe.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid
+                          and "_markdown" in m["updates"])["updates"]["_markdown"]
+
+
+def lesson_column(probe) -> dict:
+    """The lesson's column in a tab: its panel, tab, texts (in order) and the answers' folder."""
+    panel = probe.wait_for(lambda m: m["type"] == "GuiPanelMessage")
+    tab = probe.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == panel["uuid"]
+                         and "_tab_container_ids" in m["updates"])["updates"]["_tab_container_ids"][0]
+    folder = probe.wait_for(lambda m: m["type"] == "GuiFolderMessage" and m["container_uuid"] == tab)
+    answers = probe.wait_for(lambda m: m["type"] == "GuiMarkdownMessage" and m["container_uuid"] == folder["uuid"])
+    texts = [m for _t, m in probe.messages if m["type"] == "GuiMarkdownMessage" and m["container_uuid"] == tab]
+    return dict(panel=panel, tab=tab, folder=folder, texts=[markdown_of(probe, m["uuid"]) for m in texts],
+                answers=markdown_of(probe, answers["uuid"]))
+
+
 @pytest.mark.parametrize("name", ["fitness-without-targets", "cmaes-vs-neat", "hidden-units", "real-arm-and-snake",
                                   "gradient-vs-evolution"])
 def test_each_lesson_link_opens_its_state_and_its_text_in_that_tab(app, tab, name):
-    from app.classroom.lesson import LESSONS, TAB_VIEWS, lesson_params, lesson_text, lesson_views
+    from app.classroom.lesson import LESSONS, TAB_VIEWS, lesson_params, lesson_sections, lesson_text, lesson_views
 
     lesson = LESSONS[name]
     params = {"lesson": "1", **{k: v for k, v in lesson.params.items() if k != "views"}}
     title, text = lesson_text(name)
+    sections = dict(lesson_sections(text))
     other = Probe(lesson_ws(lesson.link(app.url))).start()
     try:
-        folder = other.wait_for(lambda m: m["type"] == "GuiFolderMessage" and m["props"]["label"] == f"Lesson: {title}")
-        markdown = other.wait_for(lambda m: m["type"] == "GuiMarkdownMessage" and m["container_uuid"] == folder["uuid"])
-        shown = other.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == markdown["uuid"]
-                               and "_markdown" in m["updates"])["updates"]["_markdown"]
-        lines = text.strip().splitlines()
-        assert lines[0] in shown and lines[-1] in shown and "#### What the class should see" in shown
-        assert lesson.link(app.url) in shown and lesson.link() not in shown  # the link as this tab reached the lab
+        column = lesson_column(other)
+        shown = "\n".join(column["texts"])
+        # the goal, what to set, what to watch and the questions are open; the answers folded
+        assert title in column["texts"][0]
+        for part in ("", "What to set", "What to watch", "Questions for students"):
+            assert sections[part].splitlines()[-1] in shown, part
+        assert "What the class should see" not in shown and "## Figures" not in shown and "```" not in shown
+        assert column["folder"]["props"]["label"].startswith("Answers")
+        assert column["folder"]["props"]["expand_by_default"] is False
+        for part in ("What the class should see", "Figures"):
+            assert f"#### {part}" in column["answers"] and sections[part].splitlines()[0] in column["answers"]
+        assert "lab.evolve(" in column["answers"]
+        # no link to the lesson itself (the tab shows it), at any address; nor a link into the lab's server
+        assert "Open the lesson" not in shown and "?websocket=" not in shown + column["answers"]
+        assert "](../" not in shown + column["answers"]
+        # the lesson's column is docked at the left, the lab's panel at the right: Start stays in view
+        other.wait_for(lambda m: m["type"] == "GuiSetPanelPositionMessage" and m["uuid"] == column["panel"]["uuid"]
+                       and m["position"] == {"kind": "edge", "edge": "left"})
+        other.wait_for(lambda m: m["type"] == "GuiSetPanelPositionMessage" and m["uuid"] == "viser-control-panel"
+                       and m["position"] == {"kind": "edge", "edge": "right"})
         # the panel is in the lesson's state: robot, method, settings, race partner, views
         panel = app.panel
         assert wait_until(lambda: lesson_params(panel) == params, 10), (lesson_params(panel), params)
@@ -214,17 +246,38 @@ def test_each_lesson_link_opens_its_state_and_its_text_in_that_tab(app, tab, nam
         assert {v: getattr(session, attr).value for v, attr in TAB_VIEWS.items()} == \
             {v: views[v] for v in TAB_VIEWS}
         assert app.show_map.value == views["map"]
-        # the text is that tab's own: the first tab has no such folder
-        assert not any(m["type"] == "GuiFolderMessage" and m["props"]["label"].startswith("Lesson:")
-                       for _t, m in tab.messages)
+        # the text is that tab's own: the first tab has no lesson
+        assert not any(m["type"] == "GuiPanelMessage" for _t, m in tab.messages)
         other.click("Close the lesson")
-        other.wait_for(lambda m: m["type"] == "GuiRemoveMessage" and m["uuid"] == folder["uuid"])
+        other.wait_for(lambda m: m["type"] == "GuiPanelRemoveMessage" and m["uuid"] == column["panel"]["uuid"])
         assert wait_until(lambda: session.lesson_view is None, 5)
     finally:
         other.close()
         app.show_map.value = True
         app.panel.race.enabled.value = False
         app.switch_robot("planar")
+        app.panel.method.value = "CMA-ES"
+
+
+def test_opening_a_lesson_after_a_run_shows_that_lessons_fresh_state(app, tab):
+    """Lesson 2 opened after lesson 1's run has ended: no finished run's curve, status or network
+    is left (as if the lab had just opened on the lesson's arm), until Start."""
+    from app.classroom.lesson import LESSONS
+
+    app.panel.generations.value = 20
+    tab.click("Start")
+    assert wait_until(lambda: app.state.runner is not None and app.state.runner.state == "finished", 60)
+    assert app.state.shown.source.startswith("run ")
+    other = Probe(lesson_ws(LESSONS["cmaes-vs-neat"].link(app.url))).start()
+    try:
+        assert wait_until(lambda: app.panel.race.enabled.value and app.panel.method.value == "NEAT", 10)
+        assert app.state.runner is None and app.state.partner is None
+        assert app.state.progress()["generation"] == 0 and app.state.progress()["state"] == "idle"
+        assert not app.state.shown.source.startswith("run ")  # the arm's own network, not the old run's
+        assert wait_until(lambda: app.panel.status.content.startswith("**Idle**"), 5)
+    finally:
+        other.close()
+        app.panel.race.enabled.value = False
         app.panel.method.value = "CMA-ES"
 
 
@@ -239,8 +292,7 @@ def test_an_unknown_lesson_is_refused_by_name_and_changes_nothing(app, tab):
                      and "cmaes-vs-neat" in str(m))  # it names the lesson and the lessons there are
         time.sleep(0.3)
         assert lesson_params(app.panel) == before
-        assert not any(m["type"] == "GuiFolderMessage" and m["props"]["label"].startswith("Lesson:")
-                       for _t, m in bad.messages)
+        assert not any(m["type"] == "GuiPanelMessage" for _t, m in bad.messages)
     finally:
         bad.close()
 

@@ -79,8 +79,9 @@ def test_a_viewer_gets_the_lessons_text_and_views_but_not_its_settings(tmp_path)
         lesson = LESSONS["real-arm-and-snake"]
         viewer = Probe(unquote(lesson.link(app.url).split("?websocket=", 1)[1]).replace("ws://", "http://")).start()
         try:
-            viewer.wait_for(lambda m: m["type"] == "GuiFolderMessage"
-                            and m["props"]["label"] == f"Lesson: {lesson_text(lesson.name)[0]}")
+            viewer.wait_for(lambda m: m["type"] == "GuiPanelMessage")  # the lesson's column
+            viewer.wait_for(lambda m: m["type"] == "GuiMarkdownMessage"
+                            and m["props"]["_markdown"] == f"### {lesson_text(lesson.name)[0]}")
             viewer.wait_for(lambda m: m["type"] == "NotificationShowMessage" and "presenter controls" in str(m))
             assert wait_until(lambda: any(s.faint_arms.value for s in app.sessions.values()), 5)  # its own views
             time.sleep(0.3)
@@ -96,3 +97,22 @@ def test_the_panel_shows_headings_smaller_and_code_as_written():
 
     text = "## What to set\ntext\n```python\n# a comment, not a heading\n```\n### More\n"
     assert panel_headings(text) == "#### What to set\ntext\n```python\n# a comment, not a heading\n```\n##### More\n"
+
+
+@pytest.mark.parametrize("name", sorted(LESSONS))
+def test_the_panel_shows_the_questions_open_and_the_answers_folded_without_a_self_link(name):
+    """What a tab's lesson column shows open (the goal, what to set, what to watch, the questions) and
+    what it folds (what the class should see, the figures, the code); no link to the lesson itself,
+    nor relative links that would point into the lab's server."""
+    from app.classroom.lesson import lesson_sections, panel_parts
+
+    _title, body = lesson_text(name)
+    sections = dict(lesson_sections(body))
+    shown, answers = panel_parts(body)
+    for part in ("", "What to set", "What to watch", "Questions for students"):
+        assert sections[part].splitlines()[0] in shown and sections[part].splitlines()[-1] in shown
+    for part in ("What the class should see", "Figures"):
+        assert f"## {part}" not in shown and f"#### {part}" in answers
+    assert "```" not in shown and "```python" in answers and "lab.evolve(" in answers
+    assert "Open the lesson" not in shown + answers and "?websocket=" not in shown + answers
+    assert "](" not in (shown + answers).replace("](http", "")  # links to other pages are their paths

@@ -13,9 +13,12 @@ does not make a valid run (an unknown robot or method, a population below the me
 is refused by name and changes nothing.
 
 A lesson of docs/lessons/ (docs/lessons/index.md lists them) is the same link with `lesson=<name>`
-instead of `lesson=1`, and `views=` the views it turns on: the tab that opens it shows the lesson's
-text in its own panel (client.gui: a folder with a close button), in any tab, presenter or viewer;
-a presenter's link also sets the shared settings. The text is docs/lessons/<name>.md, read from
+instead of `lesson=1`, and `views=` the views it turns on: the tab that opens it shows the lesson in a
+column of its own at the left edge (client.gui.add_panel, with a close button; the lab's panel docks
+at the right, Start in view), in any tab, presenter or viewer: its goal, what to set, what to watch
+and the questions, with the answers (what the class should see, the figures, the code) in a folder
+folded until the presenter opens it. A presenter's link also sets the shared settings, from the
+lesson's fresh state (no earlier run shown). The text is docs/lessons/<name>.md, read from
 the source tree beside this package (a checkout, or `pip install -e .`; a wheel ships no docs/, and
 a lesson's name is then refused with the folder it looked in). An unknown lesson name is refused by
 name and changes nothing.
@@ -180,29 +183,55 @@ def open_lesson(app, session, params: dict, client, presenter: bool) -> str | No
     return refused
 
 
-def show_lesson_text(session, name: str, title: str, text: str) -> None:
-    """The lesson's text in the tab's own panel: a folder at its top with a close button
-    (session.lesson_view: the folder, or None once closed). The lesson's own link in it is written
-    for the address the tab used (session.page_url)."""
-    gui = session.client.gui
-    page_url = getattr(session, "page_url", "")
-    if name in LESSONS and page_url:  # the page's link as this tab reached the lab, not the default address
-        text = text.replace(LESSONS[name].link(), LESSONS[name].link(page_url))
-    text = panel_headings(text)
-    old = getattr(session, "lesson_view", None)
-    if old is not None:
-        old.remove()
-    folder = gui.add_folder(f"Lesson: {title}", order=-1)
-    with folder:
-        close = gui.add_button("Close the lesson", hint=f"docs/lessons/{name}.md")
-        gui.add_markdown(text)
+# a lesson's sections in the panel: the answers folded until the presenter opens them, the page's own
+# link left out (the tab already shows the lesson); the others (goal, what to set, what to watch,
+# the questions) open
+ANSWERS = ("What the class should see", "Figures")
+SKIPPED = ("Open the lesson",)
+LESSON_WIDTH = 360  # px: the lesson's column at the left edge, the lab's panel at the right
 
-    def closed(_event) -> None:
-        folder.remove()
-        session.lesson_view = None
 
-    close.on_click(closed)
-    session.lesson_view = folder
+def lesson_sections(text: str) -> list[tuple[str, str]]:
+    """(heading, body) of each "## " section of a lesson's body, the text before the first heading
+    under the heading "" (code blocks are not searched for headings)."""
+    sections, heading, lines, fenced = [], "", [], False
+    for line in text.splitlines():
+        if line.startswith("```"):
+            fenced = not fenced
+        if not fenced and line.startswith("## "):
+            sections.append((heading, "\n".join(lines).strip("\n")))
+            heading, lines = line[3:].strip(), []
+        else:
+            lines.append(line)
+    sections.append((heading, "\n".join(lines).strip("\n")))
+    return [(h, b) for h, b in sections if h or b]
+
+
+def panel_parts(text: str) -> tuple[str, str]:
+    """(what the class sees, the answers) of a lesson's body, as the panel shows them: the goal, what
+    to set, what to watch and the questions; then what the class should see, the figures and the
+    code, for the folded folder. Links to the other pages of docs/ become their paths (a page of
+    the lab's own address does not have them)."""
+    shown, answers = [], []
+    for heading, body in lesson_sections(text):
+        if heading in SKIPPED:
+            continue
+        part = f"## {heading}\n\n{body}" if heading else body
+        (answers if heading in ANSWERS else shown).append(part)
+    return tuple(panel_headings(_local_links("\n\n".join(parts))) for parts in (shown, answers))
+
+
+def _local_links(text: str) -> str:
+    """[words](../x.md) -> words: `docs/x.md` (a relative link would point into the lab's own server)."""
+    def path(m) -> str:
+        target = (LESSONS_DIR / m.group(2).split("#", 1)[0]).resolve()
+        try:
+            target = target.relative_to(LESSONS_DIR.parents[1])
+        except ValueError:
+            pass
+        return f"{m.group(1)}: `{target}`"
+
+    return re.sub(r"\[([^\]]+)\]\((?![a-z]+:)([^)\s]+)\)", path, text)
 
 
 def panel_headings(text: str) -> str:
@@ -212,6 +241,37 @@ def panel_headings(text: str) -> str:
     return "".join(part if part.startswith("```") else
                    re.sub(r"^(#{1,4}) ", lambda m: "#" * (len(m.group(1)) + 2) + " ", part, flags=re.M)
                    for part in parts)
+
+
+def show_lesson_text(session, name: str, title: str, text: str) -> None:
+    """The lesson in its own column at the left edge of the tab (client.gui.add_panel, docked left;
+    on a phone, a section of the panel that opens on a tap), the lab's panel docked at the right:
+    the controls stay in view, the scene between them. The column holds the lesson's goal, what to
+    set, what to watch and the questions; what the class should see, the figures and the code are in
+    a folder folded until the presenter opens it. session.lesson_view: the column (None once closed
+    with its button)."""
+    gui = session.client.gui
+    shown, answers = panel_parts(text)
+    old = getattr(session, "lesson_view", None)
+    if old is not None:
+        old.remove()
+    column = gui.add_panel()
+    with column.add_tab("Lesson"):
+        gui.add_markdown(f"### {title}")
+        close = gui.add_button("Close the lesson", hint=f"docs/lessons/{name}.md")
+        gui.add_markdown(shown)
+        with gui.add_folder("Answers: what the class should see, figures, code", expand_by_default=False):
+            gui.add_markdown(answers)
+    column.dock_left()
+    column.set_width(LESSON_WIDTH)
+    gui.main_panel.dock_right()
+
+    def closed(_event) -> None:
+        column.remove()
+        session.lesson_view = None
+
+    close.on_click(closed)
+    session.lesson_view = column
 
 
 def apply_lesson(app, params: dict, client=None) -> str | None:
@@ -227,6 +287,8 @@ def apply_lesson(app, params: dict, client=None) -> str | None:
     if app.state.running:
         return _tell(client, "refused: a run is going; the lesson's settings are not applied (stop it, then reload "
                              "the link)", error=True)
+    # the lesson's fresh state: no earlier run's curves, status or network (the arm's own shown), as Start leaves it
+    panel.trained()
     msg = app.switch_robot(main.robot)
     if msg:
         return _tell(client, msg, error=True)

@@ -1,0 +1,113 @@
+"""The app's layout in a real browser (Debian's headless chromium, Playwright): a lesson on a
+projector (1366 x 768) and a phone (390 x 844). APP_SCREENSHOT_DIR keeps the screenshots.
+
+- A lesson link: the lesson in its own column at the left, the lab's panel at the right with Start
+  in view; the answers folded until opened; the scene between the two.
+- A phone: the panel folded to its bar at the bottom, the scene (the arm) in view; a tap on the bar
+  opens the panel, with Start.
+"""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from conftest import CHROMIUM, NEEDS_CHROMIUM, make_app, wait_until
+
+pytestmark = [
+    NEEDS_CHROMIUM,
+    pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection"),
+]
+sync_api = pytest.importorskip("playwright.sync_api", reason="the playwright package is not installed")
+
+
+@pytest.fixture(scope="module")
+def lab_app(tmp_path_factory):
+    app = make_app(tmp_path_factory.mktemp("layout"), startup=None)
+    yield app
+    app.stop()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True)
+        yield b
+        b.close()
+
+
+def shot(page, tmp_path, name: str) -> None:
+    page.screenshot(path=os.path.join(os.environ.get("APP_SCREENSHOT_DIR") or str(tmp_path), f"{name}.png"))
+
+
+def in_view(box, width: int, height: int) -> bool:
+    return box is not None and box["x"] >= 0 and box["y"] >= 0 and box["x"] + box["width"] <= width \
+        and box["y"] + box["height"] <= height
+
+
+def test_a_lesson_on_a_projector_keeps_start_in_view_and_the_answers_folded(lab_app, browser, tmp_path):
+    from app.classroom.lesson import LESSONS, lesson_text
+
+    name = "cmaes-vs-neat"
+    title, _text = lesson_text(name)
+    page = browser.new_page(viewport={"width": 1366, "height": 768})
+    try:
+        page.goto(LESSONS[name].link(lab_app.url))
+        start = page.get_by_role("button", name="Start", exact=True)
+        sync_api.expect(start).to_be_visible(timeout=30_000)
+        heading = page.get_by_text(title, exact=True)
+        sync_api.expect(heading).to_be_visible(timeout=15_000)
+        assert wait_until(lambda: lab_app.panel.race.enabled.value, 10)  # the lesson's state is set
+        page.wait_for_timeout(1000)  # the columns settle
+        shot(page, tmp_path, "lesson-1366x768")
+        start_box, lesson_box = start.bounding_box(), heading.bounding_box()
+        assert in_view(start_box, 1366, 768), start_box  # the lab's controls in view, the lesson open beside them
+        assert in_view(lesson_box, 1366, 768) and lesson_box["x"] + lesson_box["width"] < start_box["x"]
+        # the goal, what to set and the questions are there; the answers are folded until opened
+        for text in ("What to set", "Questions for students"):
+            assert page.get_by_text(text, exact=True).count() == 1
+        sync_api.expect(page.get_by_text("What to set", exact=True)).to_be_visible()
+        answers = page.get_by_text("What the class should see", exact=True)
+        assert answers.count() == 0 or not answers.first.is_visible()
+        assert page.get_by_text("Open the lesson", exact=False).count() == 0  # no link to itself
+        page.get_by_text("Answers: what the class should see", exact=False).click()
+        sync_api.expect(page.get_by_text("What the class should see", exact=True)).to_be_visible(timeout=10_000)
+        # the scene between the two: the middle of the page is the canvas, not a panel
+        middle = page.evaluate("document.elementFromPoint(683, 400).tagName")
+        assert middle == "CANVAS", middle
+    finally:
+        page.close()
+
+
+def test_a_phone_shows_the_arm_with_the_panel_folded_to_a_bar_that_opens(lab_app, browser, tmp_path):
+    page = browser.new_page(viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True)
+    try:
+        page.goto(lab_app.url)
+        bar = page.get_by_text("Neuro-IK Lab", exact=True)
+        sync_api.expect(bar).to_be_visible(timeout=30_000)
+        assert wait_until(lambda: len(lab_app.sessions) >= 1, 30)
+        start = page.get_by_role("button", name="Start", exact=True)
+        sync_api.expect(start).to_have_count(0, timeout=15_000)  # folded: the panel's contents are gone
+        page.wait_for_timeout(1000)
+        shot(page, tmp_path, "phone-390x844-folded")
+        box = bar.bounding_box()
+        assert box["y"] > 844 - 80, box  # a bar at the bottom
+        # the scene is uncovered: the canvas at the middle and near the bottom of the page
+        for x, y in ((195, 300), (195, 422), (60, 700)):
+            assert page.evaluate(f"document.elementFromPoint({x}, {y}).tagName") == "CANVAS", (x, y)
+        bar.tap()
+        sync_api.expect(start).to_be_visible(timeout=10_000)
+        shot(page, tmp_path, "phone-390x844-open")
+    finally:
+        page.close()
+
+
+def test_a_wide_page_keeps_its_panel_open(lab_app, browser):
+    page = browser.new_page(viewport={"width": 1366, "height": 768})
+    try:
+        page.goto(lab_app.url)
+        sync_api.expect(page.get_by_role("button", name="Start", exact=True)).to_be_visible(timeout=30_000)
+        page.wait_for_timeout(1000)
+        sync_api.expect(page.get_by_role("button", name="Start", exact=True)).to_be_visible()
+    finally:
+        page.close()
