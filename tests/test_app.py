@@ -289,6 +289,20 @@ def test_another_programs_database_is_refused_by_name_and_left_byte_for_byte(tmp
         (database("newer.db", f"PRAGMA application_id = {APPLICATION_ID}", "PRAGMA user_version = 9"),
          "a lab notebook of a newer version"),
         (database("versioned.db", "PRAGMA user_version = 3"), "no tables, user_version 3"),
+        # the notebook's column names, not its table: no key, no UNIQUE on run_id, other types
+        (database("names.db", "CREATE TABLE runs (seq TEXT, run_id BLOB, entry INTEGER)",
+                  "INSERT INTO runs VALUES ('1', X'00', 5)"),
+         re.escape("its table runs is `CREATE TABLE runs (seq TEXT, run_id BLOB, entry INTEGER)`, a notebook's is "
+                   "`CREATE TABLE runs (seq INTEGER PRIMARY KEY AUTOINCREMENT, run_id TEXT UNIQUE, entry TEXT NOT NULL)`")),
+        (database("names-wal.db", "CREATE TABLE runs (seq, run_id, entry)", wal=True), "its table runs is `CREATE TABLE runs \\(seq, run_id, entry\\)`"),
+        (database("nounique.db", f"PRAGMA application_id = {APPLICATION_ID}", "PRAGMA user_version = 1",
+                  "CREATE TABLE runs (seq INTEGER PRIMARY KEY AUTOINCREMENT, run_id TEXT, entry TEXT NOT NULL)",
+                  "CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)"), "its table runs is `CREATE TABLE runs \\(seq "
+                  "INTEGER PRIMARY KEY AUTOINCREMENT, run_id TEXT, entry"),
+        (database("meta.db", "CREATE TABLE runs (seq INTEGER PRIMARY KEY AUTOINCREMENT, run_id TEXT UNIQUE, entry TEXT NOT NULL)",
+                  "CREATE TABLE meta (key, value)"), "its table meta is `CREATE TABLE meta \\(key, value\\)`"),
+        (database("check.db", "CREATE TABLE runs (seq INTEGER PRIMARY KEY AUTOINCREMENT, run_id TEXT UNIQUE, "
+                  "entry TEXT NOT NULL CHECK (length(entry) < 9))"), "its types, key or constraints differ"),
     ]
     damaged = tmp_path / "damaged.db"
     _old_notebook(damaged, [{"run_id": f"r{k}", "robot": "planar", "method": "cmaes", "pad": "x" * 3000} for k in range(40)])
@@ -315,14 +329,20 @@ def test_a_bad_row_is_skipped_by_name_and_the_others_are_listed(tmp_path, caplog
     db.execute("INSERT INTO runs (run_id, entry) VALUES (NULL, '[1, 2]')")
     db.execute("INSERT INTO runs (run_id, entry) VALUES ('num', '42')")
     db.execute("INSERT INTO runs (run_id, entry) VALUES ('bytes', X'FFFE00')")
+    db.execute("INSERT INTO runs (run_id, entry) VALUES ('deep', ?)", ("[" * 100_000,))  # a RecursionError in json
+    db.execute("INSERT INTO runs (run_id, entry) VALUES (NULL, ?)", ('{"run_id": ' + "[" * 100_000,))
+    db.execute("INSERT INTO runs (run_id, entry) VALUES ('rec', ?)",  # a run whose recording is not a path
+               (json.dumps({"run_id": "rec", "robot": "planar", "method": "cmaes", "recording": [1]}),))
     db.close()
     nb.add({"run_id": "good2", "robot": "scara", "method": "neat"})
     with caplog.at_level("WARNING", logger="app.training.notebook"):
         assert [e["run_id"] for e in nb.entries()] == ["good1", "good2"]
         assert [e["run_id"] for e in nb.entries()] == ["good1", "good2"]
-    assert nb.skipped() == ["'cut'", "seq 3", "'num'", "'bytes'"]
+    assert nb.skipped() == ["'cut'", "seq 3", "'num'", "'bytes'", "'deep'", "seq 7", "'rec'"]
     [line] = [r.getMessage() for r in caplog.records]  # one line, not one per refresh
     assert "'cut' (not JSON" in line and "seq 3 (not a JSON object)" in line and "'num' (not a JSON object)" in line
+    assert "'deep' (not readable: its JSON is nested too deeply)" in line and "seq 7 (not readable" in line
+    assert "'rec' (its recording must be a path" in line
 
 
 def test_a_notebook_that_cannot_be_read_lists_the_runs_read_last(tmp_path, monkeypatch, caplog):
@@ -369,6 +389,33 @@ def test_the_runs_list_says_the_notebook_is_read_only(app, monkeypatch):
     monkeypatch.undo()
     app.runs.refresh(force=True)
     assert "read-only" not in app.runs.message.content
+
+
+def test_the_runs_list_says_which_runs_are_not_saved_yet_and_why(app):
+    """A run whose entry could not be written (another program locks the notebook): listed, and the
+    Runs panel says it is not saved yet and why, until the retry writes it."""
+    import sqlite3
+
+    from app.training.notebook import label
+
+    nb = app.state.notebook
+    entry = {"run_id": "unsaved01", "robot": "planar", "method": "cmaes", "seed": 0}
+    other = sqlite3.connect(nb.path, isolation_level=None)
+    other.execute("BEGIN EXCLUSIVE")
+    try:
+        nb.add(entry, timeout=0.1)
+        app.runs.refresh(force=True)
+        assert label(entry) in app.runs.choice.options
+        assert app.runs.message.content.startswith("1 run not saved yet: database is locked; retrying.")
+    finally:
+        other.execute("ROLLBACK")
+    try:
+        assert wait_until(lambda: nb.not_saved() == (0, None), 120)  # the retrier waits for the lock's end
+        app.runs.refresh(force=True)
+        assert label(entry) in app.runs.choice.options and "not saved" not in app.runs.message.content
+    finally:
+        other.execute("DELETE FROM runs WHERE run_id = 'unsaved01'")
+        other.close()
 
 
 def test_a_read_only_notebook_is_listed_and_not_written(tmp_path, monkeypatch, caplog):
@@ -419,6 +466,80 @@ def test_two_apps_sharing_a_notebook_lose_no_entry(tmp_path):
     assert [p.returncode for p in procs] == [0, 0], errors
     ids = {e["run_id"] for e in Notebook(str(path)).entries()}
     assert ids == {f"{w}{k}" for w in "ab" for k in range(40)}
+
+
+def test_a_run_that_ends_while_another_program_locks_the_notebook_is_kept_and_saved_later(tmp_path, caplog):
+    """Another program holds BEGIN EXCLUSIVE across a run's end (past the busy timeout: "database is
+    locked"): the entry is listed as not saved, then written once the lock goes; no traceback."""
+    import sqlite3
+
+    from app.training.state import LabState
+
+    path = tmp_path / "notebook.db"
+    nb = Notebook(str(path), timeout=0.2)  # SQLite's busy timeout, 30 s in the app
+    nb.add({"run_id": "before1", "robot": "planar", "method": "cmaes"})
+    state = LabState("planar", nb)
+    other = sqlite3.connect(path, isolation_level=None)
+    other.execute("BEGIN EXCLUSIVE")
+    try:
+        with caplog.at_level("WARNING"):
+            assert state.start(lab.TrainConfig(robot="planar", method="cmaes", seed=0, generations=5, population=8,
+                                               targets=10, test_goals=10)) is None
+            run_id = state.runner.run_id
+            assert state.runner.join(120).state == "finished"
+            assert [e["run_id"] for e in nb.entries()] == ["before1", run_id]  # listed at once
+            assert nb.not_saved() == (1, "database is locked")
+            assert [r[0] for r in other.execute("SELECT run_id FROM runs")] == ["before1"]  # not in the file
+            time.sleep(1.0)  # the retrier tries (and fails) again meanwhile: nothing changes, nothing is said
+            assert nb.not_saved() == (1, "database is locked") and nb.get(run_id)["run_id"] == run_id
+            other.execute("ROLLBACK")  # the lock goes
+            assert wait_until(lambda: nb.not_saved() == (0, None), 120)
+    finally:
+        other.close()
+    assert [e["run_id"] for e in Notebook(str(path)).entries()] == ["before1", run_id]
+    assert Notebook(str(path)).get(run_id)["generations"] == 5
+    assert not [r for r in caplog.records if r.exc_info or r.levelname == "ERROR"]  # no traceback
+    said = [r.getMessage() for r in caplog.records if r.name == "app.training.notebook"]
+    assert said == [f"notebook {path}: 1 run not saved yet (database is locked): listed, kept in memory and retried "
+                    "until written", f"notebook {path}: the runs not saved (database is locked) are saved now"]
+
+
+def test_a_run_that_ends_on_a_full_disk_is_kept_and_saved_when_space_returns(tmp_path):
+    """The disk is full when the entry is written (RLIMIT_FSIZE in a child process: a write past it
+    fails as on a full disk, "disk I/O error"): the entry is listed as not saved and written once
+    there is space again; nothing else in the notebook changes."""
+    import subprocess
+    import sys
+
+    code = """if True:
+        import json, os, resource, signal, sys, time
+        from app.training.notebook import Notebook
+        path = sys.argv[1]
+        nb = Notebook(path, timeout=1.0)
+        nb.add({"run_id": "small1", "robot": "planar", "method": "cmaes"})
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails (EFBIG) as on a full disk
+        soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (65536, hard))  # the notebook's WAL cannot grow past 64 KiB
+        nb.add({"run_id": "big1", "robot": "planar", "method": "cmaes", "controller": {"w": "x" * 300_000}})
+        full = (nb.not_saved(), [e["run_id"] for e in nb.entries()], [e["run_id"] for e in Notebook(path).entries()])
+        time.sleep(1.0)  # the retrier fails again meanwhile
+        still = nb.not_saved()
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))  # space again
+        deadline = time.monotonic() + 120
+        while nb.not_saved()[0] and time.monotonic() < deadline:
+            time.sleep(0.05)
+        saved = Notebook(path).get("big1")
+        print(json.dumps({"full": full, "still": still, "later": nb.not_saved(), "saved": len(saved["controller"]["w"])}))
+    """
+    path = tmp_path / "notebook.db"
+    done = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert out["full"] == [[1, "disk I/O error"], ["small1", "big1"], ["small1"]]  # listed, not in the file
+    assert out["still"] == [1, "disk I/O error"]
+    assert out["later"] == [0, None] and out["saved"] == 300_000
+    assert "Traceback" not in done.stderr and "1 run not saved yet (disk I/O error)" in done.stderr
+    assert "the runs not saved (disk I/O error) are saved now" in done.stderr
 
 
 def test_a_race_of_one_method_and_seed_records_two_files(tmp_path, monkeypatch):

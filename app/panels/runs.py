@@ -78,6 +78,10 @@ class RunsPanel:
         if self.state.notebook.read_only is not None:  # said here as long as it holds, in the log once
             note = (f"Notebook read-only ({self.state.notebook.read_only}): new runs are listed until the app "
                     "stops, not kept." + (f"  \n{note}" if note else ""))
+        waiting, why = self.state.notebook.not_saved()
+        if waiting:  # a write failed (locked by another program, a full disk): the notebook retries it
+            note = (f"{waiting} run{'' if waiting == 1 else 's'} not saved yet: {why}; retrying."
+                    + (f"  \n{note}" if note else ""))
         if note != getattr(self, "_skipped_note", ""):
             self._skipped_note = self.message.content = note
         known = {os.path.realpath(e["recording"]) for e in entries if e.get("recording")}

@@ -32,6 +32,7 @@ JSON, not a JSON object, no text run_id, robot or method) is kept as it is but n
 
 from __future__ import annotations
 
+import atexit
 import json
 import logging
 import math
@@ -39,6 +40,7 @@ import os
 import sqlite3
 import threading
 import time
+import weakref
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -50,7 +52,13 @@ SCHEMA_VERSION = 1  # PRAGMA user_version (offset 60): the notebook's schema, ne
 _SCHEMA = ("CREATE TABLE IF NOT EXISTS runs (seq INTEGER PRIMARY KEY AUTOINCREMENT, run_id TEXT UNIQUE, entry TEXT NOT NULL)",
            "CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT)")
 _COLUMNS = {"runs": ["seq", "run_id", "entry"], "meta": ["key", "value"]}  # the tables of every version so far
+# each table as SQLite keeps it (sqlite_master.sql: the CREATE statement without IF NOT EXISTS), the
+# same in every version so far: a table of these names with other types, key or constraints is not ours
+_TABLES = {statement.split()[5]: statement.replace(" IF NOT EXISTS", "") for statement in _SCHEMA}
 _LEAVE = "it was left as it is: move it away or give another path"
+BUSY_TIMEOUT = 30.0  # s a write waits for another program's lock on the file (SQLite's busy timeout)
+READ_TIMEOUT = 5.0  # s a read waits at most (a WAL notebook's readers wait only for a checkpoint or recovery)
+RETRY_FIRST, RETRY_MAX = 0.5, 30.0  # s between tries of a failed write: doubled after each failure, up to the max
 
 
 class NotebookError(ValueError):
@@ -62,8 +70,10 @@ class Notebook:
     may share the file). path: the database, or a JSON notebook whose database sits beside it.
     read_only: None, or why the notebook is not written (its runs are listed all the same)."""
 
-    def __init__(self, path: str = DEFAULT_PATH):
+    def __init__(self, path: str = DEFAULT_PATH, timeout: float = BUSY_TIMEOUT):
+        """timeout: s a write waits for another program's lock on the file (SQLite's busy timeout)."""
         self.given = os.fspath(path)
+        self.timeout = float(timeout)
         legacy = None
         if self.given.endswith(".json"):
             legacy, self.path = self.given, self.given[: -len(".json")] + ".db"
@@ -71,11 +81,18 @@ class Notebook:
             self.path = self.given
             beside = os.path.join(os.path.dirname(self.path), "notebook.json")
             legacy = beside if os.path.basename(self.path) == "notebook.db" else None
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # guards _unsaved, _texts, _failure, _retrier
+        self._writing = threading.Lock()  # one write at a time from this notebook (add and its retries)
+        self._texts: dict[str, str] = {}  # run_id -> the JSON of an unsaved entry (a writable notebook's)
+        self._failure: str | None = None  # why the last write failed (None once it succeeds)
+        self._retrier: threading.Thread | None = None  # writes the unsaved entries, with a backoff
+        self.retry_max = RETRY_MAX  # s between the retrier's tries at most
         self._skipped: list[str] = []
         self._listed: list[dict] = []  # what entries() read last
         self._unreadable: str | None = None  # why the last entries() could not read the file
-        self._unsaved: dict[str, dict] = {}  # a read-only notebook: the runs added since it was opened, listed only
+        # the runs listed but not in the file: a read-only notebook's (added since it was opened), or a
+        # writable one's whose write failed (locked past the timeout, a full disk), retried until written
+        self._unsaved: dict[str, dict] = {}
         self.read_only: str | None = None
         self._check(self.path, sqlite=True)
         self._inspect()  # refuses what is not a lab notebook, writing nothing
@@ -121,6 +138,7 @@ class Notebook:
         try:
             with self._reader() as db:
                 objects = db.execute("SELECT type, name FROM sqlite_master WHERE name NOT LIKE 'sqlite_%'").fetchall()
+                tables = dict(db.execute("SELECT name, sql FROM sqlite_master WHERE type = 'table'").fetchall())
                 columns = {name: [c[1] for c in db.execute(f"PRAGMA table_info({_quote(name)})")]
                            for kind, name in objects if kind == "table"}
                 check = [r[0] for r in db.execute("PRAGMA quick_check(5)")] if objects else ["ok"]
@@ -139,6 +157,10 @@ class Notebook:
             if cols != _COLUMNS[name]:
                 raise NotebookError(f"notebook {self.path} is not a lab notebook (its table {name} has the "
                                     f"columns {', '.join(cols)}, a notebook's has {', '.join(_COLUMNS[name])}); {_LEAVE}")
+            if " ".join(tables[name].split()) != _TABLES[name]:  # the names alone: another program's table
+                raise NotebookError(f"notebook {self.path} is not a lab notebook (its table {name} is "
+                                    f"`{' '.join(tables[name].split())}`, a notebook's is `{_TABLES[name]}`: "
+                                    f"its types, key or constraints differ); {_LEAVE}")
         if "runs" not in columns or (app_id == 0 and version != 0):
             tables = ", ".join(f"table {t}" for t in sorted(columns)) or "no tables"
             raise NotebookError(f"notebook {self.path} is not a lab notebook (a SQLite database with {tables}, "
@@ -172,13 +194,16 @@ class Notebook:
                                (_run_id(e), json.dumps(e)))
                 db.execute("INSERT INTO meta VALUES ('imported', ?)", (legacy,))
 
-    def _connect(self) -> sqlite3.Connection:
+    def _connect(self, timeout: float | None = None) -> sqlite3.Connection:
+        """A write transaction; a lock held by another program is waited for `timeout` s (default: the
+        notebook's), then "database is locked"."""
+        timeout = self.timeout if timeout is None else timeout
         folder = os.path.dirname(self.path) or "."
         os.makedirs(folder, exist_ok=True)
         for attempt in range(5):
-            db = sqlite3.connect(self.path, timeout=30, isolation_level=None)  # explicit transactions below
+            db = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)  # explicit transactions below
             try:
-                db.execute("PRAGMA busy_timeout=30000")
+                db.execute(f"PRAGMA busy_timeout={int(timeout * 1000)}")
                 db.execute("PRAGMA journal_mode=WAL")  # switching a new file to WAL can meet another opener
                 return _Transaction(db)
             except sqlite3.OperationalError as e:
@@ -191,7 +216,8 @@ class Notebook:
         """A connection that writes nothing: immutable=1 (no lock, no -wal/-shm made) when no -wal
         file is beside the database (its content is all in it), else mode=ro (a writer may be at work)."""
         mode = "mode=ro" if os.path.exists(self.path + "-wal") else "immutable=1"
-        return _Closing(sqlite3.connect(f"{Path(os.path.abspath(self.path)).as_uri()}?{mode}", uri=True, timeout=30))
+        return _Closing(sqlite3.connect(f"{Path(os.path.abspath(self.path)).as_uri()}?{mode}", uri=True,
+                                        timeout=self.timeout))
 
     def _check(self, path: str, sqlite: bool) -> None:
         if os.path.isdir(path):
@@ -218,8 +244,9 @@ class Notebook:
 
     # ------------------------------------------------------------------ reading and writing
     def _select(self, query: str) -> list[tuple]:
-        if self.read_only is None:
-            with self._connect() as db:
+        if self.read_only is None:  # a read takes no write lock: it goes on while another program writes (WAL)
+            uri = f"{Path(os.path.abspath(self.path)).as_uri()}?mode=rw"  # a file gone is not made again here
+            with _Closing(sqlite3.connect(uri, uri=True, timeout=min(self.timeout, READ_TIMEOUT))) as db:
                 return db.execute(query).fetchall()
         if not os.path.exists(self.path) or os.path.getsize(self.path) == 0:
             return []
@@ -236,36 +263,36 @@ class Notebook:
 
     def entries(self) -> list[dict]:
         """The runs, oldest first; entries that are not runs are left out (see skipped()). When the
-        file cannot be read (locked past the timeout, gone, damaged since), the last list, said once."""
+        file cannot be read (locked past the timeout, gone, damaged since), the runs read last, said
+        once. The runs not in the file (a read-only notebook's, or those whose write is retried) are
+        listed after the file's."""
+        with self._lock:
+            unsaved = dict(self._unsaved)  # before the file is read: the retrier may write (and drop) some meanwhile
         try:
             rows = self._rows()
         except sqlite3.Error as e:
             if str(e) != self._unreadable:
                 log.warning("notebook %s cannot be read (%s): the runs read last are listed", self.path, e)
             self._unreadable = str(e)
-            return list(self._listed)
+            return [e for e in self._listed if e["run_id"] not in unsaved] + list(unsaved.values())
         self._unreadable = None
         runs, skipped, why = [], [], []
         for seq, run_id, text in rows:
-            try:
-                e = json.loads(text)
-            except (TypeError, ValueError) as err:  # not text, not JSON (UnicodeDecodeError is a ValueError)
-                e, reason = None, f"not JSON: {err}"
-            else:
-                reason = "not a JSON object" if not isinstance(e, dict) else "run_id, robot and method must be text"
+            e, reason = _parse(text)
+            if _is_run(e) and not isinstance(e.get("recording"), (str, type(None))):
+                e, reason = None, "its recording must be a path (text) or null"
             if _is_run(e):
-                if e["run_id"] not in self._unsaved:
-                    runs.append(e)
+                runs.append(e)
                 continue
-            name = repr(e["run_id"]) if isinstance(e, dict) and "run_id" in e else \
-                repr(run_id) if isinstance(run_id, str) else f"seq {seq}"
+            inner = e.get("run_id") if isinstance(e, dict) else None
+            name = repr(inner) if isinstance(inner, (str, int, float)) and len(repr(inner)) <= 80 else \
+                repr(run_id) if isinstance(run_id, str) and len(run_id) <= 80 else f"seq {seq}"
             skipped.append(name)
             why.append(f"{name} ({reason})")
-        runs += self._unsaved.values()
         if skipped != self._skipped:
             log.warning("notebook %s: entries skipped, not runs: %s", self.path, ", ".join(why))
         self._skipped, self._listed = skipped, runs
-        return list(runs)
+        return [e for e in runs if e["run_id"] not in unsaved] + list(unsaved.values())
 
     def skipped(self) -> list[str]:
         """The names of the entries the last entries() left out: repr(run_id), or "seq N"."""
@@ -274,19 +301,114 @@ class Notebook:
     def get(self, run_id: str) -> dict | None:
         return next((e for e in self.entries() if e["run_id"] == run_id), None)
 
-    def add(self, entry: dict) -> None:
-        """Add a run (or replace the run of the same run_id), in one transaction. A read-only
-        notebook keeps it in memory (listed until the app stops; said once, when opened)."""
+    def add(self, entry: dict, timeout: float | None = None) -> None:
+        """Add a run (or replace the run of the same run_id), in one transaction. It is listed at once.
+        A read-only notebook keeps it in memory (listed until the app stops; said once, when opened).
+        A write that fails (the file locked by another program past `timeout` s, default the
+        notebook's; a full disk; an I/O error) loses nothing: the entry is kept in memory, listed,
+        and written by a thread that tries again (after 0.5 s, 1 s, 2 s, ... RETRY_MAX s) until it is;
+        not_saved() says how many wait and why, and the log says it once."""
         if not _is_run(entry):
             raise ValueError(f"a notebook entry needs a text run_id, robot and method, got {entry!r:.200}")
-        if self.read_only is not None:
+        text = json.dumps(entry)  # an entry that is not JSON is refused here, not retried
+        with self._lock:
+            self._unsaved.pop(entry["run_id"], None)
+            self._unsaved[entry["run_id"]] = entry
+            if self.read_only is None:
+                self._texts[entry["run_id"]] = text
+        if self.read_only is None:
+            self._save(self.timeout if timeout is None else timeout)
+
+    def not_saved(self) -> tuple[int, str | None]:
+        """How many runs of a writable notebook are listed but not written yet, and why (the last
+        write's error, e.g. "database is locked"): (0, None) when every run is in the file. (A
+        read-only notebook's runs are never written: read_only says why.)"""
+        with self._lock:
+            if self.read_only is not None or not self._unsaved:
+                return 0, None
+            return len(self._unsaved), self._failure
+
+    def flush(self, timeout: float | None = None) -> int:
+        """Write the runs not saved yet, now (waiting `timeout` s at most for a lock); returns how
+        many are still not saved."""
+        if self.read_only is None and self._unsaved:
+            self._save(self.timeout if timeout is None else timeout)
+        return self.not_saved()[0]
+
+    def _save(self, timeout: float) -> bool:
+        """Write every unsaved entry in one transaction; False (the entries kept, the retrier
+        started) when that fails. Waits `timeout` s at most for the retrier's write under way: the
+        retrier writes what this one would have."""
+        if not self._writing.acquire(timeout=max(timeout, 0.0)):
+            return False
+        try:
             with self._lock:
-                self._unsaved.pop(entry["run_id"], None)
-                self._unsaved[entry["run_id"]] = entry
-            return
-        with self._lock, self._connect() as db:
-            db.execute("INSERT INTO runs (run_id, entry) VALUES (?, ?) "
-                       "ON CONFLICT (run_id) DO UPDATE SET entry = excluded.entry", (entry["run_id"], json.dumps(entry)))
+                batch = [(run_id, e, self._texts[run_id]) for run_id, e in self._unsaved.items()]
+            if not batch:
+                return True
+            try:
+                with self._connect(timeout) as db:
+                    for run_id, _e, text in batch:
+                        db.execute("INSERT INTO runs (run_id, entry) VALUES (?, ?) "
+                                   "ON CONFLICT (run_id) DO UPDATE SET entry = excluded.entry", (run_id, text))
+            except (sqlite3.Error, OSError) as err:  # locked, full, I/O error, the folder gone
+                why = str(err) or type(err).__name__
+                with self._lock:
+                    said, self._failure = self._failure, why
+                    n = len(self._unsaved)
+                    if self._retrier is None:
+                        self._retrier = threading.Thread(target=self._retry, name="notebook-retry", daemon=True)
+                        self._retrier.start()
+                        _waiting.add(self)
+                if said is None:
+                    log.warning("notebook %s: %d run%s not saved yet (%s): listed, kept in memory and retried "
+                                "until written", self.path, n, "" if n == 1 else "s", why)
+                return False
+            with self._lock:
+                for run_id, e, _text in batch:
+                    if self._unsaved.get(run_id) is e:  # not replaced by a later add meanwhile
+                        del self._unsaved[run_id]
+                        del self._texts[run_id]
+                said = self._failure if not self._unsaved else None
+                if said is not None:
+                    self._failure = None
+            if said is not None:
+                log.warning("notebook %s: the runs not saved (%s) are saved now", self.path, said)
+            return True
+        finally:
+            self._writing.release()
+
+    def _retry(self) -> None:
+        """The retrier: writes the unsaved entries, waiting longer after each failure, until none is
+        left (add and flush write them too, at once)."""
+        delay = RETRY_FIRST
+        while True:
+            time.sleep(delay)
+            self._save(self.timeout)
+            with self._lock:
+                if not self._unsaved:
+                    self._retrier = None
+                    _waiting.discard(self)
+                    return
+            delay = min(delay * 2, self.retry_max)
+
+
+_waiting: "weakref.WeakSet[Notebook]" = weakref.WeakSet()  # notebooks with runs not saved yet
+
+
+@atexit.register
+def _last_try() -> None:
+    """At exit: one more try to write the runs not saved yet; those still not written are named."""
+    for nb in list(_waiting):
+        try:
+            left = nb.flush(timeout=1.0)
+        except Exception:  # noqa: BLE001 - said below
+            left = nb.not_saved()[0]
+        if left:
+            with nb._lock:
+                names = ", ".join(list(nb._unsaved)[:20])
+            log.error("notebook %s: %d run%s could not be saved (%s) and are lost: %s", nb.path, left,
+                      "" if left == 1 else "s", nb._failure, names)
 
 
 class _Closing:
@@ -321,6 +443,20 @@ class _Transaction:
             self.db.execute("ROLLBACK" if kind else "COMMIT")
         finally:
             self.db.close()
+
+
+def _parse(text) -> tuple[object, str]:
+    """A row's entry, read from its JSON, and why it is not a run should it not be one (any error
+    in one row is that row's: it is skipped by name, the others are listed)."""
+    try:
+        e = json.loads(text)
+    except (TypeError, ValueError) as err:  # not text, not JSON (UnicodeDecodeError is a ValueError)
+        return None, f"not JSON: {err}"
+    except RecursionError:  # nested deeper than Python's stack: "[" * 100_000
+        return None, "not readable: its JSON is nested too deeply"
+    except Exception as err:  # noqa: BLE001 - whatever one row raises (MemoryError is not an Exception)
+        return None, f"not readable: {type(err).__name__}: {err}"
+    return e, "not a JSON object" if not isinstance(e, dict) else "run_id, robot and method must be text"
 
 
 def _run_id(entry: dict):

@@ -42,6 +42,9 @@ log = logging.getLogger(__name__)
 # points of a run's MSE history the app keeps (lab.running.history.History): every generation up to
 # this many, then fewer and fewer, so a run of 10^9 generations takes as little memory as one of 5,000
 HISTORY_POINTS = 4096
+# s a run's end waits for a lock on the notebook (held by another program) before its entry is left to
+# the notebook's retrier: well within the STOP_GRACE that Stop gives a run to end
+END_WRITE_WAIT = 1.0
 
 
 @dataclass(frozen=True)
@@ -379,9 +382,17 @@ class LabState:
                 partner.controller, partner.version = event.controller, partner.version + 1
 
     def _on_end(self, runner, summary, started, recording) -> None:
+        """The run's notebook entry. A write that fails (the file locked by another program, a full
+        disk) loses nothing: the notebook lists the entry and retries it (the Runs panel says so).
+        The end of the run waits END_WRITE_WAIT s at most for a lock: Stop waits for this end."""
         try:
-            self.notebook.add(entry_from_summary(summary, started, recording))
-        except Exception:
+            entry = entry_from_summary(summary, started, recording)
+        except Exception:  # noqa: BLE001 - a bug of ours: said, and the app goes on
+            log.exception("could not make the notebook entry of run %s", summary.run_id)
+            return
+        try:
+            self.notebook.add(entry, timeout=END_WRITE_WAIT)
+        except Exception:  # noqa: BLE001 - an entry that is not JSON (a bug of ours)
             log.exception("could not write the notebook entry of run %s", summary.run_id)
 
 
