@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from robots import pose
 from robots.arm import Arm
 from robots.registry import in_metres
 
@@ -42,13 +43,17 @@ _local = threading.local()  # one pin.Data per thread and arm (pink's rule: Data
 @dataclass(frozen=True)
 class IKResult:
     """q (nq,) within the limits; error = ||g - reach(q)|| [length]; iterations; seconds of
-    wall time; converged: error < tol."""
+    wall time; converged: error < tol (a pose goal: and angle < angle_tol). A pose goal's
+    (dls_pose_ik) also: angle, the tool's angle error [rad] (robots.pose.pose_errors), and the
+    random restarts it took."""
 
     q: np.ndarray
     error: float
     iterations: int
     seconds: float
     converged: bool
+    angle: float | None = None
+    restarts: int = 0
 
 
 def _step(J, e, bias, lam2) -> np.ndarray:
@@ -200,14 +205,29 @@ def dls_ik(arm: Arm, goal, q0=None, *, damping: float = 0.02, tol: float | None 
 @dataclass(frozen=True)
 class RefineResult:
     """q (n, nq) within the limits; error (n,) = ||g - reach(q)|| [length] (a tree: the worst
-    effector's, so error < tol means every effector within tol); steps (n,) taken; seconds of wall
-    time for the whole batch."""
+    effector's, so error < tol means every effector within tol; a pose goal: the distance of the
+    tool frame's origin from the goal's); steps (n,) taken; seconds of wall time for the whole
+    batch. Pose goals also: angle (n,), the angle error [rad] (robots.pose.pose_errors: geodesic, or
+    between approach axes). tol and angle_tol: the tolerances refine held the goals to;
+    converged (n,): each goal within them."""
 
     q: np.ndarray
     error: np.ndarray
     steps: np.ndarray
     seconds: float
     choice: np.ndarray | None = None  # (n,) the proposal kept for each goal, when refine had several (refine)
+    angle: np.ndarray | None = None  # (n,) [rad], pose goals only
+    tol: float | None = None
+    angle_tol: float | None = None
+
+    @property
+    def converged(self) -> np.ndarray:
+        """(n,) bool: error < tol, and angle < angle_tol for pose goals."""
+        tol = np.inf if self.tol is None else self.tol
+        ok = self.error < tol
+        if self.angle is not None:
+            ok &= self.angle < (np.inf if self.angle_tol is None else self.angle_tol)
+        return ok
 
 
 def _held_step(J, e, q, lower, upper, free_limits, lam2_eye) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -282,7 +302,8 @@ def _turned(q, p, goal, bearing, lower, upper, continuous) -> np.ndarray:
 
 
 def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, damping: float = 1e-3,
-           halvings: int = 4, turn: bool = True, curved: bool = True, flips: bool = True) -> RefineResult:
+           halvings: int = 4, turn: bool = True, curved: bool = True, flips: bool = True,
+           angle_tol: float | None = None) -> RefineResult:
     """A learned seed made exact: at most `steps` damped Gauss-Newton steps from q0 toward each goal,
     each after a closed-form turn of the first joint (turn=True), each bent along the arc the
     joints' turns trace (curved=True).
@@ -336,7 +357,17 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     forward kinematics each), and the two of them then nearest the goal are two more proposals,
     tried as the others (the first step, one at a time until one is within tolerance);
     RefineResult.choice is then k + j - 1 for the one of joint j. Goals whose first step goes well
-    never try them: the answer kept has still had at most `steps` steps."""
+    never try them: the answer kept has still had at most `steps` steps.
+
+    Pose goals, (n, 4, 4) homogeneous transforms of the tool frame (robots.pose): the same damped
+    Gauss-Newton steps in SE(3), each goal held to tol and to angle_tol [rad] (default 0.1 degree):
+    refine_pose, where the turn, the bend and the half turns do not apply."""
+    if pose.is_pose_array(goals):
+        return refine_pose(arm, goals, q0, steps=steps, tol=tol, angle_tol=angle_tol, damping=damping,
+                           halvings=halvings)
+    if angle_tol is not None:
+        raise ValueError(f"{arm.name}: angle_tol applies to pose goals (n, 4, 4); these goals have shape "
+                         f"{np.shape(goals)}")
     t0 = time.perf_counter()
     goals = np.asarray(goals, dtype=np.float64)
     goals = goals[None] if goals.ndim == (2 if arm.is_tree else 1) else goals
@@ -473,4 +504,178 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
             k += more
         out_q[i], out_err[i], taken[i] = qi, err if m == len(e) else worst(e), k
     several = len(q) > 1 or bool(first and flippable)
-    return RefineResult(out_q, out_err, taken, time.perf_counter() - t0, choice if several else None)
+    return RefineResult(out_q, out_err, taken, time.perf_counter() - t0, choice if several else None, tol=tol)
+
+
+# ---------------------------------------------------------------- pose goals (robots.pose)
+def _pose_tools(arm: Arm):
+    """(within, to_pin) of one joint vector of this arm: arm.within_limits and arm.to_pinocchio
+    without their checks and batching (refine's own, for a goal's inner loop)."""
+    lower, upper = arm.lower, arm.upper
+    limited = ~arm.chain.continuous.astype(bool)
+    wrapped = [(int(j), float(lower[j])) for j in np.flatnonzero(arm.chain.continuous)]
+    cos_at, sin_at = arm.chain.idx_q[~limited], arm.chain.idx_q[~limited] + 1
+    plain_at, q_ref = arm.chain.idx_q[limited], arm.q_ref
+    direct = arm.model.nq == arm.nq
+
+    def within(x):
+        for j, lo in wrapped:  # whole turns into [lo, lo + 2 pi)
+            v = float(x[j])
+            if not lo <= v < lo + 2 * np.pi:
+                x[j] = lo + (v - lo) % (2 * np.pi)
+        return np.minimum(np.maximum(x, lower), upper)
+
+    def to_pin(x):
+        if direct:
+            return x
+        out = q_ref.copy()
+        out[plain_at], out[cos_at], out[sin_at] = x[limited], np.cos(x[~limited]), np.sin(x[~limited])
+        return out
+
+    return within, to_pin, limited
+
+
+class _PoseProblem:
+    """One arm's pose goals: the tool frame's residual (robots.pose.residual) at a joint vector, and
+    damped Gauss-Newton steps on it within the joint limits, each goal's best iterate kept."""
+
+    def __init__(self, arm: Arm, tol: float, angle_tol: float, damping: float, halvings: int):
+        self.arm, self.axis = arm, pose.approach_axis(arm)
+        self.tol, self.angle_tol, self.halvings = tol, angle_tol, halvings
+        self.length = tol / angle_tol  # an error at tolerance weighs as much in angle as in position
+        self.lam2_eye = (damping * workspace_size(arm)) ** 2 * np.eye(6)
+        self.within, self.to_pin, self.limited = _pose_tools(arm)
+        self.model, self.data, self.fid = arm.model, _data(arm), arm.ee_frame_id
+
+    def state(self, q, goal, jacobian: bool):
+        """(q, e, |e|, position error, angle error, Je or None) at q."""
+        model, data, fid = self.model, self.data, self.fid
+        q_pin = self.to_pin(q)
+        if jacobian:
+            J6 = pin.computeFrameJacobian(model, data, q_pin, fid, pin.LOCAL_WORLD_ALIGNED)  # and data.oMf[fid]
+        else:
+            pin.forwardKinematics(model, data, q_pin)
+            pin.updateFramePlacement(model, data, fid)
+            J6 = np.zeros((6, len(q)))
+        e, Je, err_p, err_a = pose.residual(goal, data.oMf[fid], J6, self.axis, self.length)
+        return q, e, float(np.sqrt(e @ e)), err_p, err_a, (Je if jacobian else None)
+
+    def close(self, s) -> bool:
+        return s[3] < self.tol and s[4] < self.angle_tol
+
+    def descend(self, s, goal, most: int):
+        """At most `most` steps from state s (Je may be None); (state, steps taken, stuck): stuck when
+        no step length lowered |e| (a local minimum, a singular pose, a goal out of reach)."""
+        arm = self.arm
+        k = 0
+        while not self.close(s) and k < most:
+            if s[5] is None:
+                s = self.state(s[0], goal, True)
+            q, e, norm = s[0], s[1], s[2]
+            dq, _, _ = _held_step(s[5], e, q, arm.lower, arm.upper, self.limited, self.lam2_eye)
+            k += 1
+            for h in range(self.halvings + 1):
+                t = 0.5**h
+                trial = self.state(self.within(q + t * dq), goal, False)
+                if trial[2] < norm:
+                    break
+            if trial[2] >= norm:
+                return s, k, True
+            s = trial
+        return s, k, False
+
+
+def _pose_tolerances(arm: Arm, tol, angle_tol) -> tuple[float, float]:
+    tol = default_tolerance(arm) if tol is None else float(tol)
+    angle_tol = pose.DEFAULT_ANGLE_TOL if angle_tol is None else float(angle_tol)
+    if not (tol > 0 and angle_tol > 0 and math.isfinite(tol) and math.isfinite(angle_tol)):
+        raise ValueError(f"{arm.name}: tol and angle_tol must be finite and > 0, got {tol!r} and {angle_tol!r}")
+    return tol, angle_tol
+
+
+def refine_pose(arm: Arm, poses, q0, *, steps: int = 3, tol: float | None = None, angle_tol: float | None = None,
+                damping: float = 1e-3, halvings: int = 4) -> RefineResult:
+    """Pose goals made exact: at most `steps` damped Gauss-Newton steps in SE(3) from q0 toward each
+    pose (robots.refine takes (n, 4, 4) goals here).
+
+        e_k  = (p_g - p(q_k), L log3(R_g R(q_k)^T))      (robots.pose.residual; an approach axis: L (g - a))
+        Je_k = (J_v, L Jlog3(R_g R^T) J_w)              J: Pinocchio's 6-row frame Jacobian, LOCAL_WORLD_ALIGNED
+        dq_k = Je^T (Je Je^T + lambda^2 I)^-1 e_k         with joints at a limit held (an active set)
+        q_{k+1} = q_k + t dq_k,  t the first of 1, 1/2, 1/4, ... (halvings) that lowers |e|
+
+    L = tol / angle_tol [length / rad] (6 cm at the defaults) weighs a turn against a move so that
+    an error at tolerance weighs the same in both; lambda = damping x workspace_size guards singular
+    poses. A 5-joint SO arm is held to its position and its approach axis (robots.pose.approach_axis),
+    its roll left free. A goal stops once its position error is below tol (default:
+    default_tolerance, 0.1 mm on a real arm) and its angle error below angle_tol [rad] (default 0.1
+    degree); each goal keeps its best iterate. poses (n, 4, 4) (or one (4, 4)), checked by
+    robots.pose.check_poses; q0 (n, nq), or (k, n, nq): k proposals for each goal, each taking the
+    first step in turn until one is within tolerance, the nearest after it taking the rest
+    (RefineResult.choice), as refine does with positions."""
+    t0 = time.perf_counter()
+    goals = pose.check_poses(poses, what=f"{arm.name}: pose goals")
+    tol, angle_tol = _pose_tolerances(arm, tol, angle_tol)
+    q = np.asarray(q0, dtype=np.float64)
+    if q.ndim not in (1, 2, 3) or q.shape[-1] != arm.nq or (q.ndim == 1 and len(goals) != 1) or \
+            (q.ndim > 1 and q.shape[-2] != len(goals)) or q.size == 0:
+        raise ValueError(f"{arm.name}: q0 must be ({len(goals)}, {arm.nq}) or (k, {len(goals)}, {arm.nq}) for "
+                         f"{len(goals)} pose goals, got shape {np.shape(q0)}")
+    q = arm.within_limits(q if q.ndim == 3 else np.atleast_2d(q)[None])  # (k, n, nq)
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+        raise ValueError(f"steps must be an integer >= 0, got {steps!r}")
+    problem = _PoseProblem(arm, tol, angle_tol, damping, halvings)
+    first = min(steps, 1)
+    n = len(goals)
+    out_q, out_err, out_angle = np.empty((n, arm.nq)), np.empty(n), np.empty(n)
+    taken, choice = np.zeros(n, np.int64), np.zeros(n, np.int64)
+    for i, goal in enumerate(goals):
+        best = None
+        for j in range(len(q)):
+            state = problem.descend(problem.state(q[j, i].copy(), goal, False), goal, first)
+            if best is None or state[0][2] < best[0][2]:
+                best, choice[i] = state, j
+            if problem.close(best[0]):
+                break
+        s, k, stuck = best
+        if not stuck and k < steps:
+            s, more, _ = problem.descend(s, goal, steps - k)
+            k += more
+        out_q[i], out_err[i], out_angle[i], taken[i] = s[0], s[3], s[4], k
+    return RefineResult(out_q, out_err, taken, time.perf_counter() - t0, choice if len(q) > 1 else None,
+                        angle=out_angle, tol=tol, angle_tol=angle_tol)
+
+
+def dls_pose_ik(arm: Arm, goal, q0=None, *, restarts: int = 20, seconds: float | None = None, max_iter: int = 100,
+                damping: float = 0.005, tol: float | None = None, angle_tol: float | None = None,
+                seed: int | None = 0) -> IKResult:
+    """One pose goal (4, 4) by damped least squares with random restarts, the KDL-like baseline:
+    the damped Gauss-Newton steps of refine_pose from q0 (arm.rest by default), at most max_iter of
+    them; when they stall short of tolerance, again from a joint vector drawn uniformly within the
+    limits (a generator of `seed`), at most `restarts` times and, when `seconds` is given, only while
+    that wall time lasts. damping: lambda as a fraction of workspace_size (larger than refine's: a
+    start far from the goal passes near singular poses; 0.02, dls_ik's, converged on fewer poses of
+    UR5 and Panda in more time: docs/pose.md). Returns the best iterate of all starts."""
+    t0 = time.perf_counter()
+    goals = pose.check_poses(goal, what=f"{arm.name}: pose goal")
+    if len(goals) != 1:
+        raise ValueError(f"{arm.name}: dls_pose_ik solves one pose (4, 4), got {len(goals)}: use refine_pose for many")
+    tol, angle_tol = _pose_tolerances(arm, tol, angle_tol)
+    problem = _PoseProblem(arm, tol, angle_tol, damping, halvings=4)
+    g = goals[0]
+    rng = np.random.default_rng(seed)
+    start = arm.rest.copy() if q0 is None else arm.within_limits(np.asarray(q0, dtype=np.float64).reshape(-1))
+    best, iterations, r = None, 0, 0
+    for r in range(int(restarts) + 1):
+        if r:
+            if seconds is not None and time.perf_counter() - t0 >= seconds:
+                r -= 1
+                break
+            start = arm.lower + (arm.upper - arm.lower) * rng.random(arm.nq)
+        s, k, _ = problem.descend(problem.state(start, g, False), g, max_iter)
+        iterations += k
+        if best is None or s[2] < best[2]:
+            best = s
+        if problem.close(best):
+            break
+    return IKResult(q=best[0], error=best[3], iterations=iterations, seconds=time.perf_counter() - t0,
+                    converged=problem.close(best), angle=best[4], restarts=r)
