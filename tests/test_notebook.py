@@ -46,3 +46,45 @@ def test_the_notebook_runs_without_an_error(tmp_path, monkeypatch):
     assert not errors
     printed = "".join(o.get("text", "") for o in nb.cells[-1].outputs)
     assert "the notebook ran in" in printed
+
+
+def test_the_notebook_run_twice_at_once_in_one_folder_loses_nothing(tmp_path):
+    """Two students (two tabs, two terminals) run the notebook at the same time in one folder: both
+    finish without an error, and each run's recording is a file of its own, whole (all its
+    generations, its summary, its run): neither overwrites or truncates the other's."""
+    import re
+    import subprocess
+
+    from conftest import wait_or_kill
+
+    from lab.recording.replay import read_recording
+
+    code = """if True:
+        import sys, nbclient, nbformat
+        nb = nbformat.read(sys.argv[1], as_version=4)
+        nbclient.NotebookClient(nb, timeout=int(sys.argv[3]), kernel_name="python3",
+                                resources={"metadata": {"path": sys.argv[2]}}).execute()
+        nbformat.write(nb, sys.argv[4])
+    """
+    folder, temp = tmp_path / "class", tmp_path / "tmp"  # the folder both run in; the kernels' temp dir
+    folder.mkdir()
+    temp.mkdir()
+    env = {**os.environ, "TMPDIR": str(temp),
+           "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)}
+    outs = [tmp_path / f"run{k}.ipynb" for k in (1, 2)]
+    procs = [subprocess.Popen([sys.executable, "-c", code, str(NOTEBOOK), str(folder), str(CELL_TIMEOUT * 2), str(out)],
+                              env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for out in outs]
+    errors = [wait_or_kill(p, TOTAL * 3)[1] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], errors[0][-3000:] + errors[1][-3000:]
+    paths = []
+    for out in outs:
+        cells = nbformat.read(out, as_version=4).cells
+        printed = "".join(o.get("text", "") for c in cells if c.cell_type == "code" for o in c.outputs)
+        assert "the notebook ran in" in printed
+        [path] = re.findall(r"^(\S+\.rrd): generations 0-149", printed, re.M)
+        paths.append(path)
+    assert paths[0] != paths[1] and all(p.startswith(str(temp)) for p in paths), paths
+    runs = [read_recording(p) for p in paths]
+    assert [(r.salvaged, r.last_generation) for r in runs] == [(False, 149)] * 2
+    assert runs[0].protocol["run_id"] != runs[1].protocol["run_id"]  # each file is its own run's
+    assert sorted(os.listdir(folder)) == []  # nothing written into the folder the notebooks run in
