@@ -4,6 +4,7 @@
     run = lab.evolve(robot="planar", method="cmaes", generations=1000, population=50, targets=70, seed=0)
     run.controller(goals)        # (n, len(task_axes)) -> (n, nq) within the joint limits
     run.train_mse, run.test_mse  # final best on the training and held-out goals
+    lab.solve(run.controller, "ur5", goals)  # the network, then refinement: q, each goal's error (lab/solver.py)
     lab.evolve("ur5", seconds=60)  # a time budget: 60 s of optimizer time, then its best controller
     lab.load_controller("recordings/....rrd", generation=None)  # a controller back from a Rerun recording
     lab.Runner(config) / lab.ProcessRunner(config)  # a run in a background thread / in a worker process
@@ -25,11 +26,12 @@ from lab.problem.controllers import Controller, GraphController, MLPController, 
 from lab.running.config import TrainConfig
 from lab.running.evolve import Run, evolve
 from lab.running.runner import GenerationEvent, Runner, RunSummary
+from lab.solver import Solution, solve
 
 __all__ = [
     "Backend", "Controller", "GenerationEvent", "GraphController", "MLPController", "Method", "Options",
-    "ProcessRunner", "RerunLogger", "Run", "RunSummary", "Runner", "SettingError", "StepResult", "TrainConfig", "controller_from_dict",
-    "evolve", "load_controller", "methods", "read_recording",
+    "ProcessRunner", "RerunLogger", "Run", "RunSummary", "Runner", "SettingError", "Solution", "StepResult", "TrainConfig",
+    "controller_from_dict", "evolve", "load_controller", "methods", "read_recording", "solve",
 ]
 
 

@@ -8,13 +8,15 @@
     arm.sample_goals(70, seed=0)    # (70, len(arm.task_axes)) reachable goals
     robots.kind("ur5")              # "paper" (the paper's arms, its units), "snake" (planar-10/-20,
                                     # the paper's units), "real" (metres) or "tree" (metres)
+    robots.pose.sample_poses(arm, 70, seed=0)  # (70, 4, 4) tool-frame poses (robots/pose.py)
     tree = robots.load("g1")        # several end effectors (tree.effectors): fk (..., E, 3),
                                     # jacobian (..., E, 3, nq), goals (n, E, len(task_axes))
 
 Nothing here knows about networks or evolution.
 """
 
+from robots import pose
 from robots.arm import Arm, from_urdf
 from robots.registry import in_metres, kind, load, names
 
-__all__ = ["Arm", "from_urdf", "in_metres", "kind", "load", "names"]
+__all__ = ["Arm", "from_urdf", "in_metres", "kind", "load", "names", "pose"]

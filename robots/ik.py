@@ -585,7 +585,9 @@ class _PoseProblem:
         return s, k, False
 
 
-def _pose_tolerances(arm: Arm, tol, angle_tol) -> tuple[float, float]:
+def pose_tolerances(arm: Arm, tol=None, angle_tol=None) -> tuple[float, float]:
+    """(tol [length], angle_tol [rad]) of pose goals: default_tolerance(arm) and 0.1 degree where
+    None; ValueError unless both are finite and > 0."""
     tol = default_tolerance(arm) if tol is None else float(tol)
     angle_tol = pose.DEFAULT_ANGLE_TOL if angle_tol is None else float(angle_tol)
     if not (tol > 0 and angle_tol > 0 and math.isfinite(tol) and math.isfinite(angle_tol)):
@@ -614,7 +616,7 @@ def refine_pose(arm: Arm, poses, q0, *, steps: int = 3, tol: float | None = None
     (RefineResult.choice), as refine does with positions."""
     t0 = time.perf_counter()
     goals = pose.check_poses(poses, what=f"{arm.name}: pose goals")
-    tol, angle_tol = _pose_tolerances(arm, tol, angle_tol)
+    tol, angle_tol = pose_tolerances(arm, tol, angle_tol)
     q = np.asarray(q0, dtype=np.float64)
     if q.ndim not in (1, 2, 3) or q.shape[-1] != arm.nq or (q.ndim == 1 and len(goals) != 1) or \
             (q.ndim > 1 and q.shape[-2] != len(goals)) or q.size == 0:
@@ -659,7 +661,7 @@ def dls_pose_ik(arm: Arm, goal, q0=None, *, restarts: int = 20, seconds: float |
     goals = pose.check_poses(goal, what=f"{arm.name}: pose goal")
     if len(goals) != 1:
         raise ValueError(f"{arm.name}: dls_pose_ik solves one pose (4, 4), got {len(goals)}: use refine_pose for many")
-    tol, angle_tol = _pose_tolerances(arm, tol, angle_tol)
+    tol, angle_tol = pose_tolerances(arm, tol, angle_tol)
     problem = _PoseProblem(arm, tol, angle_tol, damping, halvings=4)
     g = goals[0]
     rng = np.random.default_rng(seed)

@@ -1,0 +1,155 @@
+"""One call for an engineer: a controller's answer made exact.
+
+    import lab, robots
+    arm = robots.load("so100")
+    controller = lab.controller_from_dict(json.load(open("app/pretrained/so100-cmaes.json"))["controller"])
+    goals = arm.sample_goals(100, seed=1)
+    s = lab.solve(controller, arm, goals)       # the network, then at most 3 refinement steps
+    s.q, s.error, s.converged                   # (n, nq) joint angles, (n,) position errors, (n,) within 0.1 mm
+
+    from robots import pose
+    poses = pose.sample_poses(arm, 100, seed=1)  # (n, 4, 4) pose goals
+    s = lab.solve(None, arm, poses, q0=q_near)  # no pose controller yet: refine from q0 (or the rest pose)
+    s.error, s.angle                            # position [m] and angle [rad] errors
+
+The network proposes (every head of a multi-head MLP: lab.problem.controllers.proposals, the
+nearest its goal first), robots.ik.refine makes the answer exact: on the shipped SO-100 controller
+the proposals of all its heads bring more goals within 0.1 mm than its one chosen answer
+(docs/pose.md).
+
+A pose controller (none ships yet) declares `goal = "pose"`, takes (n, 4, 4) poses and returns
+(n, nq) joint angles, and may give several answers per goal through a `proposals(poses)` method
+returning (k, n, nq); a controller without the attribute answers position goals.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+import robots
+from lab.problem.controllers import proposals as _proposals
+from robots import pose
+from robots.ik import RefineResult, default_tolerance, pose_tolerances, refine
+
+
+@dataclass(frozen=True)
+class Solution:
+    """Joint angles for goals and how near each goal they come.
+
+    q          (n, nq) joint angles within the limits
+    error      (n,) position error [the arm's length unit: m on a real arm] (a tree: its worst effector's)
+    angle      (n,) angle error [rad] for pose goals (robots.pose.pose_errors), None for position goals
+    converged  (n,) bool: error < tol (and angle < angle_tol for pose goals)
+    tol, angle_tol  the tolerances [length], [rad] (angle_tol None for position goals)
+    steps      (n,) refinement steps taken
+    choice     (n,) the proposal kept for each goal (0: the controller's own answer), None with one
+    network_error, network_angle  (n,) the same errors of the controller's own answer before
+               refinement (None without a controller; network_angle None for position goals)
+    seconds    wall time of the whole call (the network and the refinement)
+    """
+
+    q: np.ndarray
+    error: np.ndarray
+    angle: np.ndarray | None
+    converged: np.ndarray
+    tol: float
+    angle_tol: float | None
+    steps: np.ndarray
+    choice: np.ndarray | None
+    network_error: np.ndarray | None
+    network_angle: np.ndarray | None
+    seconds: float
+
+    @property
+    def success(self) -> float:
+        """The share of goals within tolerance."""
+        return float(np.mean(self.converged)) if len(self.converged) else float("nan")
+
+
+def goal_kind(controller) -> str:
+    """"pose" for a controller that declares `goal = "pose"`, else "position"."""
+    return "pose" if getattr(controller, "goal", "position") == "pose" else "position"
+
+
+def _position_errors(arm: robots.Arm, goals: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """||reach(q) - goal||, a tree's worst effector's (refine's error)."""
+    d = np.linalg.norm(arm.reach(q) - goals, axis=-1)
+    return d.max(axis=-1) if arm.is_tree else d
+
+
+def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None = None,
+          angle_tol: float | None = None) -> Solution:
+    """Joint angles that put the arm on `goals`: the controller's answers (every head's, as
+    proposals), then at most `steps` refinement steps (robots.ik.refine) toward each goal.
+
+    controller: a lab controller (lab.controller_from_dict, a Run's), or None to refine from q0;
+    arm: a robots.Arm or a name robots.load knows; goals: positions (n, len(task_axes)) ((n, E,
+    len(task_axes)) on a tree) or poses (n, 4, 4) of the tool frame (robots.pose; a pose controller,
+    or controller=None). q0: (n, nq) or (k, n, nq) more proposals, tried after the controller's
+    (with controller=None: the only ones; neither given: the rest pose). tol [length] and angle_tol
+    [rad]: refine's (default 0.1 mm on a real arm, 0.1 degree). steps=0: the first proposal alone
+    (the network's own answer; no refinement, not even refine's turn of the first joint), measured. ValueError, naming the problem, for a controller made for other goals or
+    another arm, and for goals refine refuses."""
+    t0 = time.perf_counter()
+    if isinstance(arm, str):
+        arm = robots.load(arm)
+    if not isinstance(arm, robots.Arm):
+        raise ValueError(f"arm must be a robots.Arm or a robot's name, got {type(arm).__name__}")
+    is_pose = pose.is_pose_array(goals)
+    if is_pose:
+        goals = pose.check_poses(goals, what=f"{arm.name}: pose goals")
+    else:
+        goals = np.asarray(goals, dtype=np.float64)
+        goals = goals[None] if goals.ndim == (2 if arm.is_tree else 1) else goals
+    kind = "pose" if is_pose else "position"
+    seeds = []
+    if controller is not None:
+        if goal_kind(controller) != kind:
+            fix = ("; for pose goals without a pose controller pass controller=None and q0 (or nothing: the "
+                   "rest pose)" if is_pose else "")
+            raise ValueError(f"{arm.name}: this controller answers {goal_kind(controller)} goals, these goals are "
+                             f"{kind}s, shape {goals.shape}{fix}")
+        encoding = getattr(controller, "encoding", None)
+        if encoding is not None and len(getattr(encoding, "q_lo", ())) != arm.nq:
+            raise ValueError(f"{arm.name}: this controller answers {len(encoding.q_lo)} joints, the arm has {arm.nq}")
+        if encoding is not None and not is_pose and tuple(encoding.task_axes) != tuple(arm.task_axes):
+            raise ValueError(f"{arm.name}: this controller takes goals on task axes {tuple(encoding.task_axes)}, "
+                             f"the arm's are {tuple(arm.task_axes)}")
+        own = controller.proposals(goals) if hasattr(controller, "proposals") else _proposals(controller, goals)
+        own = np.asarray(own, dtype=np.float64)
+        if own.shape[1:] != (len(goals), arm.nq):
+            raise ValueError(f"{arm.name}: the controller proposed shape {own.shape}, not (k, {len(goals)}, {arm.nq})")
+        seeds.append(own)
+    if q0 is not None:
+        q0 = np.asarray(q0, dtype=np.float64)
+        extra = q0 if q0.ndim == 3 else np.atleast_2d(q0)[None]
+        if extra.shape[1:] != (len(goals), arm.nq):
+            raise ValueError(f"{arm.name}: q0 must be ({len(goals)}, {arm.nq}) or (k, {len(goals)}, {arm.nq}), "
+                             f"got shape {q0.shape}")
+        seeds.append(extra)
+    if not seeds:
+        seeds.append(np.broadcast_to(arm.rest, (1, len(goals), arm.nq)))
+    seeds = np.concatenate(seeds) if len(seeds) > 1 else seeds[0]
+    first = arm.within_limits(seeds[0])
+    if is_pose:
+        first_error, first_angle = pose.pose_errors(arm, goals, first)
+    else:
+        first_error, first_angle = _position_errors(arm, goals, first), None
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+        raise ValueError(f"steps must be an integer >= 0, got {steps!r}")
+    if steps == 0:  # the first proposal alone, measured (refine would still turn the first joint)
+        if is_pose:
+            tol, angle_tol = pose_tolerances(arm, tol, angle_tol)
+        else:
+            tol = default_tolerance(arm) if tol is None else float(tol)
+        r = RefineResult(first, first_error, np.zeros(len(goals), np.int64), 0.0, angle=first_angle, tol=tol,
+                         angle_tol=angle_tol if is_pose else None)
+    else:
+        r = refine(arm, goals, seeds, steps=steps, tol=tol, angle_tol=angle_tol)
+    network = controller is not None
+    return Solution(q=r.q, error=r.error, angle=r.angle, converged=r.converged, tol=r.tol, angle_tol=r.angle_tol,
+                    steps=r.steps, choice=r.choice, network_error=first_error if network else None,
+                    network_angle=first_angle if network else None, seconds=time.perf_counter() - t0)
