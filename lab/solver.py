@@ -102,8 +102,18 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
     if is_pose:
         goals = pose.check_poses(goals, what=f"{arm.name}: pose goals")
     else:
-        goals = np.asarray(goals, dtype=np.float64)
+        try:
+            goals = np.asarray(goals, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{arm.name}: goals must be an array of numbers") from None
         goals = goals[None] if goals.ndim == (2 if arm.is_tree else 1) else goals
+        shape = (*((arm.n_effectors,) if arm.is_tree else ()), len(arm.task_axes))
+        if goals.shape[1:] != shape or not len(goals):
+            raise ValueError(f"{arm.name}: goals must be positions (n, {', '.join(map(str, shape))}) or poses "
+                             f"(n, 4, 4), got shape {goals.shape}")
+        if not np.isfinite(goals).all():
+            bad = int((~np.isfinite(goals)).reshape(len(goals), -1).any(axis=1).sum())
+            raise ValueError(f"{arm.name}: {bad} of {len(goals)} goals hold NaN or infinity")
     kind = "pose" if is_pose else "position"
     seeds = []
     if controller is not None:

@@ -140,5 +140,11 @@ def test_a_controller_for_other_goals_or_another_arm_is_refused_by_name():
         bad = pose.sample_poses(ur5, 3, seed=0)
         bad[1, :3, :3] *= 2
         lab.solve(None, ur5, bad)
+    with pytest.raises(ValueError, match=r"goals must be positions \(n, 3\) or poses \(n, 4, 4\), got shape \(3, 2\)"):
+        lab.solve(shipped("ur5"), ur5, np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="1 of 3 goals hold NaN"):
+        goals = ur5.sample_goals(3, seed=0)
+        goals[2, 1] = np.nan
+        lab.solve(shipped("ur5"), ur5, goals)
     with pytest.raises(ValueError, match="unknown robot"):
         lab.solve(None, "no-such-arm", np.zeros((1, 3)))
