@@ -4,6 +4,7 @@ That each link opens its state and its text in a tab: tests/test_app_teaching.py
 
 from __future__ import annotations
 
+import os
 import re
 import time
 from pathlib import Path
@@ -116,3 +117,62 @@ def test_the_panel_shows_the_questions_open_and_the_answers_folded_without_a_sel
     assert "```" not in shown and "```python" in answers and "lab.evolve(" in answers
     assert "Open the lesson" not in shown + answers and "?websocket=" not in shown + answers
     assert "](" not in (shown + answers).replace("](http", "")  # links to other pages are their paths
+
+
+class _Enough(Exception):
+    """The snippet has printed the rows the test compares."""
+
+
+def figures_of(name: str) -> tuple[list[str], str]:
+    """(the data rows of the table under a lesson's ## Figures, its python snippet)."""
+    text = (LESSONS_DIR / f"{name}.md").read_text()
+    figures = text[text.index("## Figures"):]
+    table = [line for line in figures.splitlines() if line.startswith("|")]
+    assert table[0].rstrip(" |").endswith("seconds"), f"{name}: the table's last column is not its seconds"
+    return table[2:], re.search(r"```python\n(.*?)```", figures, re.S).group(1)
+
+
+def cells(row: str) -> list[str]:
+    """A table row's cells but its last (the seconds, which differ from machine to machine)."""
+    return [c.strip() for c in row.strip().strip("|").split("|")][:-1]
+
+
+@pytest.mark.parametrize("name", sorted(LESSONS))
+def test_the_figures_a_lesson_quotes_are_the_ones_its_snippet_prints(name, monkeypatch):
+    """Each lesson's snippet prints the rows of its table of figures: run as a student would copy it, its
+    first row is the table's first row, digit for digit (the seconds aside). LESSON_FIGURES=all
+    compares every row (minutes: what re-measuring a lesson's figures takes)."""
+    monkeypatch.setenv("LAB_THREADS", "1")  # as the figures were measured (the fitness is the same bit for bit)
+    table, code = figures_of(name)
+    wanted = len(table) if os.environ.get("LESSON_FIGURES") == "all" else 1
+    printed: list[str] = []
+
+    def capture(*args, **_kw) -> None:
+        line = " ".join(map(str, args))
+        if line.startswith("|"):
+            printed.append(line)
+            if len(printed) == wanted:
+                raise _Enough
+
+    try:
+        exec(compile(code, f"docs/lessons/{name}.md", "exec"), {"print": capture, "__name__": "lesson"})
+    except _Enough:
+        pass
+    assert len(printed) == wanted, f"{name}: the snippet printed {len(printed)} rows of {wanted}"
+    for got, quoted in zip(printed, table):
+        assert cells(got) == cells(quoted), f"{name}: the snippet prints\n{got}\nthe lesson quotes\n{quoted}"
+
+
+def test_lesson_one_reads_the_error_map_as_its_legend_does():
+    """Lesson 1 says what yellow means on the error map in the legend's own words and units."""
+    import robots
+    from robots.ik import workspace_size
+
+    from app.panels.views import error_map
+    from app.tab.goals import fmt_len
+
+    arm = robots.load("planar")
+    _image, _err, scale = error_map(arm, None)
+    text = " ".join((LESSONS_DIR / "fitness-without-targets.md").read_text().split())
+    assert f"yellow where it misses by {fmt_len(arm, scale)} or more" in text
+    assert f"({100 * scale / workspace_size(arm):.0f} % of the workspace's width" in text
