@@ -556,9 +556,9 @@ class _PoseProblem:
         else:
             pin.forwardKinematics(model, data, q_pin)
             pin.updateFramePlacement(model, data, fid)
-            J6 = np.zeros((6, len(q)))
+            J6 = None
         e, Je, err_p, err_a = pose.residual(goal, data.oMf[fid], J6, self.axis, self.length)
-        return q, e, float(np.sqrt(e @ e)), err_p, err_a, (Je if jacobian else None)
+        return q, e, math.sqrt(e @ e), err_p, err_a, Je
 
     def close(self, s) -> bool:
         return s[3] < self.tol and s[4] < self.angle_tol

@@ -326,11 +326,11 @@ def pose_errors(arm: Arm, poses, q) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ---------------------------------------------------------------- one goal's residual (refinement)
-def residual(goal: np.ndarray, M: pin.SE3, J6: np.ndarray, axis: np.ndarray | None,
-             length: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+def residual(goal: np.ndarray, M: pin.SE3, J6: np.ndarray | None, axis: np.ndarray | None,
+             length: float) -> tuple[np.ndarray, np.ndarray | None, float, float]:
     """(e, Je, position error, angle error) of one pose goal (4, 4) at the tool frame M with its
     LOCAL_WORLD_ALIGNED Jacobian J6 (6, nq): e(q + dq) = e(q) - Je dq to first order, so the
-    Gauss-Newton step toward the goal solves Je dq = e.
+    Gauss-Newton step toward the goal solves Je dq = e (J6 None: no Je, the error alone).
 
     Full pose: e = (p_g - p, length * log3(R_g R^T)), Je = (J_v, length * Jlog3(R_g R^T) J_w). A turn
     w of the tool (R -> exp(w) R) takes log3(R_g R^T) to log3(R_g R^T exp(-w)), to first order
@@ -340,18 +340,26 @@ def residual(goal: np.ndarray, M: pin.SE3, J6: np.ndarray, axis: np.ndarray | No
     agree), have rank 2: a turn w moves a by w x a, so Je = (J_v, length * [a]x^T J_w), and the roll
     about a changes nothing. length [length / rad] weighs an angle against a distance."""
     p, R = M.translation, M.rotation
-    e_p = goal[:3, 3] - p
+    e = np.empty(6)
+    e[:3] = goal[:3, 3] - p
+    err_p = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    Je = None
     if axis is None:
         E = goal[:3, :3] @ R.T
         w = pin.log3(E)
-        e = np.concatenate([e_p, length * w])
-        Je = np.vstack([J6[:3], length * (pin.Jlog3(E) @ J6[3:])])
-        return e, Je, float(np.sqrt(e_p @ e_p)), float(np.sqrt(w @ w))
+        e[3:] = length * w
+        if J6 is not None:
+            Je = J6.copy()
+            Je[3:] = length * (pin.Jlog3(E) @ J6[3:])
+        return e, Je, err_p, math.sqrt(w @ w)
     a, g = R @ axis, goal[:3, :3] @ axis
-    cross = np.cross(a, g)
-    angle = math.atan2(float(np.sqrt(cross @ cross)), float(a @ g))
-    e = np.concatenate([e_p, length * (g - a)])
-    Jw = J6[3:]
-    a_cross_Jw = np.cross(a, Jw, axisa=0, axisb=0, axisc=0)  # [a]x J_w, column by column
-    Je = np.vstack([J6[:3], -length * a_cross_Jw])
-    return e, Je, float(np.sqrt(e_p @ e_p)), angle
+    cx, cy, cz = a[1] * g[2] - a[2] * g[1], a[2] * g[0] - a[0] * g[2], a[0] * g[1] - a[1] * g[0]
+    angle = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), float(a @ g))
+    e[3:] = length * (g - a)
+    if J6 is not None:
+        Jw = J6[3:]
+        Je = J6.copy()  # the last rows: -length [a]x J_w, column by column
+        Je[3] = -length * (a[1] * Jw[2] - a[2] * Jw[1])
+        Je[4] = -length * (a[2] * Jw[0] - a[0] * Jw[2])
+        Je[5] = -length * (a[0] * Jw[1] - a[1] * Jw[0])
+    return e, Je, err_p, angle
