@@ -36,7 +36,7 @@ from app.panels.runs import RunsPanel
 from app.panels.train import TrainingPanel, notify
 from app.panels.views import error_map, has_map, map_grid, network_svg
 from app.tab.goals import MORE, REDRAW_PERIOD, TabSession, fmt_len
-from app.tab.phone import fold_on_phone
+from app.tab.phone import fold_on_phone, follow_portrait
 from app.tab.replay import TabReplay
 from app.tab.scene import frame_workspace
 from app.training.notebook import DEFAULT_PATH, Notebook
@@ -206,6 +206,7 @@ class LabApp:
         session = TabSession(client, self.state, self.latency)
         session.presenter = presenter
         session.page_url = f"http://{host}" if host else self.url
+        follow_portrait(client, lambda: session.ws)  # a phone held upright sees the whole workspace
         # a viewer replays in its own tab (a presenter replays for every tab, in the Runs tab)
         session.replay = None if presenter else TabReplay(client, session, self.runs)
         with self._sessions_lock:

@@ -3,14 +3,15 @@ projector (1366 x 768) and a phone (390 x 844). APP_SCREENSHOT_DIR keeps the scr
 
 - A lesson link: the lesson in its own column at the left, the lab's panel at the right with Start
   in view; the answers folded until opened; the scene between the two.
-- A phone: the panel folded to its bar at the bottom, the scene (the arm) in view; a tap on the bar
-  opens the panel, with Start.
+- A phone: the panel folded to its bar at the bottom, the scene (the arm) in view, the camera drawn
+  back to take in the workspace across the narrow page; a tap on the bar opens the panel, with Start.
 """
 
 from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 from conftest import CHROMIUM, NEEDS_CHROMIUM, make_app, wait_until
 
@@ -92,6 +93,11 @@ def test_a_phone_shows_the_arm_with_the_panel_folded_to_a_bar_that_opens(lab_app
         shot(page, tmp_path, "phone-390x844-folded")
         box = bar.bounding_box()
         assert box["y"] > 844 - 80, box  # a bar at the bottom
+        # held upright, the page sees less across: the camera is drawn back from the arm's framing
+        session = max(lab_app.sessions.values(), key=lambda t: t.client.client_id)
+        framed = np.linalg.norm(np.asarray(session.ws["camera"]) - session.ws["center"])
+        assert wait_until(lambda: np.linalg.norm(np.asarray(session.client.camera.position) - session.ws["center"])
+                          > 1.5 * framed, 10)
         # the scene is uncovered: the canvas at the middle and near the bottom of the page
         for x, y in ((195, 300), (195, 422), (60, 700)):
             assert page.evaluate(f"document.elementFromPoint({x}, {y}).tagName") == "CANVAS", (x, y)
@@ -102,12 +108,14 @@ def test_a_phone_shows_the_arm_with_the_panel_folded_to_a_bar_that_opens(lab_app
         page.close()
 
 
-def test_a_wide_page_keeps_its_panel_open(lab_app, browser):
+def test_a_wide_page_keeps_its_panel_open_and_its_camera(lab_app, browser):
     page = browser.new_page(viewport={"width": 1366, "height": 768})
     try:
         page.goto(lab_app.url)
         sync_api.expect(page.get_by_role("button", name="Start", exact=True)).to_be_visible(timeout=30_000)
         page.wait_for_timeout(1000)
         sync_api.expect(page.get_by_role("button", name="Start", exact=True)).to_be_visible()
+        session = max(lab_app.sessions.values(), key=lambda t: t.client.client_id)
+        assert np.allclose(session.client.camera.position, session.ws["camera"], atol=1e-3 * session.ws["size"])
     finally:
         page.close()
