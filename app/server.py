@@ -27,6 +27,7 @@ from collections import deque
 import numpy as np
 import viser
 
+import lab
 import lab.running.worker as lab_worker
 
 from app.classroom.access import Access, is_loopback
@@ -34,18 +35,34 @@ from app.classroom.lesson import lesson_link, lesson_params, open_lesson
 from app.classroom.limits import limits_for
 from app.panels.runs import RunsPanel
 from app.panels.train import TrainingPanel, notify
-from app.panels.views import error_map, has_map, map_grid, network_svg
-from app.tab.goals import MORE, REDRAW_PERIOD, TabSession, fmt_len
+from app.panels.views import error_map, has_map, map_grid, map_key, map_legend, network_svg
+from app.tab.goals import MORE, READY_ID, REDRAW_PERIOD, TabSession, fmt_len
 from app.tab.phone import fold_on_phone, follow_portrait
 from app.tab.replay import TabReplay
 from app.tab.scene import frame_workspace
 from app.training.notebook import DEFAULT_PATH, Notebook
 from app.training.state import LabState
 from app.viser_private import client_host, client_query, install_loop_safe_wakeups, install_message_gate
+from app.viser_private import install_page_head
 
 log = logging.getLogger(__name__)
 
 FPS = 30.0
+# Until a tab's own panel has arrived and viser has folded its own tool panel away above it (the tab's
+# intro starts with a marker, app/tab/goals.py READY: it is then at the top of the panel's scroll area),
+# the page shows one line instead of viser's tool panel ("Inactive", its websocket URL, Save Canvas, the
+# scene tree), which it would show for 1-2 s. A marker that goes again (a phone's panel folded,
+# app/tab/phone.py) shows the page at once, one elsewhere after 3 s; after 30 s without the lab, viser's
+# page as it is.
+PAGE_HEAD = (
+    "<style>html:not([data-lab-ready]) #root{visibility:hidden}"
+    "html:not([data-lab-ready]) body::before{content:'Neuro-IK Lab: connecting\\2026';position:fixed;top:45%;"
+    "left:0;right:0;text-align:center;font:18px system-ui,sans-serif;color:#777}</style>"
+    "<script>(function(){var d=document.documentElement,t0=Date.now(),seen=0;var i=setInterval(function(){"
+    "var m=document.getElementById('" + READY_ID + "'),v=m&&m.closest('.mantine-ScrollArea-viewport'),now=Date.now();"
+    "if(m&&!seen)seen=now;"
+    "if((m&&(!v||m.getBoundingClientRect().top-v.getBoundingClientRect().top<60))||(seen&&(!m||now-seen>3000))"
+    "||now-t0>30000){d.setAttribute('data-lab-ready','');clearInterval(i);}},50);})();</script>")
 PANEL_LABEL = "Neuro-IK Lab"  # the panel's title (on a phone: the bar that opens it)
 # A lecture hall: every viewer tab redraws the presenter's run (arms, population, table). Together
 # they redraw at most this many times a second (each in turn, a few a frame), so a tab's period
@@ -140,6 +157,7 @@ class LabApp:
         # wake-up of viser's sender must reach its event loop safely (see app/viser_private.py)
         install_loop_safe_wakeups()
         install_message_gate()  # a tab's invalid GUI values are dropped, logged once a minute
+        install_page_head(PAGE_HEAD)  # no viser tool panel while the page connects
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.access.install(self.server, notify=self._tell)  # before any tab can change anything
         self.host = host
@@ -166,7 +184,7 @@ class LabApp:
             self.runs = RunsPanel(gui, self)
         with tabs.add_tab("About", viser.Icon.INFO_CIRCLE):
             gui.add_markdown(MORE)
-        self.show_map.on_update(lambda e: setattr(self._map, "visible", self.show_map.value and has_map(self.state.arm)))
+        self.show_map.on_update(lambda e: self._show_map(self.show_map.value and has_map(self.state.arm)))
         self._drawn = (-1, None)  # (shown version, arm) of the map and the network
         # the render loop and callers must not interleave draws, nor rebuilds of the shared scene (two
         # threads adding /floor at once make viser remove the handle the other is still setting up)
@@ -258,22 +276,36 @@ class LabApp:
         scene.add_grid("/floor", width=1.6 * size, height=1.6 * size, cell_size=ws["cell"],
                        section_size=10 * ws["cell"], position=(ws["center"][0], ws["center"][1], ws["floor_z"]))
         goals = self.training_goals()
-        # a tree's goals are a point per effector each (4 x 70 on a humanoid): smaller, so the robot shows
+        # a tree's goals are a point per effector each (4 x 600 on a humanoid): smaller, so the robot shows;
+        # beyond the paper's 70 goals (300 on a real arm) smaller too, down to half
+        shrink = max(0.5, math.sqrt(70 / max(70, len(goals) // arm.n_effectors)))
         scene.add_point_cloud("/training_goals", points=goals.astype(np.float32), colors=(200, 30, 30),
-                              point_size=(0.004 if arm.is_tree else 0.008) * size, point_shape="circle")
+                              point_size=(0.004 if arm.is_tree else 0.008) * shrink * size, point_shape="circle")
         self._map_z = -0.05 * size  # just under the planar arm (its visuals reach z = -0.04 size)
         self._floor_z = ws["floor_z"] + 0.002 * size  # a spatial arm's map lies on the floor
         if self._drawn[1] is not arm:  # each arm opens with its own default
             self.show_map.value = len(arm.task_axes) == 2
             self.show_map.disabled = not has_map(arm)  # a tree's goal is a point per effector: no map
         self._map = scene.add_image("/error_map", np.zeros((1, 1, 4), np.uint8), 1.0, 1.0, visible=False)
+        # the map's legend in the scene, beside its left edge (app/panels/views.py map_key)
+        self._map_key = scene.add_frame("/error_map_key", show_axes=False, visible=False)
+        if has_map(arm):
+            key, z = map_key(arm, lambda d: fmt_len(arm, d)), self._floor_z if len(arm.task_axes) == 3 else self._map_z
+            scene.add_image("/error_map_key/bar", key.image, key.width, key.height, format="png",
+                            position=(*key.center, z), cast_shadow=False, receive_shadow=False)
+            for end, (xy, text) in (("top", key.top), ("bottom", key.bottom)):
+                scene.add_label(f"/error_map_key/{end}", text, position=(*xy, z), anchor="center-right")
         self._drawn = (-1, arm)  # built for this arm: the render loop draws the views, without a second build
 
     def training_goals(self) -> np.ndarray:
         """3D points of the goals the current (or the next default) run trains on."""
         arm = self.state.arm
         r = self.state.runner
-        goals = r.problem.train_goals if r is not None and r.problem.arm is arm else arm.sample_goals(70, seed=0)
+        if r is not None and r.problem.arm is arm:
+            goals = r.problem.train_goals
+        else:  # the goals of a run with the arm's defaults (the About text says how many)
+            d = lab.TrainConfig.preset(robot=arm.name)
+            goals = arm.sample_goals(d.targets, seed=d.goal_seed)
         return arm.to_3d(goals).reshape(-1, 3)  # a tree's: every effector's point of every goal
 
     def _draw_views(self) -> None:
@@ -290,7 +322,7 @@ class LabApp:
         self._drawn = (shown.version, shown.arm)
         self.network.content = network_svg(shown.controller)
         if not has_map(shown.arm):
-            self._map.visible = False
+            self._show_map(False)
             self.map_legend.content = (
                 f"No error map on the {shown.arm.name}: a goal there is a point for each of its "
                 f"{shown.arm.n_effectors} end effectors, not one point of a plane.")
@@ -302,15 +334,12 @@ class LabApp:
         self._map = self.server.scene.add_image(
             "/error_map", image, render_width=grid.n * grid.cell, render_height=grid.n * grid.cell,
             format="png", position=center, cast_shadow=False, receive_shadow=False, visible=self.show_map.value)
-        arm = shown.arm
-        finite = err[np.isfinite(err)]
-        self.map_legend.content = (
-            f"Error map of the shown controller over {len(err)} reachable goals"
-            f"{'' if len(arm.task_axes) == 2 else ' (the slice through the middle of the workspace, drawn on the floor)'}: "
-            f"dark purple 0, yellow ≥ {fmt_len(arm, scale)}. "
-            + (f"Median {fmt_len(arm, float(np.median(finite)))}, max {fmt_len(arm, float(finite.max()))}."
-               if len(finite) else "No controller.")
-        )
+        self._map_key.visible = self.show_map.value
+        self.map_legend.content = map_legend(shown.arm, err, lambda d: fmt_len(shown.arm, d))
+
+    def _show_map(self, visible: bool) -> None:
+        """The error map and its legend in the scene, shown or hidden."""
+        self._map.visible = self._map_key.visible = visible
 
     # ------------------------------------------------------------------ render loop
     def _loop(self) -> None:

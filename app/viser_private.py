@@ -554,3 +554,68 @@ def client_host(client) -> str | None:
     connection = server._websock_server._live_connections.get(client.client_id)
     headers = getattr(getattr(connection, "request", None), "headers", None)
     return headers.get("Host") if headers is not None else None
+
+
+# ---------------------------------------------------------------------- the page
+# viser 1.1.1 serves its client as one file, viser/client/build/index.html, from the folder that
+# ViserServer passes to viser.infra.WebsockServer.__init__ as `http_server_root` (its serving thread
+# reads `self._http_server_root` once, as it starts). Until a tab's websocket is open and the server's
+# GUI has arrived, that page shows viser's own tool panel ("Inactive", the websocket's URL, Save
+# Canvas, Reset View, the scene tree): 1-2 s on a 2-core machine, before the lab's panel replaces it.
+# There is no public way to add to the page: install_page_head makes every WebsockServer created from
+# then on serve a copy of that folder whose index.html has `head` first in its <head>.
+_page = {"head": None, "dirs": {}}
+
+
+def install_page_head(head: str) -> None:
+    """Serve viser's page with `head` (HTML: a <style>, a <script>) at the start of its <head>, from every
+    viser server created from now on (call it before creating the ViserServer; a later call replaces
+    the head for servers created after it). ViserChanged, naming it, when WebsockServer is not there."""
+    try:
+        from viser.infra import WebsockServer
+    except ImportError as e:
+        raise ViserChanged(f"viser changed: viser.infra.WebsockServer missing ({e})") from e
+    if getattr(WebsockServer, "_lab_page_head", False):  # installed (its __init__ is ours: no signature)
+        _page["head"] = head
+        return
+    if "http_server_root" not in inspect.signature(WebsockServer.__init__).parameters:
+        raise ViserChanged("viser changed: WebsockServer.__init__ takes no http_server_root")
+    _page["head"] = head
+    original = WebsockServer.__init__
+
+    def __init__(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        root = getattr(self, "_http_server_root", None)
+        if root is not None and _page["head"]:
+            self._http_server_root = page_folder(root, _page["head"])
+
+    WebsockServer.__init__ = __init__
+    WebsockServer._lab_page_head = True
+
+
+def page_folder(root, head: str):
+    """A folder (made once per root and head, removed at exit) that serves what `root` serves, its
+    index.html with `head` just after "<head>"; `root` itself when its index.html has no <head>."""
+    import atexit
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    root = Path(root)
+    key = (str(root), head)
+    if key in _page["dirs"]:
+        return _page["dirs"][key]
+    page = root / "index.html"
+    text = page.read_text(encoding="utf-8") if page.is_file() else ""
+    if "<head>" not in text:
+        logging.getLogger("app.viser").warning("viser's page %s has no <head>: served as it is", page)
+        _page["dirs"][key] = root
+        return root
+    folder = Path(tempfile.mkdtemp(prefix="lab-page-"))
+    atexit.register(shutil.rmtree, folder, True)
+    for entry in root.iterdir():
+        if entry.name != "index.html":
+            (folder / entry.name).symlink_to(entry.resolve())
+    (folder / "index.html").write_text(text.replace("<head>", "<head>" + head, 1), encoding="utf-8")
+    _page["dirs"][key] = folder
+    return folder

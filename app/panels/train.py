@@ -65,6 +65,9 @@ def expectation(robot: str, method: str, seconds: float | None) -> str:
 
 
 SHARED = ("population", "generations", "hidden", "seed")  # the TrainConfig fields shown
+# the convergence plot's width / height: low enough that the plot, its axis and its key stay in view
+# at 1366 x 768 during a run, below the run controls and a two-line status (tests/test_app_browser.py)
+PLOT_ASPECT = 3.4
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
 EMPTY_PLOT = (np.array([0.0, 1.0]), np.full(2, np.nan), np.full(2, np.nan))
 
@@ -353,6 +356,7 @@ class TrainingPanel:
                  "paused": ("Resume", "Step", "Stop", "Reset")}[now]
         for name, button in self.buttons.items():
             button.visible = name in shown
+        self.expected.visible = now == "idle"  # what a method is worth: before a run, not over the plot during one
 
     def _tell_notice(self) -> None:
         """A run's end the class should know of (a worker killed after Stop): in the shared message."""
@@ -377,7 +381,7 @@ class TrainingPanel:
             self.plot = self.gui.add_uplot(
                 data=EMPTY_PLOT + ((np.full(2, np.nan),) * 2 if racing else ()), series=tuple(series),
                 scales={"x": viser.uplot.Scale(time=False), "y": viser.uplot.Scale(distr=3, log=10)},
-                aspect=2.4)
+                aspect=PLOT_ASPECT)
 
     def refresh(self, force: bool = False) -> None:
         """Show the run's progress (called by the render loop, a few times a second)."""

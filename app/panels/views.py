@@ -22,10 +22,12 @@ import numpy as np
 import robots
 from lab.problem.controllers import network_layout
 from lab.recording.population import ramp
+from app.training.live import swatch
 from robots.ik import workspace_size
 
 GRID = 64
 GRID_3D = 40
+MAP_SCALE = 0.1  # the map's colours: dark purple on the goal, yellow at this fraction of the workspace's width or more
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,7 +80,7 @@ def error_map(arm: robots.Arm, controller) -> tuple[np.ndarray, np.ndarray, floa
     Image row r holds cell row j = r (viser draws row 0 at the image plane's -y side);
     unreachable cells are transparent."""
     grid = map_grid(arm)
-    scale = 0.1 * workspace_size(arm)  # fixed per arm, so colours compare across training
+    scale = map_scale(arm)  # fixed per arm, so colours compare across training
     image = np.zeros((grid.n, grid.n, 4), np.uint8)
     if controller is None or len(grid.goals) == 0:
         err, rgb = np.full(len(grid.goals), np.nan), np.full((len(grid.goals), 3), 160, np.uint8)
@@ -89,6 +91,60 @@ def error_map(arm: robots.Arm, controller) -> tuple[np.ndarray, np.ndarray, floa
     image[j, i, :3] = rgb
     image[j, i, 3] = 235 if len(arm.task_axes) == 2 else 140  # a slice lets the arm show through
     return image, err, scale
+
+
+def map_scale(arm: robots.Arm) -> float:
+    """The error the map draws yellow (and beyond) [length]: MAP_SCALE x the workspace's width."""
+    return MAP_SCALE * workspace_size(arm)
+
+
+def yellow_words(arm: robots.Arm, fmt) -> str:
+    """What yellow means on the map, in the arm's units (fmt: a length as text, with its unit):
+    "misses by 4.672 units or more (10 % of the workspace's width)"; a real arm's also in % of its reach."""
+    scale = map_scale(arm)
+    reach = f", {100 * scale / arm.reach_radius:.0f} % of its reach" if robots.in_metres(arm.name) else ""
+    return f"misses by {fmt(scale)} or more ({100 * MAP_SCALE:.0f} % of the workspace's width{reach})"
+
+
+def map_legend(arm: robots.Arm, err: np.ndarray, fmt) -> str:
+    """The Views tab's legend of the error map `err` (error_map's errors), with its units."""
+    finite = err[np.isfinite(err)]
+    where = "" if len(arm.task_axes) == 2 else " (the slice through the middle of the workspace, drawn on the floor)"
+    ramp_html = "".join(swatch(c, "") for c in ramp(np.linspace(0.0, 1.0, 5)))
+    numbers = (f"Median {fmt(float(np.median(finite)))}, max {fmt(float(finite.max()))}."
+               if len(finite) else "No controller.")
+    return (f"<small><b>Error map</b> of the shown network over {len(err):,} reachable goals{where}: how far the arm "
+            f"ends from each goal, {ramp_html} from dark purple, on the goal, to yellow, {yellow_words(arm, fmt)}. "
+            f"{numbers}</small>")
+
+
+@dataclass(frozen=True)
+class MapKey:
+    """The error map's legend in the scene: a colour bar left of the map's reachable cells, in its plane,
+    from dark purple (bottom) to yellow (top), with a label at each end."""
+
+    image: np.ndarray  # (n, 1, 3) the bar's colours, row 0 (drawn at -y) dark purple
+    center: np.ndarray  # (2,) x, y of the bar's centre in the map's plane
+    width: float
+    height: float
+    top: tuple[np.ndarray, str]  # (x, y) of the bar's top end and its label
+    bottom: tuple[np.ndarray, str]
+
+
+def map_key(arm: robots.Arm, fmt) -> MapKey:
+    """Where and what the scene's legend of map_grid(arm)'s error map is (its labels end at the
+    bar, their text runs to the left, away from the panel)."""
+    grid = map_grid(arm)
+    side = grid.n * grid.cell
+    width, height = 0.06 * side, 0.3 * side
+    lo, hi = grid.origin + grid.cell * grid.cells.min(axis=0), grid.origin + grid.cell * (grid.cells.max(axis=0) + 1)
+    x = lo[0] - 0.05 * side  # beside the reachable cells' left edge, half way up them
+    y0 = 0.5 * (lo[1] + hi[1]) - 0.5 * height
+    image = ramp(np.linspace(0.0, 1.0, 32))[:, None, :]
+    return MapKey(image, np.array([x, y0 + 0.5 * height]), width, height,
+                  top=(np.array([x - width, y0 + height]), f"error map: yellow = misses by ≥ {fmt(map_scale(arm))} "
+                                                            f"({100 * MAP_SCALE:.0f} % of the workspace)"),
+                  bottom=(np.array([x - width, y0]), "dark purple = on the goal"))
 
 
 # ---------------------------------------------------------------------------- network drawing

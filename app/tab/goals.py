@@ -27,8 +27,10 @@ from collections import deque
 
 import numpy as np
 
+import lab
 import robots
 from lab.problem.controllers import proposals
+from lab.running.decimation import display_goal
 from lab.recording.population import ramp
 from robots.ik import dls_ik, refine
 
@@ -40,11 +42,26 @@ from app.viser_private import set_pose
 
 MAX_GOALS = 8
 INTRO = "**Drag the arrows** to move the goal: the arm follows a neural network. **Start** trains a new one."
+# the page shows the lab once this element, first in the tab's intro, is there (app/server.py PAGE_HEAD)
+READY_ID = "lab-ready"
+READY = f'<span id="{READY_ID}"></span>'
 INTRO_TREE = ("**Drag the arrows** of a foot, a hand or a fingertip: the whole robot follows a neural network. "
               "**Start** trains a new one.")
-ABOUT = ("A small tanh network maps a goal to joint angles. It is never shown a right answer: its "
-         "fitness is the arm's error over 70 fixed goals, through forward kinematics. CMA-ES evolves "
-         "its weights; NEAT its wiring too. After Martín, de Lope and Santos (2009).")
+
+
+def about(arm: robots.Arm, config) -> str:
+    """The About text for `arm` with `config` (the panel's defaults for it: lab.TrainConfig.preset):
+    its network's size, its number of fixed training goals and the unit of its lengths."""
+    if arm.is_tree:
+        maps = f"a goal, a point for each of its {arm.n_effectors} end effectors, to the robot's {arm.nq} joint angles"
+    else:
+        maps = f"a goal to the arm's {arm.nq} joint angles"
+    unit = "mm" if robots.in_metres(arm.name) else "the paper's units"
+    return (f"A tanh network ({config.hidden} hidden units) maps {maps}, never shown a right answer: its fitness "
+            f"is the {'robot' if arm.is_tree else 'arm'}'s error over {config.targets:,} fixed goals (red), through "
+            f"forward kinematics. CMA-ES evolves its weights, NEAT its wiring too. Lengths in {unit}.")
+
+
 MORE = (
     "The fitness is the mean squared distance between the training goals and where the network's joint "
     "angles put the end effector. **CMA-ES** evolves the weights of a fixed network, **NEAT** its wiring "
@@ -66,11 +83,11 @@ SAME_POSE = 1e-4  # rad (or length): a redraw moves an arm only when a joint cha
 
 def fmt_len(arm: robots.Arm, d: float) -> str:
     """A length in the arm's units: metres as mm (below 1 mm in µm, so a refined answer's 0.01 mm
-    does not read as 0.0 or 0.1 mm), the paper's units as they are."""
+    does not read as 0.0 or 0.1 mm), the paper's lengths as they are, followed by "units"."""
     if not np.isfinite(d):
         return "∞"
-    if not robots.in_metres(arm.name):
-        return f"{d:.3f}" if d >= 1e-3 else f"{d:.1e}"
+    if not robots.in_metres(arm.name):  # the paper's arms and the snakes: the paper's length units
+        return f"{d:.3f} units" if d >= 1e-3 else f"{d:.1e} units"
     return f"{1000 * d:.1f} mm" if d >= 1e-3 else f"{1e6 * d:.0f} µm"
 
 
@@ -102,7 +119,8 @@ class GoalView(GoalExtras):
         self.marker = self.markers[0]
         self.dragged = 0  # the effector whose marker moved last: the label stands beside it
         self.arm_view = ArmView(scene, arm, f"{base}/arm", opacity=None if index == 0 else 0.35)
-        self.label = scene.add_label(f"{base}/label", "", position=points[0], anchor="bottom-left")
+        # the label stands up and to the left of the marker (label_offset): clear of the panel on the right
+        self.label = scene.add_label(f"{base}/label", "", position=points[0], anchor="bottom-right")
         self.ghost = ArmView(scene, arm, f"{base}/ik", opacity=0.3, tint=GHOST) if index == 0 else None
         self.refined = ArmView(scene, arm, f"{base}/refined", opacity=0.45, tint=REFINED) if index == 0 else None
         self.cloud = self.faint = None  # the population: end-effector points, faint arms
@@ -229,7 +247,7 @@ class TabSession(TabExtras):
         # what the lab is and what to do, above the shared panels (each tab its own copy)
         self.intro = gui.add_markdown(INTRO, order=0)  # build() says what to drag on a tree
         with gui.add_folder("About this lab", order=0.5):
-            self.about = gui.add_markdown(ABOUT)
+            self.about = gui.add_markdown("")  # build() says it for the arm
         self.folder = gui.add_folder("Goals and what to draw (this tab)", order=2)
         with self.folder:
             self.add_button = gui.add_button("Add goal")  # no icons: viser reads each from a zip file
@@ -291,16 +309,21 @@ class TabSession(TabExtras):
             self.goals = []
             self.arm = self.state.arm
             self.ws = frame_workspace(self.arm)
-            intro = INTRO_TREE if self.arm.is_tree else INTRO
+            intro = READY + (INTRO_TREE if self.arm.is_tree else INTRO)
             if self.intro.content != intro:
                 self.intro.content = intro
+            text = about(self.arm, lab.TrainConfig.preset(robot=self.arm.name))
+            if self.about.content != text:
+                self.about.content = text
             self.client.camera.position = self.ws["camera"]
             self.client.camera.look_at = self.ws["center"]
             self.add_goal(self._default_goal(0))
 
     def _default_goal(self, k: int) -> np.ndarray:
-        goals = self.arm.sample_goals(k + 1, seed=7)
-        return to_world(self.arm, goals[k])
+        """Goal k's starting place: the first where the runs draw the population (display_goal: on a
+        tree, where its effectors are at rest, so a humanoid stands), the others sampled."""
+        goal = display_goal(self.arm) if k == 0 else self.arm.sample_goals(k + 1, seed=7)[k]
+        return to_world(self.arm, goal)
 
     def add_goal(self, position=None) -> str | None:
         with self.lock:

@@ -96,7 +96,9 @@ def frame_workspace(arm: robots.Arm) -> dict:
 
     limits: one (x, y, z) range triple per end effector; gizmo: the markers' size (on a tree at most
     0.8 x the smallest distance between two effectors at rest, so a hand's fingertips keep apart);
-    point: the population's point size."""
+    point: the population's point size; label_offset: from a goal's marker to its label's bottom right
+    corner, up and to the left (screen right is about +x in every camera view here), so that the
+    label's text runs away from the panel on the right of the page."""
     lo3, hi3 = (arm.to_3d(b).reshape(-1, 3) for b in arm.workspace_bounds)  # (E, 3) each
     box_lo, box_hi = lo3.min(axis=0), hi3.max(axis=0)
     if arm.is_tree:  # the camera and floor take in the whole robot, not only where its effectors go
@@ -108,6 +110,8 @@ def frame_workspace(arm: robots.Arm) -> dict:
     limits = [tuple((float(a - m), float(b + m)) if k in arm.task_axes else (0.0, 0.0)
                     for k, (a, b, m) in enumerate(zip(lo, hi, mg))) for lo, hi, mg in zip(lo3, hi3, margin)]
     floor_z = float(box_lo[2] - 0.08 * size) if 2 in arm.task_axes else -0.12 * size
+    if arm.is_tree:  # the floor under its body at rest: a humanoid's, a biped's, a quadruped's soles on it
+        floor_z = float(body_bounds(arm)[0][2])
     gizmo, point, view = 0.2 * size, 0.015 * size, np.array([-0.15, -0.75, 0.65])
     if arm.is_tree:
         rest = arm.fk(arm.rest)  # (E, 3)
@@ -116,6 +120,6 @@ def frame_workspace(arm: robots.Arm) -> dict:
         point = 0.4 * point  # E points per candidate: smaller, so that the feet and fingers still show
         view = np.array([0.35, -0.8, 0.4])  # lower and more from the front: a standing robot, a hand
     return dict(
-        center=center, size=size, limits=limits, floor_z=floor_z, label_offset=np.array([0.03, 0.03, 0.0]) * size,
+        center=center, size=size, limits=limits, floor_z=floor_z, label_offset=np.array([-0.03, 0.03, 0.03]) * size,
         camera=center + size * view, cell=10 ** np.floor(np.log10(size / 4)), gizmo=gizmo, point=point,
     )

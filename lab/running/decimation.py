@@ -28,7 +28,7 @@ import numpy as np
 EVERY_UNTIL = 10_000  # every generation below this one is logged
 POPULATION_EVERY_FIRST = 100  # generations 0 .. 99: each one's population
 POPULATION_THEN_EVERY = 10  # beyond: every 10th
-DISPLAY_SEED = 7  # app/tab/goals.py's markers start at arm.sample_goals(k + 1, seed=7)[k]
+DISPLAY_SEED = 7  # app/tab/goals.py's markers start at arm.sample_goals(k + 1, seed=7)[k] (a tree's first: at rest)
 
 
 def long_run(generation: int) -> bool:
@@ -59,5 +59,9 @@ def population_logged(generation: int) -> bool:
 
 
 def display_goal(arm) -> np.ndarray:
-    """(len(task_axes),) the goal the recording draws the population's reach for."""
+    """The goal the recording draws the population's reach for, where the app's first marker starts:
+    (len(task_axes),) arm.sample_goals(1, seed=DISPLAY_SEED)[0]; a tree's (E, len(task_axes)) is where
+    its effectors are at rest (a humanoid standing, not a random goal's folded pose)."""
+    if getattr(arm, "is_tree", False):
+        return np.asarray(arm.reach(arm.rest), dtype=np.float64)
     return np.asarray(arm.sample_goals(1, seed=DISPLAY_SEED)[0], dtype=np.float64)
