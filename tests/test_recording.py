@@ -746,3 +746,100 @@ def test_a_full_disk_keeps_the_results_and_says_so_in_one_line(tmp_path):
     lines = [line for line in out.splitlines() if "stopped:" in line]
     assert len(lines) == 1 and str(tiny / "run.rrd") in lines[0] and ("disk is full" in lines[0] or "disk is nearly full" in lines[0]), out[-3000:]
     assert "Traceback" not in out and "ERROR" not in out, out[-3000:]
+
+
+# ---------------------------------------------------------------- a recording being written
+def test_a_recording_being_written_is_read_and_replayed_as_far_as_it_is(tmp_path, capsys):
+    """`lab replay` of a live logger's file said "is not a Rerun recording" while its writer was
+    starting. A recording being written reads as far as it is written (live), replays that, and
+    reads whole, no longer live, once closed."""
+    import threading
+
+    from lab.recording import busy
+
+    path = tmp_path / "live.rrd"
+    runner = Runner(lab.TrainConfig(**{**SHORT, "generations": 60}))
+    logger = RerunLogger(runner, path=path)
+    assert busy.being_written(path)  # from the moment the file is claimed, still empty
+    gate, reached = threading.Event(), threading.Event()
+
+    def hold_at_20(event):
+        if event.index == 20:
+            reached.set()
+            gate.wait(300)
+
+    runner.subscribe(logger)
+    runner.subscribe(hold_at_20)
+    runner.start()
+    try:
+        assert reached.wait(300)
+        assert _wait(lambda: read_recording(path).last_generation == 20, timeout=120)
+        rec = read_recording(path)
+        assert rec.live and rec.summary is None and rec.controllers
+        config = lab.TrainConfig.from_dict(rec.protocol["config"], strict=False)
+        assert build_problem(config).controller_mse(load_controller(path)) == pytest.approx(rec.best[-1], rel=0, abs=1e-9)
+        assert cli(["replay", str(path), "--web", "--timeout", "1"]) == 0
+        out = capsys.readouterr().out
+        assert "(21 generations, those written so far: its run is still being recorded)" in out
+        assert not _alive(int(re.search(r"viewer process (\d+)", out).group(1)))
+    finally:
+        gate.set()
+        runner.join()
+    logger.close(wait=True)
+    rec = read_recording(path)
+    assert not busy.being_written(path) and not rec.live and rec.last_generation == 59 and rec.summary
+
+
+@pytest.fixture
+def being_started(tmp_path):
+    """A claimed file whose writer is starting: empty, its lock held as a logger holds it."""
+    from lab.recording import busy
+
+    path = tmp_path / "starting.rrd"
+    path.write_bytes(b"")
+    fd = busy.hold(path)
+    assert fd is not None and busy.being_written(path)
+    yield path
+    os.close(fd)
+
+
+@pytest.mark.parametrize("head", [0, 3, 40])
+def test_a_recording_whose_writer_is_starting_is_said_to_be_written_not_damaged(being_started, head, capsys, monkeypatch):
+    """Empty, or cut before its run's first frames (as a file is in its writer's first second):
+    said to be written, by name; once nobody writes it, the same bytes are damaged, said so."""
+    from lab.recording import replay
+    from lab.recording.replay import RecordingInProgress
+
+    if head:
+        being_started.write_bytes((ROOT / "recordings" / "examples" / "planar-cmaes-s0.rrd").read_bytes()[:head])
+    with pytest.raises(RecordingInProgress, match=re.escape(str(being_started)) + " is being written: its run has "
+                       "started and has not logged its first generation yet .*try again in a few seconds"):
+        read_recording(being_started)
+    monkeypatch.setattr(replay, "START_WAIT", 0.5)
+    assert cli(["replay", str(being_started), "--web", "--timeout", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is being written" in err[0] and "not a Rerun recording" not in err[0], err
+
+
+@pytest.mark.parametrize("head,why", [(0, "is empty: a recording whose run never wrote to it"),
+                                      (40, "cannot be read|not one of a lab training run")])
+def test_the_same_bytes_nobody_writes_are_damaged(tmp_path, head, why):
+    from lab.recording.replay import RecordingInProgress
+
+    path = tmp_path / "left.rrd"
+    path.write_bytes((ROOT / "recordings" / "examples" / "planar-cmaes-s0.rrd").read_bytes()[:head])
+    with pytest.raises(ValueError, match=why) as refused:
+        read_recording(path)
+    assert not isinstance(refused.value, RecordingInProgress)
+
+
+def test_replay_waits_for_a_recording_being_written_to_hold_its_first_generation(being_started, capsys):
+    """The file fills while `lab replay` waits (its writer has started): the viewer opens it."""
+    import threading
+
+    example = (ROOT / "recordings" / "examples" / "planar-cmaes-s0.rrd").read_bytes()
+    threading.Timer(1.0, being_started.write_bytes, (example,)).start()
+    assert cli(["replay", str(being_started), "--web", "--timeout", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "is being written; waiting for its first generation" in out
+    assert "(1000 generations, those written so far: its run is still being recorded)" in out

@@ -53,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lab.recording import busy
 from lab.running import pipes
 from lab import methods
 from lab.running.config import TrainConfig
@@ -177,6 +178,9 @@ class RerunLogger:
             raise ValueError(f"pose_every must be an integer >= 1, got {pose_every!r}")
         replaced = path is not None and overwrite and os.path.isfile(path)  # a file of before, not ours to remove
         self.path = prepare_path(path, config, overwrite)
+        # the file's lock while it is written (lab/recording/busy.py): taken here, as the file is still
+        # empty, and handed to the writer process, which holds it until it exits
+        held = busy.hold(self.path)
         try:
             self.config, self.problem, self.pose_every, self.compact = config, problem, pose_every, compact
             self.block_on_end = block_on_end
@@ -190,17 +194,21 @@ class RerunLogger:
             self._failure: str | None = None  # failure()'s line, once made
             self._said = False
             # Rerun's own log lines off (unless RUST_LOG says otherwise): a failure is one line of ours (failure())
-            self._proc = pipes.start("lab.recording.writer", env={"RUST_LOG": "off"})
+            self._proc = pipes.start("lab.recording.writer", env={"RUST_LOG": "off"},
+                                     pass_fds=() if held is None else (held,))
             self._fd = self._proc.stdin.fileno()
             pipes.grow(self._fd)
             self._send(("start", {
                 "path": str(self.path), "config": config.to_dict(), "method": {k: getattr(method, k) for k in METHOD_VIEW}, "run_id": run_id, "robot": problem.arm.name,
                 "train_goals": np.asarray(problem.train_goals), "goal_seed": problem.goal_seed,
-                "hyperparameters": hyperparameters, "pose_every": pose_every, "compact": compact}))
+                "hyperparameters": hyperparameters, "pose_every": pose_every, "compact": compact, "busy_fd": held}))
         except BaseException:  # nothing started: the claimed name is given back
             if not replaced and self.path.is_file() and self.path.stat().st_size == 0:
                 self.path.unlink(missing_ok=True)
             raise
+        finally:
+            if held is not None:  # the writer's copy holds the lock from here
+                os.close(held)
         atexit.register(_close_at_exit, weakref.ref(self))
 
     @property

@@ -8,10 +8,14 @@
 Only the file is needed (lab/recording/logger.py describes its contents; docs/recordings.md). A file without its footer
 (a killed writer) reads through RrdReader.stream(); a file cut inside a frame is salvaged with
 `rerun rrd merge --continue-on-error` into a temporary copy and read from there (`salvaged`).
+A file still being written (lab/recording/busy.py) reads as far as it is written (`live`); one that
+holds nothing of its run yet (its writer is starting) raises RecordingInProgress, which says so,
+and `replay` waits for its first generation a while (START_WAIT) before it says so.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import http.server
 import json
 import os
@@ -30,13 +34,19 @@ from urllib.parse import quote
 import numpy as np
 
 from lab.problem.controllers import Controller, controller_from_dict
+from lab.recording import busy
 from lab.recording.rerun_tool import rerun_binary
 
 MAGIC = b"RRF"  # the first bytes of every .rrd file
+START_WAIT = 30.0  # seconds `replay` waits for a recording being written to hold its run's first generation
 
 
 class RecordingError(ValueError):
     """A file that is not a readable lab recording (the message names the file)."""
+
+
+class RecordingInProgress(RecordingError):
+    """A recording being written that holds nothing of its run yet (its writer is starting)."""
 
 
 @dataclass(frozen=True)
@@ -53,6 +63,7 @@ class Recording:
     summary: dict | None = None
     salvaged: bool = False
     populations: list = field(default_factory=list, repr=False)  # (generation, Population), sorted
+    live: bool = False  # being written when it was read: what it held then (lab/recording/busy.py)
 
     def population_at(self, generation: int):
         """The population logged at or before `generation` (lab.methods.Population, without its
@@ -76,6 +87,9 @@ class Recording:
     def controller_doc(self, generation: int | None = None) -> dict:
         """The document of the controller in force at `generation` (default: the last complete one)."""
         if not self.controllers:
+            if self.live:
+                raise RecordingInProgress(f"{self.path} is being written and holds no controller yet: "
+                                          "its run has not logged its first generation; try again in a few seconds")
             raise RecordingError(f"{self.path}: the recording holds no controller")
         generation = None if generation is None else _generation(generation)
         if generation is None:
@@ -100,7 +114,21 @@ def load_controller(path: str | os.PathLike, generation: int | None = None) -> C
 
 
 def read_recording(path: str | os.PathLike) -> Recording:
-    """Read a recording written by lab.recording.logger.RerunLogger (raises OSError/ValueError naming the file)."""
+    """Read a recording written by lab.recording.logger.RerunLogger (raises OSError/ValueError naming
+    the file; RecordingInProgress for one being written that holds nothing of its run yet). A
+    recording being written is read as far as it is (Recording.live)."""
+    live = busy.being_written(path)  # asked first: a writer that ends meanwhile has written more
+    try:
+        return dataclasses.replace(_read_file(path), live=live) if live else _read_file(path)
+    except RecordingError as e:
+        if live or busy.being_written(path):
+            raise RecordingInProgress(
+                f"{path} is being written: its run has started and has not logged its first generation yet "
+                f"(the file holds {_size(path)}); try again in a few seconds") from e
+        raise
+
+
+def _read_file(path) -> Recording:
     path = check_file(path)
     try:
         return _read(path, path, salvaged=False)
@@ -117,6 +145,14 @@ def read_recording(path: str | os.PathLike) -> Recording:
                 raise RecordingError(f"{path} cannot be read ({first}), even salvaged ({e})") from e
 
 
+def _size(path) -> str:
+    try:
+        n = os.path.getsize(path)
+    except OSError:
+        return "nothing"
+    return "nothing yet" if n == 0 else f"{n:,} bytes"
+
+
 def check_file(path: str | os.PathLike) -> Path:
     path = Path(path)
     if not path.exists():
@@ -125,6 +161,8 @@ def check_file(path: str | os.PathLike) -> Path:
         raise RecordingError(f"{path} is not a file (expected a Rerun .rrd recording)")
     with open(path, "rb") as f:
         head = f.read(len(MAGIC))
+    if not head:
+        raise RecordingError(f"{path} is empty: a recording whose run never wrote to it (nothing is writing it now)")
     if head != MAGIC:
         raise RecordingError(f"{path} is not a Rerun recording (it does not start with {MAGIC!r})")
     return path
@@ -267,8 +305,8 @@ def replay(path: str | os.PathLike, web: bool | None = None, timeout: float | No
     127.0.0.1, its URL printed. Returns when the viewer exits, after `timeout` seconds, or on
     Ctrl-C / SIGTERM; the viewer's whole process group is ended then, so nothing is left behind."""
     out = out or sys.stdout
-    path = check_file(path)
-    rec = read_recording(path)  # refuses what is not a lab recording; salvages a cut file
+    path = Path(path)
+    rec = _first_generation(path, out)  # refuses what is not a lab recording; salvages a cut file
     with tempfile.TemporaryDirectory(prefix="lab-replay-") as tmp:
         shown = salvage(path, Path(tmp) / path.name) if rec.salvaged else path
         web = (not has_display()) if web is None else web
@@ -286,7 +324,8 @@ def replay(path: str | os.PathLike, web: bool | None = None, timeout: float | No
             if files is not None:
                 files.shutdown()
             raise
-        print(f"replaying {path} ({len(rec.generations)} generations{', salvaged' if rec.salvaged else ''}); "
+        print(f"replaying {path} ({len(rec.generations)} generations{', salvaged' if rec.salvaged else ''}"
+              f"{', those written so far: its run is still being recorded' if rec.live else ''}); "
               f"viewer process {proc.pid}", file=out, flush=True)
         if web:
             print(f"web viewer: {web_url(web_port, data_url)}", file=out, flush=True)
@@ -295,6 +334,27 @@ def replay(path: str | os.PathLike, web: bool | None = None, timeout: float | No
         finally:
             if files is not None:
                 files.shutdown()
+
+
+def _first_generation(path: Path, out, wait: float | None = None) -> Recording:
+    """read_recording(path); a recording being written that holds nothing of its run yet is waited
+    for, up to START_WAIT seconds (said once), then RecordingInProgress."""
+    deadline, said = time.monotonic() + (START_WAIT if wait is None else wait), False
+    while True:
+        try:
+            rec = read_recording(path)
+            if rec.last_generation is not None or not rec.live:
+                return rec
+            error = RecordingInProgress(f"{path} is being written: its run has not logged its first "
+                                        "generation yet; try again in a few seconds")
+        except RecordingInProgress as e:
+            error = e
+        if time.monotonic() >= deadline:
+            raise error
+        if not said:
+            print(f"{path} is being written; waiting for its first generation ...", file=out, flush=True)
+            said = True
+        time.sleep(0.2)
 
 
 def _wait_and_end(proc: subprocess.Popen, timeout: float | None) -> int:
@@ -346,4 +406,4 @@ def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
-__all__ = ["Recording", "RecordingError", "check_file", "load_controller", "read_recording", "replay", "salvage"]
+__all__ = ["Recording", "RecordingError", "RecordingInProgress", "check_file", "load_controller", "read_recording", "replay", "salvage"]

@@ -282,10 +282,20 @@ def _write(header: dict, first: list, stream, ack: int) -> int:
         writer.end(summary)
     finally:
         writer.close()
+    release(header.get("busy_fd"))  # closed with its footer: no longer being written (lab/recording/busy.py)
     _tell(ack, b"C")
     if clean and header["compact"]:
         compact(writer.path)
     return 0
+
+
+def release(fd: int | None) -> None:
+    """Close the inherited descriptor that holds the file's lock (the logger has closed its copy)."""
+    if fd is not None:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
 
 
 def _tell(ack: int, message: bytes) -> None:

@@ -20,11 +20,11 @@ PIPE_BYTES = 1 << 20  # F_SETPIPE_SZ: Linux's default limit for unprivileged pro
 _F_SETPIPE_SZ = 1031
 
 
-def start(module: str, *args: str, env: dict | None = None) -> subprocess.Popen:
+def start(module: str, *args: str, env: dict | None = None, pass_fds: tuple = ()) -> subprocess.Popen:
     """`python -m module args` with pipes on stdin and stdout (unbuffered), this checkout first on
     its path, one BLAS thread and one fitness thread (LAB_THREADS) unless set: a process that works
     beside this one. env: variables
-    to set there, unless they are set here already."""
+    to set there, unless they are set here already. pass_fds: descriptors it inherits (subprocess's)."""
     root = str(Path(__file__).resolve().parents[2])  # the checkout: lab/running/pipes.py -> ../..
     extra = {k: v for k, v in (env or {}).items() if k not in os.environ}
     env = dict(os.environ, **extra,
@@ -32,7 +32,7 @@ def start(module: str, *args: str, env: dict | None = None) -> subprocess.Popen:
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "LAB_THREADS"):
         env.setdefault(var, "1")
     return subprocess.Popen([sys.executable, "-m", module, *args], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            bufsize=0, env=env)
+                            bufsize=0, env=env, pass_fds=tuple(pass_fds))
 
 
 def claim_stdout() -> int:
