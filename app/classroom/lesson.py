@@ -318,17 +318,65 @@ def _tell(client, text: str, error: bool) -> str | None:
     return text if error else None
 
 
-def main(argv=None) -> None:
+# the lab's address in a printed link: http(s), a host (a name, an IPv4 address or [an IPv6 one]), an
+# optional port and path of characters a link carries as they are (a reverse proxy's /lab), no more
+_HOST = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?|\[[0-9A-Fa-f:.]+\]")
+_PATH = re.compile(r"(?:/(?:[A-Za-z0-9._~-]|%[0-9A-Fa-f]{2})*)*")
+
+
+def page_url_problem(url) -> str | None:
+    """What keeps `url` from being the lab's address in a printed link (one line naming it), or
+    None: only http:// and https:// addresses with a host, no user name, query, fragment or space."""
+    import urllib.parse
+
+    if not isinstance(url, str) or not url:
+        return "is empty: give the lab's address, like http://teacher-pc:8080"
+    if any(c.isspace() or not c.isprintable() for c in url):
+        return "holds a space or a control character"
+    parts = urllib.parse.urlsplit(url)
+    if not url.startswith(("http://", "https://")):  # lower case: the link's ws:// or wss:// follows from it
+        return f"is not an http:// or https:// address (it begins {url.partition(':')[0][:20]!r}; "\
+            "http and https in lower case)" if parts.scheme else "is not an http:// or https:// address (it has no scheme)"
+    if "?" in url:
+        return "has a query (?...): the lesson's link adds its own"
+    if "#" in url:
+        return "has a fragment (#...): the lesson's link ends with its own query"
+    if "@" in parts.netloc:
+        return "has a user name before its host (user@host): give the lab's address alone"
+    host = parts.netloc.rsplit(":", 1)[0] if not parts.netloc.endswith("]") else parts.netloc
+    if not host or not _HOST.fullmatch(host):
+        return "has no host" if not host else f"has a host a link cannot carry as it is ({host[:60]!r})"
+    try:
+        port = parts.port
+    except ValueError:
+        port = -1
+    if port is not None and not 1 <= port <= 65535 or parts.netloc.endswith(":"):
+        return "has a port that is not a number in 1..65535"
+    if not _PATH.fullmatch(parts.path):
+        return "has a path with characters a link cannot carry as they are (letters, digits, . _ ~ - / and %XX only)"
+    return None
+
+
+def main(argv=None) -> int:
+    """Print each lesson's link; an --url that is not the lab's http(s) address: one line and status 2."""
+    import sys
+
     p = argparse.ArgumentParser(prog="python -m app.classroom.lesson",
                                 description="The lessons of docs/lessons/ and the link that opens each.")
     p.add_argument("--list", action="store_true", help="print each lesson's name, title and link (the default)")
     p.add_argument("--url", default=DEFAULT_URL,
-                   help=f"the lab's address (default {DEFAULT_URL}; a classroom server prints its own)")
+                   help=f"the lab's address (default {DEFAULT_URL}; a classroom server prints its own): "
+                        "http:// or https://, a host, an optional port and path, no query")
     args = p.parse_args(argv)
+    problem = page_url_problem(args.url)
+    if problem:
+        print(f"error: --url {args.url[:80]!r} {problem}", file=sys.stderr)
+        return 2
     for lesson in LESSONS.values():
         title = lesson_text(lesson.name)[0] if lesson.name in lesson_names() else "(no text found)"
         print(f"{lesson.name}: {title}\n  {lesson.link(args.url)}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
