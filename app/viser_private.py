@@ -346,7 +346,8 @@ def install_message_gate() -> None:
         if handle is not None and not handle._impl.removed:
             problem = gui_update_problem(handle._impl, message.updates)
             if problem is not None:
-                report_bad_message(client_id, f"{getattr(handle._impl, 'label', '?')!r:.40}: {problem}")
+                label = getattr(getattr(handle._impl, "props", None), "label", None)  # viser 1.1: props.label
+                report_bad_message(client_id, f"{label if isinstance(label, str) else '?'!r:.40}: {problem}")
                 return
         await apply_update(self, client_id, message)
 
