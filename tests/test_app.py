@@ -542,6 +542,38 @@ def test_a_run_that_ends_on_a_full_disk_is_kept_and_saved_when_space_returns(tmp
     assert "the runs not saved (disk I/O error) are saved now" in done.stderr
 
 
+def test_a_g1_gradient_run_after_cmaes_and_neat_leaves_its_entry(tmp_path, caplog):
+    """On g1, a gradient run started after a CMA-ES and a NEAT run (each stopped,
+    as the app's Stop does, and recorded) leaves its entry, as every run before it; then one that
+    ends on its own. Every entry is in the file, whole, pointing at its own whole recording."""
+    from app.server import rerun_recorder
+    from app.training.state import LabState
+    from lab.recording.replay import read_recording
+
+    path = tmp_path / "notebook.db"
+    state = LabState("g1", Notebook(str(path)), recorder=rerun_recorder(str(tmp_path / "rec")))
+    small = dict(robot="g1", seed=0, population=6, targets=20, test_goals=20)
+    runs = []
+    with caplog.at_level("WARNING"):
+        for method, stop in (("cmaes", True), ("neat", True), ("gradient", True), ("gradient", False)):
+            config = lab.TrainConfig.preset(method=method, generations=100_000 if stop else 4, **small)
+            assert state.start(config) is None
+            runner = state.runner
+            if stop:
+                assert wait_until(lambda: state.progress()["generation"] >= 2, 300)
+                assert state.stop() is None
+            assert runner.join(300) is not None and runner.done
+            runs.append((runner.run_id, method, "stopped" if stop else "finished"))
+            assert [(e["run_id"], e["method"], e["state"]) for e in state.notebook.entries()] == runs
+    entries = Notebook(str(path)).entries()  # in the file
+    assert [(e["run_id"], e["method"], e["state"]) for e in entries] == runs
+    assert state.notebook.not_saved() == (0, None)
+    for e in entries:
+        assert e["controller"] is not None and e["robot"] == "g1"
+        assert read_recording(e["recording"]).protocol["run_id"] == e["run_id"]
+    assert not [r for r in caplog.records if r.exc_info]  # no traceback
+
+
 def test_a_race_of_one_method_and_seed_records_two_files(tmp_path, monkeypatch):
     """Both runs of a race start in the same second; with the same method and seed they still get a
     recording each, whole, and each notebook entry points at its own."""

@@ -15,19 +15,27 @@ and left in place. Each entry:
 What is opened (SQLite's own means of telling files apart): a notebook carries PRAGMA
 application_id = APPLICATION_ID and PRAGMA user_version = SCHEMA_VERSION in its header, set when it is
 created. A notebook of earlier versions (tables runs(seq, run_id, entry) and meta(key, value), no
-marker) is recognised by its schema and gets the marker. A missing or 0-byte file, or a SQLite
+marker) is recognised by its schema (each table's CREATE statement as SQLite keeps it: its types,
+key and UNIQUE, not only its column names) and gets the marker. A missing or 0-byte file, or a SQLite
 database with no tables, becomes a new notebook: there is nothing in it to lose, and it is what a
 second app sees while the first one creates the notebook. Anything else (another program's SQLite
-database, another `runs` table, a newer notebook, a database that fails PRAGMA quick_check, a file
-that is not SQLite, a folder) is refused with NotebookError naming the path and what it holds, and
-left byte for byte as it was: it is read through SQLite's immutable=1 URI, which writes nothing
+database, another `runs` table, even one of the notebook's column names, a newer notebook, a
+database that fails PRAGMA quick_check, a file that is not SQLite, a folder) is refused with
+NotebookError naming the path and what it holds, and left byte for byte as it was: it is read through SQLite's immutable=1 URI, which writes nothing
 (no -wal or -shm file) beside it.
 
 A notebook that cannot be written (the file or its folder is read-only, by os.access, or SQLite
 says so) is opened read-only: its runs are listed, the runs added since it was opened are listed
 too but not written, and that is said once (a warning; `read_only` names why). An entry that is not a run (not
 JSON, not a JSON object, no text run_id, robot or method) is kept as it is but not listed;
-`skipped()` names them (by run_id, else by its row: "seq N") and one log line says why.
+`skipped()` names them (by run_id, else by its row: "seq N") and one log line says why; so is a
+row whose JSON raises anything else (nested too deeply: a RecursionError).
+
+A write that fails while the app runs (another program holds the file locked past the busy
+timeout, `timeout`; a full disk; an I/O error) loses nothing: the entry is kept in memory and
+listed, `not_saved()` says how many wait and why (the Runs panel shows it), and a thread writes
+them once it can, trying again after 0.5 s, 1 s, 2 s, ... 30 s. Reads take no lock: in WAL mode
+they go on while another program writes.
 """
 
 from __future__ import annotations
@@ -324,8 +332,8 @@ class Notebook:
         write's error, e.g. "database is locked"): (0, None) when every run is in the file. (A
         read-only notebook's runs are never written: read_only says why.)"""
         with self._lock:
-            if self.read_only is not None or not self._unsaved:
-                return 0, None
+            if self.read_only is not None or not self._unsaved or self._failure is None:
+                return 0, None  # (an entry being written, no write failed yet: not said)
             return len(self._unsaved), self._failure
 
     def flush(self, timeout: float | None = None) -> int:
