@@ -149,6 +149,11 @@ def main(argv=None) -> int:
         return 2
 
     t0 = time.perf_counter()
+    # the training kernels compile in the spare training process (lab/running/worker.py) as the page
+    # serves: every step is told here, unless they all load from the cache within a second
+    import lab.running.worker as lab_worker
+
+    lab_worker.on_warmup(WarmupLines())
     try:
         notebook = Notebook(args.notebook)
     except NotebookError as e:
@@ -158,24 +163,6 @@ def main(argv=None) -> int:
                  record=not args.no_record, presenter_token=token, open_access=args.open,
                  limits=limits, speed=args.speed or None)
     print(f"\nNeuro-IK Lab ready in {time.perf_counter() - t0:.1f} s: {app.url}", flush=True)
-    # the first Start would otherwise wait for numba to compile the fitness kernels (~15 s, once);
-    # on a machine where they are cached this takes milliseconds and says nothing
-    from lab.running.warmup import compile_kernels
-
-    def warm() -> None:
-        t = time.perf_counter()
-        said = []
-
-        def progress(text: str) -> None:
-            if time.perf_counter() - t > 1.0 or said:  # quiet when the kernels load from the cache
-                print(f"  {text}", flush=True)
-                said.append(text)
-
-        seconds = compile_kernels(progress)
-        if said:
-            print(f"  training kernels ready ({seconds:.0f} s, once: later starts load them)", flush=True)
-
-    threading.Thread(target=warm, name="kernel-warmup", daemon=True).start()
     if args.host in ("0.0.0.0", ""):
         print(f"  on this network: http://{socket.gethostname()}:{app.port}", flush=True)
     if app.state.limits:
@@ -194,12 +181,11 @@ def main(argv=None) -> int:
     print(f"  startup controller: {app.startup_note}; runs list: {args.notebook}. Ctrl-C stops.", flush=True)
     # every way of stopping (Ctrl-C, SIGTERM from a service manager, SIGHUP from a closing terminal)
     # ends as Ctrl-C does: the run is stopped and noted, its recording closed; a second signal waits
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, _interrupt)
     try:
-        while True:
-            time.sleep(3600)
-    except KeyboardInterrupt:
+        try:
+            wait_for_a_signal((signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
+        except KeyboardInterrupt:  # a Ctrl-C before the wait began
+            pass
         print("stopping: the run (if any) is stopped, noted in the notebook and its recording closed", flush=True)
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
@@ -208,13 +194,84 @@ def main(argv=None) -> int:
     return 0
 
 
-def _interrupt(signum, _frame):
-    raise KeyboardInterrupt(signal.Signals(signum).name)
+def wait_for_a_signal(signals) -> int:
+    """Block until one of `signals` arrives; its number.
+
+    Not a sleep in a loop that a KeyboardInterrupt ends: the kernel may deliver a signal to any of the
+    app's threads (viser's, a run's reader, the training kernels' warm-up), and Python then only
+    marks it for the main thread, which a sleep does not wake: under load a Ctrl-C was lost for
+    minutes (docs/faults.md). The C handler writes every signal's number to the wakeup descriptor,
+    whichever thread it interrupts, and that wakes this select."""
+    import select
+
+    read, write = os.pipe()
+    os.set_blocking(write, False)
+    os.set_blocking(read, False)
+    for sig in signals:
+        signal.signal(sig, _noted)
+    previous = signal.set_wakeup_fd(write, warn_on_full_buffer=False)
+    try:
+        while True:
+            select.select([read], [], [])
+            try:
+                data = os.read(read, 64)
+            except BlockingIOError:
+                continue
+            for number in data:
+                if number in {int(s) for s in signals}:
+                    return number
+    finally:
+        signal.set_wakeup_fd(previous)
+        os.close(read)
+        os.close(write)
+
+
+def _noted(_signum, _frame):
+    """The Python side of a stopping signal: nothing (wait_for_a_signal reads it from the wakeup fd)."""
 
 
 def _already_stopping(signum, _frame):
     print(f"{signal.Signals(signum).name}: already stopping", file=sys.stderr, flush=True)
 
 
+class WarmupLines:
+    """Prints the training kernels' warm-up (lab.running.worker.on_warmup), a line per step, once numba
+    compiles: a warm-up that loads every kernel from the cache says nothing."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._held: dict[int, list] = {}  # a worker's pid -> its lines held back (None: printing them)
+
+    def __call__(self, warmup) -> None:
+        if warmup.done:
+            line = f"  training kernels ready ({warmup.seconds:.0f} s, once: later starts load them)"
+        elif warmup.steps:
+            line = (f"  preparing the training kernels: step {warmup.index} of {warmup.steps}, {warmup.label} "
+                    f"(about {warmup.expected:.0f} s)")
+        else:
+            line = None
+        with self._lock:
+            held = self._held.setdefault(warmup.pid, [])
+            if held is not None and not warmup.compiling:  # loading from the cache so far
+                if warmup.done:
+                    del self._held[warmup.pid]
+                elif line and (not held or held[-1] != line):
+                    held.append(line)
+                return
+            lines = (held or []) + ([line] if line and (not held or held[-1] != line) else [])
+            for text in lines:
+                print(text, flush=True)
+            if warmup.done:
+                del self._held[warmup.pid]
+            else:
+                self._held[warmup.pid] = None
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    code = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    # everything is closed (the run noted, the notebook committed, the recordings' writers finish on
+    # their own): the interpreter's teardown of a gigabyte of modules, seconds of CPU on a loaded
+    # machine, would only delay the exit that Ctrl-C asked for (docs/faults.md)
+    os._exit(code)

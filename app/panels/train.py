@@ -391,9 +391,13 @@ class TrainingPanel:
         going = p["state"] == "running" or (partner is not None and partner.runner.state == "running")
         self._show_buttons()
         self.watching.refresh_population(force)
-        if n == self._shown_gen and not force and not going:
+        # what the status says changes without a new generation too: a run's end (Finished, Stopped,
+        # Failed), its partner's, a notice; a paused or ended run is redrawn only when one of them changes
+        shown = (n, p["state"], p["run_id"], p["recording"], p["error"], self.state.notice,
+                 None if partner is None else (partner.runner.state, len(partner.track)))
+        if shown == self._shown_gen and not force and not going:
             return
-        self._shown_gen = n
+        self._shown_gen = shown
         done = n / p["total"] if p["total"] else 0.0
         if p["budget"]:  # a time budget: whichever of the two ends the run is nearer its end
             done = max(done, min(p["seconds"] / p["budget"], 1.0))
@@ -412,18 +416,43 @@ class TrainingPanel:
             for values in (best, median):
                 columns.append(np.maximum(np.nan_to_num(sample(gens, values, at), posinf=1e12, nan=1e12), 1e-12))
         self.plot.data = tuple(columns) if m else EMPTY_PLOT + ((np.full(2, np.nan),) * 2 if partner else ())
+        self.status.content = self.status_line(p)
+        self.watching.refresh_live(force)
+
+    def status_line(self, p: dict) -> str:
+        """The status (markdown): the run's state (Running, Paused, Finished, Stopped, Failed and why)
+        with its generation, time and best MSE; what a run waits for before its first generation; the
+        race partner's state; the notice of the last run's end."""
+        n, partner = p["generation"], self.state.partner
         best_s = f"{p['best'][-1]:.4g}" if n else "-"
         rec = f"  \nRecording: `{p['recording']}`" if p["recording"] else ""
         total = "" if p["budget"] and p["total"] >= UNBOUNDED else f" / {p['total']}"
-        left = (f", {max(p['budget'] - p['seconds'], 0.0):.1f} s of {p['budget']:g} s left" if p["budget"] else "")
-        status = (f"**{p['state'].capitalize()}**: generation {n}{total}{left}, "
-                  f"best MSE {best_s}, {p['evals_per_s']:,.0f} evaluations/s{rec}")
+        going = p["state"] in ("running", "paused")
+        if not p["budget"]:
+            left = ""
+        elif going:
+            left = f", {max(p['budget'] - p['seconds'], 0.0):.1f} s of {p['budget']:g} s left"
+        else:
+            left = f", {min(p['seconds'], p['budget']):.1f} s of its {p['budget']:g} s"
+        if p.get("preparing"):  # the kernels compile before the first generation (a cold cache, once)
+            status = (f"**{p['state'].capitalize()}**: preparing the training kernels: {p['preparing']}; "
+                      "the run starts the moment they are ready")
+        else:
+            status = (f"**{p['state'].capitalize()}**: generation {n}{total}{left}, "
+                      f"best MSE {best_s}, {p['evals_per_s']:,.0f} evaluations/s")
+        if p["state"] == "failed" and p.get("error"):
+            status += f"  \nIt failed: {p['error']}"
+        status += rec
         if partner is not None:
-            status += (f"  \nPartner ({partner.label}): **{partner.runner.state}**, generation {len(partner.track)}"
+            waits = getattr(partner.runner, "preparing", None) if partner.runner.state == "running" else None
+            status += (f"  \nPartner ({partner.label}): **{partner.runner.state.capitalize()}**, "
+                       + (f"preparing the training kernels: {waits}" if waits else f"generation {len(partner.track)}")
                        + (f", recording `{partner.recording}`" if partner.recording else ""))
+            summary = partner.runner.join(0) if partner.runner.done else None
+            if summary is not None and summary.state == "failed" and summary.error:
+                status += f"  \nThe partner failed: {summary.error}"
             status += "  \n" + lead_line(self.state.track, partner.track, run_label(self.state.runner.config),
                                           partner.label)
         if self.state.notice:
             status += f"  \n{self.state.notice}"
-        self.status.content = status
-        self.watching.refresh_live(force)
+        return status

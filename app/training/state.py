@@ -146,12 +146,17 @@ class LabState:
         with self._lock:
             r = self.runner
             gens, best, median = self._history.arrays()
+            summary = r.join(0) if r is not None and r.done else None
             return dict(
                 generation=len(self._history), total=r.config.generations if r else 0,
                 state=r.state if r else "idle", best=best, median=median, generations=gens + 1,
                 evals_per_s=self._evals / self._seconds if self._seconds > 0 else 0.0,
                 recording=self.recording, run_id=r.run_id if r else None,
                 seconds=self._seconds, budget=r.config.seconds if r else None,  # optimizer s so far; the time budget
+                # what the run waits for before its first generation (the training kernels compiling:
+                # "step 2 of 4 (...), about 12 s"), None when nothing; why a failed run failed
+                preparing=getattr(r, "preparing", None) if r is not None and r.state == "running" else None,
+                error=summary.error if summary is not None else None,
             )
 
     # ------------------------------------------------------------------ changing what is shown

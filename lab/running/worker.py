@@ -16,12 +16,18 @@ Runner runs one generation per Step it receives while paused. A worker whose par
 goes away stops its run and exits.
 
 prestart() keeps one worker started and warmed up (modules imported, numba kernels loaded)
-for the next start(), so a click on Start trains at once instead of after ~2 s.
+for the next start(), so a click on Start trains at once instead of after ~2 s. A worker warms up
+before its run (lab/running/warmup.py: on a cold cache about a minute of compiling, the method the
+page opens with first; a spare does every step, a worker with its run waiting only the steps that run
+needs) and tells each step through a pipe of its own: `warmup_status()`, `ProcessRunner.preparing` and
+`on_warmup(callback)` say what a run waits for. A warming worker whose parent goes away exits at once.
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import select
 import signal
 import subprocess
 import sys
@@ -48,6 +54,79 @@ _keep_spare = False
 _spare_lock = threading.Lock()
 
 
+class Warmup:
+    """What a worker's warm-up is doing, as its progress pipe tells it (lab/running/warmup.py)."""
+
+    def __init__(self, pid: int):
+        self.pid = pid
+        self.index = self.steps = 0
+        self.label = ""
+        self.expected = 0.0  # s the step in progress is expected to take
+        self.since = time.monotonic()  # when it began
+        self.started = time.monotonic()
+        self.done = False
+        self.seconds = 0.0  # s the whole warm-up took (when done)
+        self.compiling = False  # numba compiles (a kernel missed the cache): the warm-up is worth telling
+
+    def describe(self) -> str | None:
+        """"step 2 of 4 (CMA-ES fitness and controller), about 12 s" while it compiles (past the
+        estimate: "25 s so far, about 11 s expected: a busy machine"); None when done or while every
+        kernel so far has loaded from the cache (milliseconds each)."""
+        if self.done or not self.compiling or not self.steps:
+            return None
+        spent = time.monotonic() - self.since
+        when = (f"about {self.expected - spent:.0f} s" if spent < self.expected - 0.5 else
+                f"{spent:.0f} s so far, about {self.expected:.0f} s expected: a busy machine")
+        return f"step {self.index} of {self.steps} ({self.label}), {when}"
+
+
+_listeners: list = []  # on_warmup's callbacks
+
+
+def on_warmup(callback) -> None:
+    """callback(warmup: Warmup) is called, in a reader thread, as each worker's warm-up begins a
+    step and as it ends (warmup.done)."""
+    _listeners.append(callback)
+
+
+def warmup_status() -> str | None:
+    """What the spare worker's warm-up is doing ("step 2 of 4 (...), about 12 s"), None when no
+    warm-up is going."""
+    with _spare_lock:
+        w = getattr(_spare, "warmup", None)
+    return w.describe() if w is not None else None
+
+
+def _tell(warmup: Warmup) -> None:
+    for callback in list(_listeners):
+        try:
+            callback(warmup)
+        except Exception:  # noqa: BLE001 - a listener's fault is not the worker's
+            log.exception("warm-up listener failed")
+
+
+def _follow(fd: int, warmup: Warmup) -> None:
+    """Read a worker's progress pipe: "step INDEX STEPS EXPECTED_S LABEL" lines, "compiling" (numba
+    missed its cache), "done SECONDS"."""
+    with os.fdopen(fd, "r", encoding="utf-8", errors="replace") as f:
+        for line in f:
+            kind, _, rest = line.rstrip("\n").partition(" ")
+            if kind == "compiling":
+                warmup.compiling = True
+                _tell(warmup)
+            elif kind == "step":
+                index, steps, expected, label = rest.split(" ", 3)
+                warmup.index, warmup.steps, warmup.expected, warmup.label = int(index), int(steps), float(expected), label
+                warmup.since = time.monotonic()
+                _tell(warmup)
+            elif kind == "done":
+                warmup.seconds = float(rest)
+                break
+    warmup.seconds = warmup.seconds or time.monotonic() - warmup.started
+    warmup.done = True  # also when the worker ended without saying so (killed)
+    _tell(warmup)
+
+
 class ProcessRunner(RunBase):
     """A Runner (see lab.running.runner) that trains in a worker process. `backend` is None here: the
     backend lives in the worker."""
@@ -69,6 +148,13 @@ class ProcessRunner(RunBase):
     def pid(self) -> int | None:
         """The worker's process id (None before start)."""
         return self._proc.pid if self._proc is not None else None
+
+    @property
+    def preparing(self) -> str | None:
+        """While the worker still compiles what this run needs: "step 2 of 4 (...), about 12 s";
+        else None."""
+        w = getattr(self._proc, "warmup", None)
+        return w.describe() if w is not None and not self._done.is_set() else None
 
     # ------------------------------------------------------------------ control
     def start(self) -> "ProcessRunner":
@@ -119,6 +205,8 @@ class ProcessRunner(RunBase):
         self._stop_asked = True
         if self._proc is None:
             return
+        if self.preparing is not None:  # no generation yet, and none before its kernels are compiled
+            self.kill("stopped while the training kernels were being prepared", quiet=True)
         self._command("stop")
         if wait:
             self._done.wait(timeout)
@@ -136,13 +224,14 @@ class ProcessRunner(RunBase):
         self._done.wait(max(grace, 5.0))  # the reader sees the end of the pipe and concludes
         return True
 
-    def kill(self, reason: str) -> None:
+    def kill(self, reason: str, quiet: bool = False) -> None:
         """End the worker at once; the run ends "stopped" with the generations received, `reason`
-        as its summary's error."""
+        as its summary's error (logged as a warning unless quiet)."""
         if self._proc is None or self._done.is_set():
             return
         self._killed = reason
-        log.warning("run %s: %s", self.run_id, reason)
+        if not quiet:
+            log.warning("run %s: %s", self.run_id, reason)
         try:
             self._proc.kill()
         except OSError:  # already gone
@@ -202,9 +291,114 @@ def _take_worker() -> subprocess.Popen:
 
 
 def _spawn(spare: bool) -> subprocess.Popen:
-    proc = pipes.start("lab.running.worker", *(["--spare"] if spare else []))
+    read, write = os.pipe()  # the warm-up's progress (Warmup)
+    try:
+        proc = pipes.start("lab.running.worker", "--progress", str(write), *(["--spare"] if spare else []),
+                           pass_fds=(write,))
+    except BaseException:
+        os.close(read)
+        raise
+    finally:
+        os.close(write)
     pipes.grow(proc.stdout.fileno())
+    proc.warmup = Warmup(proc.pid)
+    threading.Thread(target=_follow, args=(read, proc.warmup), name=f"lab-warmup-{proc.pid}", daemon=True).start()
     return proc
+
+
+def _warm_up(stream, progress_fd: int | None, spare: bool):
+    """In the worker: compile the kernels (lab/running/warmup.py) before the run, each step told on
+    progress_fd. A spare compiles every step, the first method's first, until its run arrives; from
+    then on (and in a worker started with its run) only the steps that run needs: the kinematics, its
+    method, its kind of robot (a serial arm's or a tree's). Returns the first batch of messages
+    (None: the parent went away)."""
+    from lab.running import warmup
+
+    fd = sys.stdin.fileno()
+    warmed = threading.Event()
+
+    def watch() -> None:  # the parent gone (Ctrl-C, a crash): no minute of compiling for nobody
+        poll = select.poll()
+        poll.register(fd, 0)  # only POLLHUP / POLLERR: the run command is left for the stream
+        while not warmed.is_set():
+            if poll.poll(200):
+                os._exit(0)
+
+    def pending() -> bool:
+        poll = select.poll()
+        poll.register(fd, select.POLLIN)
+        return bool(poll.poll(0))
+
+    def say(text: str) -> None:
+        if progress_fd is not None:
+            try:
+                os.write(progress_fd, (text + "\n").encode())
+            except OSError:
+                pass
+
+    threading.Thread(target=watch, name="lab-worker-parent", daemon=True).start()
+    _on_first_compile(lambda: say("compiling"))
+    t = time.perf_counter()
+    first, wanted = None, None  # the run's first messages; its (method, kind of robot) once known
+    steps = warmup.plan()
+    estimate = warmup.Estimate(steps)
+    try:
+        for step in steps:
+            told, t_step, whole = False, time.perf_counter(), True
+            for kind, part in step.parts:
+                if first is None and (not spare or pending()):
+                    first = next(stream, None)
+                    if first is None:
+                        return None
+                    wanted = _wants(first[0][1])
+                if wanted is not None and (step.method not in (None, wanted[0]) or kind not in ("all", wanted[1])):
+                    whole = False
+                    continue
+                if not told:
+                    share = 1.0 if wanted is None else 1.0 / len(step.parts)
+                    say(f"step {step.index} {step.steps} {estimate.step_seconds(step) * share:.1f} {step.label}")
+                    told = True
+                try:
+                    part()
+                except Exception:  # noqa: BLE001 - the run itself reports what fails
+                    log.exception("warm-up step %s failed", step.label)
+            if told and whole:
+                estimate.finished(step, time.perf_counter() - t_step)
+    finally:
+        say(f"done {time.perf_counter() - t:.1f}")
+        warmed.set()
+        if progress_fd is not None:
+            os.close(progress_fd)
+    return first if first is not None else next(stream, None)
+
+
+def _on_first_compile(callback) -> None:
+    """callback() once, when numba first compiles a kernel here (a cache miss; loads say nothing)."""
+    from numba.core import event
+
+    class FirstCompile(event.Listener):
+        told = False
+
+        def on_start(self, _event) -> None:
+            if not self.told:
+                self.told = True
+                callback()
+
+        def on_end(self, _event) -> None:
+            pass
+
+    event.register("numba:compile", FirstCompile())
+
+
+def _wants(config) -> tuple:
+    """(method, kind of robot: "arm" or "tree") of a run's config, for the warm-up's steps."""
+    import robots
+
+    try:
+        tree = robots.kind(config.robot) == "tree"
+    except Exception:  # noqa: BLE001 - the run itself says what is wrong with its robot
+        tree = False
+    return config.method, "tree" if tree else "arm"
 
 
 # ---------------------------------------------------------------------- the worker process
@@ -212,14 +406,11 @@ def main(argv: list[str]) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which stops the run
     signal.signal(signal.SIGHUP, signal.SIG_IGN)  # so does a closing terminal
     out = pipes.claim_stdout()
-    if "--spare" in argv:
-        from lab.running.warmup import compile_kernels
-
-        compile_kernels()
+    progress_fd = int(argv[argv.index("--progress") + 1]) if "--progress" in argv else None
     from lab.running.runner import Runner
 
     stream = pipes.messages(sys.stdin.fileno())
-    first = next(stream, None)
+    first = _warm_up(stream, progress_fd, spare="--spare" in argv)
     if not first:
         return 0  # a spare whose parent ended without using it
     (_, config, run_id, blas_threads, *more), pending = first[0], first[1:]
