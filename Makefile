@@ -80,11 +80,34 @@ CHECK_VENV = if [ -e $(VENV) ]; then \
       esac; \
       echo "run make clean (it removes $(VENV)), then make again: it makes $(VENV) anew with $(if $(filter undefined,$(origin PYTHON)),the first usable python it finds,$(PYTHON))" >&2; exit 1; fi; fi
 
-.PHONY: install app test bench bench-arms browser clean help python
+# shell: pip install $(2) with pip's output in PIP_LOG (the last install's); on a terminal one line that
+# says how far it is (the packages found, the last one it works on); the packages installed when done;
+# pip's error and the end of its log when it fails
+PIP_LOG := $(VENV)/pip.log
+define QUIET_PIP
+log=$(PIP_LOG); echo '== pip install $(2)' > $$log; \
+$(PY) -m pip install --progress-bar off $(2) >> $$log 2>&1 & pid=$$!; \
+if [ -t 1 ]; then \
+  while kill -0 $$pid 2>/dev/null; do \
+    n=$$(grep -c '^Collecting' $$log); \
+    last=$$(grep -E '^(Collecting|Downloading|Building|Installing collected)' $$log | tail -n 1 | cut -c1-56); \
+    printf '\r  %s: %s packages; %-56s' "$(1)" "$$n" "$$last"; sleep 1; \
+  done; printf '\r%90s\r' ''; \
+fi; \
+wait $$pid; rc=$$?; \
+if [ $$rc -ne 0 ]; then \
+  echo "installing $(1) failed (pip's exit status $$rc); the end of $$log:" >&2; tail -n 40 $$log >&2; exit $$rc; \
+fi; \
+done=$$(sed -n 's/^Successfully installed //p' $$log | wc -w); \
+echo "  $(1): $$done packages installed or upgraded"
+endef
+
+.PHONY: install app test bench bench-arms browser clean help python notebook
 
 help:
 	@echo "make app      create .venv if missing, install, start the lab on http://127.0.0.1:8080"
 	@echo "make test     create .venv if missing, install, run the test suite"
+	@echo "make notebook open the students' notebook (examples/evolve_an_arm.ipynb) in Jupyter (installs it the first time)"
 	@echo "make bench    run the benchmarks (prints ratios measured side by side)"
 	@echo "make bench-arms  train every real arm with its defaults and measure it (about 40 minutes)"
 	@echo "make clean    remove .venv and caches"
@@ -95,9 +118,9 @@ $(STAMP): pyproject.toml
 	@test -e $(VENV) || { py=$$($(PICK_PYTHON)) && echo "making $(VENV) with $$py ($$($$py -c 'import platform; print(platform.python_version())'))" \
 	  && { $$py -m venv $(VENV) || { rm -rf $(VENV); exit 1; }; }; }
 	@echo "installing Neuro-IK Lab and its dependencies into $(VENV): about 1 GB the first time (Pinocchio and"
-	@echo "the robots' meshes, Rerun, numba, playwright for the browser tests): a few minutes; pip names each package"
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install -e ".[dev]"
+	@echo "the robots' meshes, Rerun, numba, playwright for the browser tests): a few minutes; pip's log: $(PIP_LOG)"
+	@$(call QUIET_PIP,pip,--upgrade pip)
+	@$(call QUIET_PIP,Neuro-IK Lab,-e ".[dev]")
 	@touch $(STAMP)
 
 # numba's kernels compiled once (the first page of the app needs few of them, so make app does not wait:
@@ -127,6 +150,11 @@ app: install
 
 test: install browser $(WARM)
 	$(PY) -m pytest $(PYTEST_ARGS)
+
+# the students' notebook in Jupyter; Jupyter (the notebook extra in pyproject.toml) is installed the first time
+notebook: install
+	@$(PY) -c "import notebook" 2>/dev/null || { $(call QUIET_PIP,Jupyter,-e ".[notebook]"); }
+	$(VENV)/bin/jupyter notebook examples/evolve_an_arm.ipynb
 
 bench: install
 	$(PY) benchmarks/bench_fk.py --arms planar,scara,ur5,panda,kinova

@@ -134,7 +134,6 @@ def main(argv=None) -> int:
         print(f"error: --recordings must be a folder, but {blocker} is a file", file=sys.stderr)
         return 2
     from app.training.notebook import Notebook, NotebookError
-    from app.server import LabApp
 
     token, problem = presenter_token(args)
     if problem:
@@ -149,16 +148,21 @@ def main(argv=None) -> int:
         return 2
 
     t0 = time.perf_counter()
-    # the training kernels compile in the spare training process (lab/running/worker.py) as the page
-    # serves: every step is told here, unless they all load from the cache within a second
-    import lab.running.worker as lab_worker
-
-    lab_worker.on_warmup(WarmupLines())
     try:
         notebook = Notebook(args.notebook)
     except NotebookError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    print("starting Neuro-IK Lab (the first start after an install compiles what its page needs: under a "
+          "minute; later starts take seconds)", flush=True)
+    # the training kernels compile in the spare training process (lab/running/worker.py), started now
+    # so that it compiles while the server starts and the page serves: every step is told here, unless
+    # they all load from the cache
+    import lab.running.worker as lab_worker
+
+    lab_worker.on_warmup(WarmupLines())
+    lab_worker.prestart()
+    from app.server import LabApp
     app = LabApp(args.host, args.port, robot=args.robot, notebook=notebook, recordings=args.recordings,
                  record=not args.no_record, presenter_token=token, open_access=args.open,
                  limits=limits, speed=args.speed or None)
