@@ -330,7 +330,7 @@ def test_wrong_tokens_are_logged_by_address_and_limited_per_address(app, caplog)
 
 
 def test_wrong_tokens_from_the_presenters_address_never_lock_the_presenter_out(tmp_path, caplog):
-    """issue 40 item 1, as reproduced: a token from a file; six tabs with wrong tokens from 127.0.0.1 (the
+    """A token from a file; six tabs with wrong tokens from 127.0.0.1 (the
     presenter's own address); then the presenter link makes a presenter (no Viewer line) and its
     Start and Reset are accepted."""
     import logging
@@ -369,7 +369,7 @@ def test_wrong_tokens_from_the_presenters_address_never_lock_the_presenter_out(t
 
 
 def test_tabs_sending_garbage_frames_are_closed_with_one_log_line_and_no_traceback(app, presenter, caplog):
-    """issue 40 item 5: a frame that is not a viser message (not msgpack, a text frame, msgpack of no known
+    """A frame that is not a viser message (not msgpack, a text frame, msgpack of no known
     type) closes its tab, as before, but 20 such tabs give at most a couple of log lines (one a minute,
     with the count), no websockets "connection handler failed" traceback; the server forgets the
     closed tabs, and a good tab still works."""

@@ -1,5 +1,5 @@
-"""A class on the biggest robot: 40 viewer tabs dragging their goals on g1 while the presenter trains
-(issue 40, "not yet probed"). Checked as properties, never as latencies (those are benchmarks/bench_app.py's):
+"""A class on the biggest robot: 40 viewer tabs dragging their goals on g1 while the presenter trains.
+Checked as properties, never as latencies (those are benchmarks/bench_app.py's):
 the presenter's run goes on, every viewer's drag is answered with its own arm's pose, no viewer changes
 shared state, and nothing raises or logs a traceback."""
 

@@ -1,8 +1,8 @@
 """What the lab says while it waits and when a run ends, and how it stops.
 
 Checked: the status line says Finished, Stopped or Failed (with why) once a run has ended, for the
-run and for its race partner, with no time left quoted for an ended run (issue 39: it kept saying
-"Running: generation 300 / 300"); a run that waits for the training kernels says so, with the step;
+run and for its race partner, with no time left quoted for an ended run (never
+"Running: generation 300 / 300" after it ended); a run that waits for the training kernels says so, with the step;
 the worker's warm-up compiles the method the page opens with first and, for a run waiting on it,
 only what that run needs; `python -m app` prints every step of a warm-up that compiles, nothing of one
 that loads from the cache; its wait for Ctrl-C wakes for a signal the kernel hands to another thread.
