@@ -364,15 +364,21 @@ class LabApp:
                     self._draw_views()
                     self.runs.refresh()
                     self._write_lesson_links(sessions)
-                    for s in sessions:
-                        if getattr(s, "replay", None) is not None:
-                            s.replay.sync()
+                    self._sync_replays(sessions)
                 if t0 - last_trim > TRIM_PERIOD:
                     last_trim = t0
                     release_freed_memory()
             except Exception:  # the loop must survive anything one frame does
                 log.exception("render loop")
             self._stop.wait(max(0.0, period - (time.perf_counter() - t0)))
+
+    @staticmethod
+    def _sync_replays(sessions: list) -> None:
+        """Each viewer tab's own replay (a method: no loop variable of the render loop keeps the last
+        tab, its client and its scene alive after it has closed)."""
+        for s in sessions:
+            if getattr(s, "replay", None) is not None:
+                s.replay.sync()
 
     def _refresh_tabs(self, sessions: list, turn: int) -> int:
         """Refresh every presenter tab of a restricted server (a classroom's), and the other tabs in

@@ -250,9 +250,11 @@ class Arm:
         return abs(self.base_axis[1][2]) > 1.0 - 1e-9
 
     # ---------------------------------------------------------------- geometry
-    def visual_model(self) -> pin.GeometryModel:
-        """Visual geometry of the chain (meshes loaded on first call; may take ~1 s)."""
-        return _visual_cache(self)
+    def visual_model(self, keep: bool = True) -> pin.GeometryModel:
+        """Visual geometry of the chain (meshes loaded on first call; may take ~1 s). keep: kept for
+        the next call, VISUAL_MODELS arms at most (a model holds each mesh's collision tree: 160 MiB
+        for the g1, 30 times its vertices); keep=False: a model of its own, kept by nobody."""
+        return _visual_cache(self) if keep else self._visual_builder()
 
     def __repr__(self) -> str:
         if self.is_tree:
@@ -260,7 +262,10 @@ class Arm:
         return f"Arm({self.name!r}, nq={self.nq}, ee={self.ee_frame!r}, task_axes={self.task_axes})"
 
 
-@functools.lru_cache(maxsize=None)
+VISUAL_MODELS = 2  # the visual models kept (visual_model); robots.visual keeps each arm's vertices instead
+
+
+@functools.lru_cache(maxsize=VISUAL_MODELS)
 def _visual_cache(arm: Arm) -> pin.GeometryModel:
     return arm._visual_builder()
 

@@ -42,9 +42,10 @@ def se3_pose(M: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
 
 @functools.lru_cache(maxsize=32)
 def visual_geometry(arm: Arm) -> tuple[VisualGeometry, ...]:
-    """The chain's visual objects (an unknown geometry type is left out)."""
+    """The chain's visual objects (an unknown geometry type is left out): their vertices and faces, kept
+    per arm; the model they are read from (with each mesh's collision tree, 30 times larger) is not."""
     out = []
-    for g in arm.visual_model().geometryObjects:
+    for g in arm.visual_model(keep=False).geometryObjects:
         geo = g.geometry
         kind = type(geo).__name__
         pos, wxyz = se3_pose(g.placement)

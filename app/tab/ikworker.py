@@ -59,6 +59,7 @@ class IKWorker:
                 tab.solve_ik()
             except Exception:  # a closed tab, a removed node: the next request starts afresh
                 pass
+            del tab  # not held while this thread waits: a closed tab (its client, its scene) is let go
             # at most IK_DUTY of the time solving: with many tabs dragging, IK waits, training does not
             time.sleep((time.perf_counter() - t0) * (1 - IK_DUTY) / IK_DUTY)
 
