@@ -1,0 +1,109 @@
+"""The memory of a lab whose lesson tabs switch robots, round after round.
+
+A LabApp opens on `--robot` (g1); each round opens, for each robot of `--robots` in turn, `--tabs`
+headless tabs with a lesson link of that robot (on loopback every tab is a presenter: the link
+switches the lab's robot, and every open tab rebuilds its scene for it), then closes them (or, with
+--keep, keeps a round's tabs open until its end: a class of lesson tabs). After each round the
+process's RSS is read once the closed tabs are gone, after gc and malloc_trim (what the app's render
+loop does every 30 s): a leak grows it round after round; what each robot keeps once (its vertices,
+its kernels, its error-map grid) shows in round 0 only. Also printed: the visual models kept
+(robots.arm._visual_cache, at most robots.arm.VISUAL_MODELS) and the tabs still held.
+
+    .venv/bin/python benchmarks/bench_app_memory.py [--robot g1] [--robots g1,planar,ur5,talos-legs,scara,panda]
+        [--rounds 6] [--tabs 3] [--keep]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import ctypes
+import gc
+import sys
+import tempfile
+import threading
+import time
+import weakref
+from pathlib import Path
+from urllib.parse import unquote
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--robot", default="g1", help="the robot the lab opens on")
+    p.add_argument("--robots", default="g1,planar,ur5,talos-legs,scara,panda", help="the robots the lesson tabs switch to")
+    p.add_argument("--rounds", type=int, default=6)
+    p.add_argument("--tabs", type=int, default=3, help="tabs opened with each robot's lesson link")
+    p.add_argument("--keep", action="store_true", help="keep a round's tabs open until its end")
+    args = p.parse_args()
+
+    import psutil
+
+    sys.path.insert(0, str(ROOT))
+    import robots.arm as robot_arm
+    from app.classroom.lesson import lesson_link
+    from app.probe import Probe
+    from app.server import LabApp
+
+    me = psutil.Process()
+    try:
+        trim = ctypes.CDLL("libc.so.6").malloc_trim
+    except (OSError, AttributeError):
+        trim = None
+
+    def rss() -> float:
+        gc.collect()
+        if trim is not None:
+            trim(0)
+        return me.memory_info().rss / 2**20
+
+    def until(predicate, timeout: float = 120.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            time.sleep(0.05)
+        return False
+
+    folder = tempfile.mkdtemp(prefix="bench-app-memory-")
+    app = LabApp(port=0, robot=args.robot, notebook=f"{folder}/notebook.db", recordings=f"{folder}/rec", record=False)
+    loop = asyncio.new_event_loop()
+    threading.Thread(target=loop.run_forever, daemon=True).start()
+    names = args.robots.split(",")
+    held = []
+    print(f"a {args.robot} lab; each round: {args.tabs} lesson tab(s) for each of {', '.join(names)}"
+          f"{' (kept open to the round end)' if args.keep else ''}")
+    print(f"start: {rss():.0f} MiB")
+    try:
+        for r in range(args.rounds):
+            t0, opened = time.perf_counter(), []
+            for name in names:
+                link = lesson_link(app.url, {"lesson": "1", "robot": name, "method": "cmaes"})
+                ws = unquote(link.split("?websocket=", 1)[1]).replace("ws://", "http://")
+                tabs = [Probe(ws, loop=loop).start(120) for _ in range(args.tabs)]
+                tabs[-1].wait_for(lambda m: m.get("name") == "/tab/goal0/label", 120)
+                until(lambda: app.state.arm.name == name and all(
+                    s.arm is app.state.arm and s.version == app.state.shown.version for s in list(app.sessions.values())))
+                held += [weakref.ref(s) for s in list(app.sessions.values())]
+                for tab in tabs:
+                    tab.drain()
+                opened += tabs
+                if not args.keep:
+                    for tab in tabs:
+                        tab.close()
+            for tab in opened:
+                tab.close()
+            until(lambda: not app.sessions and not app.server.get_clients(), 60)
+            mib = rss()
+            alive = sum(ref() is not None for ref in held)
+            print(f"round {r}: {mib:.0f} MiB ({time.perf_counter() - t0:.0f} s); visual models kept "
+                  f"{robot_arm._visual_cache.cache_info().currsize}; closed tabs still held {alive}")
+    finally:
+        app.stop()
+        loop.call_soon_threadsafe(loop.stop)
+
+
+if __name__ == "__main__":
+    main()
