@@ -6,7 +6,10 @@ recordings/uploads/ and opened. Opening a run reads its Rerun recording (lab.rec
 generation slider then shows the controller logged at or before that generation, and every
 tab's arms follow their goal markers with it. An entry whose recording is gone replays its
 final controller only. "Back to live" returns to the training run (or the startup controller).
-A file that cannot be read is refused with a message and nothing else changes.
+A file that cannot be read is refused with a message and nothing else changes. A run of another
+arm than the one shown (a planar recording uploaded into a g1 lab) switches the lab to its arm, and
+says so; while a run is going, or when its controller was not made for the arm it names, it is
+refused by name and nothing changes.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import robots
 from app import viser_private
 from app.classroom.uploads import MAX_UPLOAD, UploadGuard, save_upload
 from app.panels.train import notify
+from app.startup import made_for
 from app.training.notebook import label
 
 
@@ -173,20 +177,35 @@ class RunsPanel:
         self.refresh(force=True)
         msg = self.open_file(path, client)
         if msg is None and os.path.basename(path) != os.path.basename(name):
-            self.message.content = f"Saved as `uploads/{os.path.basename(path)}`."
+            said = self.message.content
+            self.message.content = (said + "  \n" if said else "") + f"Saved as `uploads/{os.path.basename(path)}`."
         return msg
 
     def _show(self, robot: str, controller, source: str, client) -> str | None:
-        if robot not in robots.names():
-            return self.refuse(client, f"refused: unknown robot {robot!r} in this run")
-        if robot != self.state.arm.name:
+        """Show a replayed controller of `robot`: the lab switches to that arm first (said in the
+        panel and to the tab); refused, nothing changed, while a run is going on another arm, or when
+        the controller was not made for the arm the run names."""
+        if not isinstance(robot, str) or robot not in robots.names():
+            return self.refuse(client, f"refused: unknown robot {str(robot)[:40]!r} in this run")
+        if not made_for(controller, robots.load(robot)):
+            return self.refuse(client, f"refused: this run names the {robot} arm, but its controller was not made "
+                                       f"for it ({source}); nothing was changed")
+        before = self.state.arm.name
+        if robot != before:
             msg = self.app.switch_robot(robot)
             if msg:
-                return self.refuse(client, msg)
+                why = msg.removeprefix("refused: ")
+                return self.refuse(client, f"refused: this run is of the {robot} arm and the lab shows the {before} "
+                                           f"arm, which it cannot leave now: {why}")
         msg = self.state.show_replay(controller, source)
         if msg:
             return self.refuse(client, msg)
-        self.message.content = ""
+        if robot != before:
+            text = f"This run is of the {robot} arm: the lab now shows the {robot} arm (it showed the {before})."
+            self.message.content = text
+            notify(client, "Replay", text, error=False)
+        else:
+            self.message.content = ""
         return None
 
     # ------------------------------------------------------------------ scrubbing

@@ -107,6 +107,10 @@ class TabReplay:
         else:
             return self._say("refused: this run has neither a recording nor a controller")
         if not made_for(controller, arm):
+            of = rec.protocol.get("robot") if rec is not None else value.get("robot") if kind == "entry" else None
+            if isinstance(of, str) and of != arm.name:
+                return self._say(f"refused: this run is of the {of[:40]} arm and the presenter shows the {arm.name} "
+                                 f"arm: it replays in this tab once the presenter shows the {of[:40]} arm")
             return self._say(f"refused: this run was made for another arm; the presenter shows the {arm.name} arm")
         self.recording = rec
         if rec is not None:
