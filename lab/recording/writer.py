@@ -12,7 +12,9 @@ over is still written, and the file is closed with its footer (end of input with
 It writes "C" to stdout once the file is closed and complete (the training process's close()
 waits for that), then compacts the file after a clean close, then exits. It ignores SIGINT
 (Ctrl-C in a terminal reaches the whole process group; the training process then closes the
-recording itself). The file's contents are described in lab/recording/logger.py.
+recording itself). The file's contents are described in lab/recording/logger.py. It inherits the
+logger's lock on the file (lab/recording/busy.py: the file is being written) and lets it go once the
+file is closed, before compacting it.
 """
 
 from __future__ import annotations
