@@ -161,7 +161,7 @@ def main(argv=None) -> int:
     import lab.running.worker as lab_worker
 
     lab_worker.on_warmup(WarmupLines())
-    lab_worker.prestart()
+    lab_worker.prestart(args.robot)
     from app.server import LabApp
     app = LabApp(args.host, args.port, robot=args.robot, notebook=notebook, recordings=args.recordings,
                  record=not args.no_record, presenter_token=token, open_access=args.open,

@@ -89,7 +89,7 @@ def test_a_run_whose_process_dies_says_failed_and_why(app, panel):
 
 
 def test_a_run_waiting_for_the_training_kernels_says_which_step(app, panel, monkeypatch):
-    waits = "step 2 of 4 (CMA-ES fitness and controller), about 12 s"
+    waits = "step 2 of 7 (CMA-ES for serial arms), about 12 s"
     monkeypatch.setattr(lab_worker.ProcessRunner, "preparing", property(lambda self: waits))
     panel.generations.value = 100_000.0
     assert panel.start() is None
@@ -129,9 +129,10 @@ def _warm_up(spare: bool, config=None) -> list:
 def test_a_spare_compiles_the_method_the_page_opens_with_first_and_then_every_other():
     told = _warm_up(spare=True)
     steps = [(index, label) for index, steps, label, done in told if not done]
-    n = len(lab.methods.names()) + 1
+    n = 2 * len(lab.methods.names()) + 1  # the kinematics, then each method for a serial arm and for a tree
     assert [index for index, _ in steps] == list(range(1, n + 1))
-    assert lab.TrainConfig.preset(robot="planar").method == "cmaes" and steps[1][1].startswith("CMA-ES")
+    assert lab.TrainConfig.preset(robot="planar").method == "cmaes"
+    assert steps[1][1] == "CMA-ES for serial arms" and steps[2][1].startswith("CMA-ES for trees")
     assert told[-1][-1] is True  # and says when it is done
 
 
@@ -139,7 +140,7 @@ def test_a_worker_with_its_run_waiting_compiles_only_what_that_run_needs():
     config = lab.TrainConfig.preset(robot="planar", method="neat", generations=2, population=10)
     told = _warm_up(spare=False, config=config)
     labels = [label for _i, _n, label, done in told if not done]
-    assert labels == ["forward kinematics", "NEAT fitness and controller"]
+    assert labels == ["forward kinematics", "NEAT for serial arms"]
 
 
 def test_python_m_app_prints_every_step_of_a_warm_up_that_compiles_and_nothing_from_the_cache(capsys):
@@ -172,12 +173,12 @@ def test_python_m_app_prints_every_step_of_a_warm_up_that_compiles_and_nothing_f
 
 def test_a_warm_up_that_loads_from_the_cache_names_no_wait_in_the_tab():
     w = lab_worker.Warmup(pid=3)
-    w.index, w.steps, w.label, w.expected = 2, 4, "CMA-ES fitness and controller", 12.0
+    w.index, w.steps, w.label, w.expected = 2, 7, "CMA-ES for serial arms", 12.0
     assert w.describe() is None  # nothing compiled (yet): a load takes milliseconds
     w.compiling = True
-    assert w.describe().startswith("step 2 of 4 (CMA-ES fitness and controller), about 1")
+    assert w.describe().startswith("step 2 of 7 (CMA-ES for serial arms), about 1")
     w.since -= 30.0
-    assert "30 s so far, about 12 s expected" in w.describe()
+    assert "30 s so far (about 12 s expected)" in w.describe()
     w.done = True
     assert w.describe() is None
 

@@ -198,7 +198,9 @@ def test_the_panels_time_budget_starts_a_budgeted_run(app):
         entry = state.notebook.entries()[-1]
         assert entry["state"] == "finished" and entry["settings"]["seconds"] == 1.0 and entry["seconds"] >= 1.0
         panel.refresh(force=True)
-        assert "0.0 s of 1 s left" in panel.status.content and panel.progress_bar.value == 100.0
+        status = panel.status.content  # an ended run says so and the time it used, not the time left
+        assert status.startswith("**Finished**") and "of its 1 s" in status and "left" not in status, status
+        assert panel.progress_bar.value == 100.0
         panel.budget.value = 0.0  # no budget: the defaults without one again
         assert panel.generations.value == before and panel.config().seconds is None
     finally:

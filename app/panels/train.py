@@ -448,7 +448,7 @@ class TrainingPanel:
             status += (f"  \nPartner ({partner.label}): **{partner.runner.state.capitalize()}**, "
                        + (f"preparing the training kernels: {waits}" if waits else f"generation {len(partner.track)}")
                        + (f", recording `{partner.recording}`" if partner.recording else ""))
-            summary = partner.runner.join(0) if partner.runner.done else None
+            summary = partner.runner.join(0) if partner.runner.state == "failed" else None
             if summary is not None and summary.state == "failed" and summary.error:
                 status += f"  \nThe partner failed: {summary.error}"
             status += "  \n" + lead_line(self.state.track, partner.track, run_label(self.state.runner.config),

@@ -146,7 +146,8 @@ class LabState:
         with self._lock:
             r = self.runner
             gens, best, median = self._history.arrays()
-            summary = r.join(0) if r is not None and r.done else None
+            ended = r is not None and r.state in ("finished", "stopped", "failed")
+            summary = r.join(0) if ended else None  # kept with the state, before join() returns
             return dict(
                 generation=len(self._history), total=r.config.generations if r else 0,
                 state=r.state if r else "idle", best=best, median=median, generations=gens + 1,
@@ -154,7 +155,7 @@ class LabState:
                 recording=self.recording, run_id=r.run_id if r else None,
                 seconds=self._seconds, budget=r.config.seconds if r else None,  # optimizer s so far; the time budget
                 # what the run waits for before its first generation (the training kernels compiling:
-                # "step 2 of 4 (...), about 12 s"), None when nothing; why a failed run failed
+                # "step 2 of 7 (...), about 12 s"), None when nothing; why a failed run failed
                 preparing=getattr(r, "preparing", None) if r is not None and r.state == "running" else None,
                 error=summary.error if summary is not None else None,
             )

@@ -18,45 +18,64 @@ from typing import Callable
 
 TREE = "talos-legs"  # the tree whose kernels are compiled (every tree shares them)
 FIRST_METHOD = "cmaes"  # what the app's page opens with (lab.methods.DEFAULT_METHOD): compiled first
+KINDS = ("arm", "tree")  # the kernels of a serial arm (one end effector), of a tree (several)
+KIND_LABELS = {"arm": "serial arms", "tree": "trees of several end effectors"}
 
-# s each step took on a 2-core machine with nothing else running (docs/log.md, 2026-12-05): the steps'
-# shares of the whole, from which a warm-up estimates the time left as it goes (scaled by how the
-# steps done so far compared with these)
-TYPICAL_SECONDS = {"kinematics": 6.0, "cmaes": 16.0, "gradient": 3.0, "neat": 17.0}
+# s each step took on the 2-core machine of docs/log.md (2026-12-05, an empty numba cache, little else
+# running), a serial arm's before a tree's: a tree's kernels call most of an arm's, so a tree's step
+# before its method's arm step takes both (and the arm's then a fifth of its own). A warm-up estimates a
+# step from these, scaled by how the long steps done so far compared with them (a busy machine is slower)
+TYPICAL_SECONDS = {("kinematics", "all"): 1.0, ("cmaes", "arm"): 16.0, ("cmaes", "tree"): 13.0,
+                   ("gradient", "arm"): 2.0, ("gradient", "tree"): 0.5, ("neat", "arm"): 7.0, ("neat", "tree"): 4.5}
+SCALED_BY = 5.0  # s: only steps at least this long scale the estimate (a short one is mostly imports)
 
 
 @dataclass(frozen=True)
 class Step:
-    """One step of the warm-up: `parts` are (kind, callable) pairs, each callable compiling one kind
-    of robot's kernels ("arm": a serial arm's, "tree": a tree's, "all": both); `method` is None for
-    the kinematics."""
+    """One step of the warm-up: `work()` compiles the kernels of `method` (None: the kinematics) for
+    one kind of robot ("arm": a serial arm's, "tree": a tree's, "all": both)."""
 
     index: int
     steps: int
     label: str
     method: str | None
-    parts: tuple
+    kind: str
+    work: Callable[[], None]
 
     @property
-    def key(self) -> str:
-        return self.method or "kinematics"
+    def key(self) -> tuple:
+        return (self.method or "kinematics", self.kind)
 
-    def describe(self) -> str:
-        return f"step {self.index} of {self.steps}: {self.label}"
+    def needed_by(self, method: str, kind: str) -> bool:
+        """Whether a run of `method` on a robot of `kind` calls this step's kernels."""
+        return self.method in (None, method) and self.kind in ("all", kind)
 
 
-def plan(first: str = FIRST_METHOD) -> list[Step]:
-    """The warm-up's steps: the kinematics, then `first`'s fitness and controller, then every other
-    method's (lab.methods.names() order)."""
+def kind_of(robot: str) -> str:
+    """"tree" for a robot of several end effectors, else "arm" (an unknown name too)."""
+    import robots
+
+    try:
+        return "tree" if robots.kind(robot) == "tree" else "arm"
+    except Exception:  # noqa: BLE001 - the run itself says what is wrong with its robot
+        return "arm"
+
+
+def plan(first: str = FIRST_METHOD, first_kind: str = "arm") -> list[Step]:
+    """The warm-up's steps: the kinematics; `first`'s kernels for `first_kind`, then for the other
+    kind; then every other method's (lab.methods.names() order), a serial arm's first."""
     from lab import methods
 
     names = methods.names()
     order = [first] + [m for m in names if m != first] if first in names else list(names)
-    n = len(order) + 1
-    steps = [Step(1, n, "forward kinematics", None, (("all", _kinematics),))]
-    for k, method in enumerate(order, 2):
-        steps.append(Step(k, n, f"{methods.get(method).label} fitness and controller", method,
-                          (("arm", lambda m=method: _method(m, "planar")), ("tree", lambda m=method: _method(m, TREE)))))
+    pairs = [(order[0], first_kind), (order[0], next(k for k in KINDS if k != first_kind))]
+    pairs += [(m, k) for m in order[1:] for k in KINDS]
+    n = len(pairs) + 1
+    steps = [Step(1, n, "forward kinematics", None, "all", _kinematics)]
+    for index, (method, kind) in enumerate(pairs, 2):
+        robot = TREE if kind == "tree" else "planar"
+        steps.append(Step(index, n, f"{methods.get(method).label} for {KIND_LABELS[kind]}", method, kind,
+                          lambda m=method, r=robot: _method(m, r)))
     return steps
 
 
@@ -79,38 +98,46 @@ def _method(method: str, robot: str) -> None:
 
 
 class Estimate:
-    """Seconds left of a warm-up, from TYPICAL_SECONDS scaled by the steps done so far."""
+    """Seconds a step takes: TYPICAL_SECONDS (for the steps done so far) scaled by the long steps done."""
 
-    def __init__(self, steps: list[Step]):
-        self.steps, self.done, self.typical_done = steps, 0.0, 0.0
+    def __init__(self):
+        self.done, self.typical_done = 0.0, 0.0
+        self.keys: set = set()  # the steps done
 
     def scale(self) -> float:
         return self.done / self.typical_done if self.typical_done > 0 else 1.0
 
-    def step_seconds(self, step: Step) -> float:
-        return TYPICAL_SECONDS.get(step.key, 10.0) * self.scale()
+    def typical(self, step: Step) -> float:
+        method, kind = step.key
+        own = TYPICAL_SECONDS.get(step.key, 10.0)
+        if kind == "tree" and (method, "arm") not in self.keys:
+            return own + TYPICAL_SECONDS.get((method, "arm"), 0.0)
+        if kind == "arm" and (method, "tree") in self.keys:
+            return own / 5
+        return own
+
+    def seconds(self, step: Step) -> float:
+        return self.typical(step) * self.scale()
 
     def finished(self, step: Step, seconds: float) -> None:
-        self.done += seconds
-        self.typical_done += TYPICAL_SECONDS.get(step.key, 10.0)
+        typical = self.typical(step)
+        if typical >= SCALED_BY:
+            self.done += seconds
+            self.typical_done += typical
+        self.keys.add(step.key)
 
 
-def compile_kernels(progress: Callable | None = None, first: str = FIRST_METHOD,
-                    stop: Callable[[], bool] | None = None) -> float:
-    """Call every kernel once (forward kinematics, each method's fitness, controllers); seconds taken.
-    progress(step, seconds): told before each step, with the s that step is expected to take
-    (None: silent). stop(): asked before each part of a step; True ends the warm-up there."""
+def compile_kernels(progress: Callable | None = None, first: str = FIRST_METHOD) -> float:
+    """Call every kernel once (forward kinematics, each method's fitness and controller, for a serial
+    arm and a tree); seconds taken. progress(step, seconds): told before each step, with the s it is
+    expected to take (None: silent)."""
     t = time.perf_counter()
-    steps = plan(first)
-    estimate = Estimate(steps)
-    for step in steps:
-        if stop is not None and stop():
-            break
+    estimate = Estimate()
+    for step in plan(first):
         if progress is not None:
-            progress(step, estimate.step_seconds(step))
+            progress(step, estimate.seconds(step))
         t_step = time.perf_counter()
-        for _kind, part in step.parts:
-            part()
+        step.work()
         estimate.finished(step, time.perf_counter() - t_step)
     return time.perf_counter() - t
 

@@ -52,6 +52,7 @@ log = logging.getLogger(__name__)
 _spare: subprocess.Popen | None = None  # a started worker waiting for its run (see prestart)
 _keep_spare = False
 _spare_lock = threading.Lock()
+_first_kind = "arm"  # the kind of robot ("arm", "tree") whose kernels a spare compiles first (prestart)
 
 
 class Warmup:
@@ -69,14 +70,14 @@ class Warmup:
         self.compiling = False  # numba compiles (a kernel missed the cache): the warm-up is worth telling
 
     def describe(self) -> str | None:
-        """"step 2 of 4 (CMA-ES fitness and controller), about 12 s" while it compiles (past the
-        estimate: "25 s so far, about 11 s expected: a busy machine"); None when done or while every
+        """"step 2 of 7 (CMA-ES for serial arms), about 12 s" while it compiles (past the
+        estimate: "25 s so far (about 11 s expected)"); None when done or while every
         kernel so far has loaded from the cache (milliseconds each)."""
         if self.done or not self.compiling or not self.steps:
             return None
         spent = time.monotonic() - self.since
         when = (f"about {self.expected - spent:.0f} s" if spent < self.expected - 0.5 else
-                f"{spent:.0f} s so far, about {self.expected:.0f} s expected: a busy machine")
+                f"{spent:.0f} s so far (about {self.expected:.0f} s expected)")
         return f"step {self.index} of {self.steps} ({self.label}), {when}"
 
 
@@ -90,7 +91,7 @@ def on_warmup(callback) -> None:
 
 
 def warmup_status() -> str | None:
-    """What the spare worker's warm-up is doing ("step 2 of 4 (...), about 12 s"), None when no
+    """What the spare worker's warm-up is doing ("step 2 of 7 (...), about 12 s"), None when no
     warm-up is going."""
     with _spare_lock:
         w = getattr(_spare, "warmup", None)
@@ -151,7 +152,7 @@ class ProcessRunner(RunBase):
 
     @property
     def preparing(self) -> str | None:
-        """While the worker still compiles what this run needs: "step 2 of 4 (...), about 12 s";
+        """While the worker still compiles what this run needs: "step 2 of 7 (...), about 12 s";
         else None."""
         w = getattr(self._proc, "warmup", None)
         return w.describe() if w is not None and not self._done.is_set() else None
@@ -272,11 +273,16 @@ class ProcessRunner(RunBase):
         if _keep_spare:
             prestart()
 
-def prestart() -> None:
-    """Keep a warmed-up worker ready for the next start(), now and after every run."""
-    global _spare, _keep_spare
+def prestart(robot: str | None = None) -> None:
+    """Keep a warmed-up worker ready for the next start(), now and after every run. robot: the one the
+    next run is likely on (the app's first), whose kind of kernels its warm-up compiles first."""
+    global _spare, _keep_spare, _first_kind
     with _spare_lock:
         _keep_spare = True
+        if robot is not None:
+            from lab.running.warmup import kind_of
+
+            _first_kind = kind_of(robot)
         if _spare is None or _spare.poll() is not None:
             _spare = _spawn(spare=True)
 
@@ -293,8 +299,8 @@ def _take_worker() -> subprocess.Popen:
 def _spawn(spare: bool) -> subprocess.Popen:
     read, write = os.pipe()  # the warm-up's progress (Warmup)
     try:
-        proc = pipes.start("lab.running.worker", "--progress", str(write), *(["--spare"] if spare else []),
-                           pass_fds=(write,))
+        proc = pipes.start("lab.running.worker", "--progress", str(write), "--first-kind", _first_kind,
+                           *(["--spare"] if spare else []), pass_fds=(write,))
     except BaseException:
         os.close(read)
         raise
@@ -306,12 +312,12 @@ def _spawn(spare: bool) -> subprocess.Popen:
     return proc
 
 
-def _warm_up(stream, progress_fd: int | None, spare: bool):
+def _warm_up(stream, progress_fd: int | None, spare: bool, first_kind: str = "arm"):
     """In the worker: compile the kernels (lab/running/warmup.py) before the run, each step told on
-    progress_fd. A spare compiles every step, the first method's first, until its run arrives; from
-    then on (and in a worker started with its run) only the steps that run needs: the kinematics, its
-    method, its kind of robot (a serial arm's or a tree's). Returns the first batch of messages
-    (None: the parent went away)."""
+    progress_fd. A spare compiles every step, CMA-ES for `first_kind` first, until its run arrives;
+    from then on (and in a worker started with its run) only the steps that run needs: the kinematics
+    and its method for its kind of robot. Returns the first batch of messages (None: the parent went
+    away)."""
     from lab.running import warmup
 
     fd = sys.stdin.fileno()
@@ -340,30 +346,24 @@ def _warm_up(stream, progress_fd: int | None, spare: bool):
     _on_first_compile(lambda: say("compiling"))
     t = time.perf_counter()
     first, wanted = None, None  # the run's first messages; its (method, kind of robot) once known
-    steps = warmup.plan()
-    estimate = warmup.Estimate(steps)
+    estimate = warmup.Estimate()
     try:
-        for step in steps:
-            told, t_step, whole = False, time.perf_counter(), True
-            for kind, part in step.parts:
-                if first is None and (not spare or pending()):
-                    first = next(stream, None)
-                    if first is None:
-                        return None
-                    wanted = _wants(first[0][1])
-                if wanted is not None and (step.method not in (None, wanted[0]) or kind not in ("all", wanted[1])):
-                    whole = False
-                    continue
-                if not told:
-                    share = 1.0 if wanted is None else 1.0 / len(step.parts)
-                    say(f"step {step.index} {step.steps} {estimate.step_seconds(step) * share:.1f} {step.label}")
-                    told = True
-                try:
-                    part()
-                except Exception:  # noqa: BLE001 - the run itself reports what fails
-                    log.exception("warm-up step %s failed", step.label)
-            if told and whole:
-                estimate.finished(step, time.perf_counter() - t_step)
+        for step in warmup.plan(first_kind=first_kind):
+            if first is None and (not spare or pending()):
+                first = next(stream, None)
+                if first is None:
+                    return None
+                config = first[0][1]
+                wanted = (config.method, warmup.kind_of(config.robot))
+            if wanted is not None and not step.needed_by(*wanted):
+                continue
+            say(f"step {step.index} {step.steps} {estimate.seconds(step):.1f} {step.label}")
+            t_step = time.perf_counter()
+            try:
+                step.work()
+            except Exception:  # noqa: BLE001 - the run itself reports what fails
+                log.exception("warm-up step %s failed", step.label)
+            estimate.finished(step, time.perf_counter() - t_step)
     finally:
         say(f"done {time.perf_counter() - t:.1f}")
         warmed.set()
@@ -390,17 +390,6 @@ def _on_first_compile(callback) -> None:
     event.register("numba:compile", FirstCompile())
 
 
-def _wants(config) -> tuple:
-    """(method, kind of robot: "arm" or "tree") of a run's config, for the warm-up's steps."""
-    import robots
-
-    try:
-        tree = robots.kind(config.robot) == "tree"
-    except Exception:  # noqa: BLE001 - the run itself says what is wrong with its robot
-        tree = False
-    return config.method, "tree" if tree else "arm"
-
-
 # ---------------------------------------------------------------------- the worker process
 def main(argv: list[str]) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which stops the run
@@ -410,7 +399,8 @@ def main(argv: list[str]) -> int:
     from lab.running.runner import Runner
 
     stream = pipes.messages(sys.stdin.fileno())
-    first = _warm_up(stream, progress_fd, spare="--spare" in argv)
+    first_kind = argv[argv.index("--first-kind") + 1] if "--first-kind" in argv else "arm"
+    first = _warm_up(stream, progress_fd, spare="--spare" in argv, first_kind=first_kind)
     if not first:
         return 0  # a spare whose parent ended without using it
     (_, config, run_id, blas_threads, *more), pending = first[0], first[1:]
