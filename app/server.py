@@ -15,6 +15,7 @@ and refreshes progress, plot, map and network.
 from __future__ import annotations
 
 import ctypes
+import itertools
 import logging
 import math
 import sys
@@ -189,6 +190,7 @@ class LabApp:
         # the render loop and callers must not interleave draws, nor rebuilds of the shared scene (two
         # threads adding /floor at once make viser remove the handle the other is still setting up)
         self._views_lock = threading.RLock()
+        self._keys = itertools.count()  # the map legends' numbers, in their names
         self._build_shared()
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
@@ -287,14 +289,20 @@ class LabApp:
             self.show_map.value = len(arm.task_axes) == 2
             self.show_map.disabled = not has_map(arm)  # a tree's goal is a point per effector: no map
         self._map = scene.add_image("/error_map", np.zeros((1, 1, 4), np.uint8), 1.0, 1.0, visible=False)
-        # the map's legend in the scene, beside its left edge (app/panels/views.py map_key)
-        self._map_key = scene.add_frame("/error_map_key", show_axes=False, visible=False)
+        # the map's legend in the scene, beside the map (app/panels/views.py map_key): the last arm's goes,
+        # and this one's has a name of its own (a name given again with its children can leave a copy in
+        # the browser: app/tab/scene.py)
+        if getattr(self, "_map_key", None) is not None:
+            self._map_key.remove()
+        self._map_key = scene.add_frame(f"/error_map_key/{arm.name}-{next(self._keys)}", show_axes=False,
+                                        visible=False)
         if has_map(arm):
             key, z = map_key(arm, lambda d: fmt_len(arm, d)), self._floor_z if len(arm.task_axes) == 3 else self._map_z
-            scene.add_image("/error_map_key/bar", key.image, key.width, key.height, format="png",
+            base = self._map_key.name
+            scene.add_image(f"{base}/bar", key.image, key.width, key.height, format="png",
                             position=(*key.center, z), cast_shadow=False, receive_shadow=False)
             for end, (xy, text) in (("top", key.top), ("bottom", key.bottom)):
-                scene.add_label(f"/error_map_key/{end}", text, position=(*xy, z), anchor="center-right")
+                scene.add_label(f"{base}/{end}", text, position=(*xy, z), anchor="center-right")
         self._drawn = (-1, arm)  # built for this arm: the render loop draws the views, without a second build
 
     def training_goals(self) -> np.ndarray:

@@ -80,7 +80,7 @@ def test_the_tab_shows_each_robots_about_and_its_runs_goals_and_the_scene_its_ma
     # the map's key in the scene, shown with the map: its label's text is the legend's
     arm = app.state.arm
     top = map_key(arm, lambda v: fmt_len(arm, v)).top[1]
-    assert wait_until(lambda: any(m["type"] == "LabelMessage" and m["name"] == "/error_map_key/top"
+    assert wait_until(lambda: any(m["type"] == "LabelMessage" and m["name"] == f"{app._map_key.name}/top"
                                   and m["props"]["text"] == top for _t, m in list(tab.messages)))
     app.show_map.value = True
     assert wait_until(lambda: app._map_key.visible and app._map.visible)

@@ -6,12 +6,21 @@ data.oMi[j], and under it one node per visual geometry at its placement in that 
 loader; boxes, cylinders and spheres as viser primitives). Moving the arm to q sends nq
 poses, whatever the number of meshes.
 
+The joint frames keep their names ({name}/j{j}: what the tests and the probe follow); each
+geometry's name carries a number of its own view ({name}/j{j}/g{i}-{view}), so that an arm drawn
+where another was (another robot, a goal removed and added again) never re-creates a mesh under a
+name the browser still holds: viser folds a removal and a creation of one name that meet in a
+tab's queue into the creation alone, and its client, given a mesh again under a frame that is
+itself given again, drew the mesh away from its arm (after the planar arm, the g1's pelvis on the
+floor below its feet).
+
 `frame_workspace` gives the camera, floor grid and marker limits of an arm.
 """
 
 from __future__ import annotations
 
 import functools
+import itertools
 
 import numpy as np
 import pinocchio as pin
@@ -19,6 +28,8 @@ import pinocchio as pin
 import robots
 from app.viser_private import set_pose
 from robots.visual import se3_pose, visual_geometry
+
+_VIEWS = itertools.count()  # each ArmView's number, in its geometries' names
 
 
 class ArmView:
@@ -30,10 +41,11 @@ class ArmView:
         self.data = arm.model.createData()
         joints = sorted({j for j, *_ in visual_geometry(arm)} | set(range(1, arm.model.njoints)))
         self.frames = {j: scene.add_frame(f"{name}/j{j}", show_axes=False) for j in joints}
+        view = next(_VIEWS)
         for i, (j, pos, wxyz, kind, params, rgba) in enumerate(visual_geometry(arm)):
             color = tuple(int(255 * c) for c in rgba[:3]) if tint is None else tint
             kw = dict(position=pos, wxyz=wxyz, opacity=opacity, cast_shadow=opacity is None)
-            node = f"{name}/j{j}/g{i}"
+            node = f"{name}/j{j}/g{i}-{view}"
             if kind == "Box":
                 scene.add_box(node, color=color, dimensions=params[0], **kw)
             elif kind == "Cylinder":
