@@ -158,14 +158,37 @@ def main(argv=None) -> int:
     # the training kernels compile in the spare training process (lab/running/worker.py), started now
     # so that it compiles while the server starts and the page serves: every step is told here, unless
     # they all load from the cache
-    import lab.running.worker as lab_worker
+    try:
+        import lab.running.worker as lab_worker
 
-    lab_worker.on_warmup(WarmupLines())
-    lab_worker.prestart(args.robot)
-    from app.server import LabApp
-    app = LabApp(args.host, args.port, robot=args.robot, notebook=notebook, recordings=args.recordings,
-                 record=not args.no_record, presenter_token=token, open_access=args.open,
-                 limits=limits, speed=args.speed or None)
+        lab_worker.on_warmup(WarmupLines())
+        lab_worker.prestart(args.robot)
+        from app.server import LabApp
+
+        app = LabApp(args.host, args.port, robot=args.robot, notebook=notebook, recordings=args.recordings,
+                     record=not args.no_record, presenter_token=token, open_access=args.open,
+                     limits=limits, speed=args.speed or None)
+    except KeyboardInterrupt:  # Ctrl-C while it starts: nothing to stop yet (the spare ends with us)
+        print("stopped while starting", file=sys.stderr, flush=True)
+        return 130
+    # every way of stopping (Ctrl-C, SIGTERM from a service manager, SIGHUP from a closing terminal)
+    # ends as Ctrl-C does, from here on: the run is stopped and noted, its recording closed; a second
+    # signal waits
+    stopping = SignalWait((signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
+    try:
+        _serve(args, app, t0)
+        stopping.wait()
+        print("stopping: the run (if any) is stopped, noted in the notebook and its recording closed", flush=True)
+    finally:
+        stopping.close()
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, _already_stopping)
+        app.stop()
+    return 0
+
+
+def _serve(args, app, t0: float) -> None:
+    """Say where the lab serves, who may change the run, what it opened with."""
     print(f"\nNeuro-IK Lab ready in {time.perf_counter() - t0:.1f} s: {app.url}", flush=True)
     if args.host in ("0.0.0.0", ""):
         print(f"  on this network: http://{socket.gethostname()}:{app.port}", flush=True)
@@ -183,55 +206,48 @@ def main(argv=None) -> int:
     else:
         print("  --open: every tab may change the run", flush=True)
     print(f"  startup controller: {app.startup_note}; runs list: {args.notebook}. Ctrl-C stops.", flush=True)
-    # every way of stopping (Ctrl-C, SIGTERM from a service manager, SIGHUP from a closing terminal)
-    # ends as Ctrl-C does: the run is stopped and noted, its recording closed; a second signal waits
-    try:
-        try:
-            wait_for_a_signal((signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
-        except KeyboardInterrupt:  # a Ctrl-C before the wait began
-            pass
-        print("stopping: the run (if any) is stopped, noted in the notebook and its recording closed", flush=True)
-    finally:
-        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-            signal.signal(sig, _already_stopping)
-        app.stop()
-    return 0
 
 
-def wait_for_a_signal(signals) -> int:
-    """Block until one of `signals` arrives; its number.
+class SignalWait:
+    """From its making, `signals` are noted, not raised; wait() blocks until one arrives (its number).
 
     Not a sleep in a loop that a KeyboardInterrupt ends: the kernel may deliver a signal to any of the
     app's threads (viser's, a run's reader, the training kernels' warm-up), and Python then only
     marks it for the main thread, which a sleep does not wake: under load a Ctrl-C was lost for
     minutes (docs/faults.md). The C handler writes every signal's number to the wakeup descriptor,
-    whichever thread it interrupts, and that wakes this select."""
-    import select
+    whichever thread it interrupts, and that wakes wait's select. A signal between the making and
+    wait() is kept there. Main thread only (signal.set_wakeup_fd)."""
 
-    read, write = os.pipe()
-    os.set_blocking(write, False)
-    os.set_blocking(read, False)
-    for sig in signals:
-        signal.signal(sig, _noted)
-    previous = signal.set_wakeup_fd(write, warn_on_full_buffer=False)
-    try:
+    def __init__(self, signals):
+        self.signals = {int(s) for s in signals}
+        self.read, self.write = os.pipe()
+        os.set_blocking(self.write, False)
+        os.set_blocking(self.read, False)
+        for sig in signals:
+            signal.signal(sig, _noted)
+        self.previous = signal.set_wakeup_fd(self.write, warn_on_full_buffer=False)
+
+    def wait(self) -> int:
+        import select
+
         while True:
-            select.select([read], [], [])
+            select.select([self.read], [], [])
             try:
-                data = os.read(read, 64)
+                data = os.read(self.read, 64)
             except BlockingIOError:
                 continue
             for number in data:
-                if number in {int(s) for s in signals}:
+                if number in self.signals:
                     return number
-    finally:
-        signal.set_wakeup_fd(previous)
-        os.close(read)
-        os.close(write)
+
+    def close(self) -> None:
+        signal.set_wakeup_fd(self.previous)
+        os.close(self.read)
+        os.close(self.write)
 
 
 def _noted(_signum, _frame):
-    """The Python side of a stopping signal: nothing (wait_for_a_signal reads it from the wakeup fd)."""
+    """The Python side of a stopping signal: nothing (SignalWait.wait reads it from the wakeup fd)."""
 
 
 def _already_stopping(signum, _frame):

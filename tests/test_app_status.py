@@ -17,7 +17,7 @@ import time
 
 import pytest
 
-from conftest import make_app, wait_until
+from conftest import make_app, wait_or_kill, wait_until
 
 import lab
 import lab.running.worker as lab_worker
@@ -187,8 +187,8 @@ def test_a_warm_up_that_loads_from_the_cache_names_no_wait_in_the_tab():
 def test_the_wait_for_ctrl_c_wakes_for_a_signal_handed_to_another_thread():
     """The kernel may deliver a process's signal to any thread that does not block it; Python runs the
     handler only in the main thread, which a sleep does not wake (a Ctrl-C lost under load).
-    wait_for_a_signal returns when the signal is handed to another thread."""
-    from app.__main__ import wait_for_a_signal
+    SignalWait.wait returns when the signal is handed to another thread."""
+    from app.__main__ import SignalWait
 
     asleep, sent, done = threading.Event(), [], threading.Event()
 
@@ -207,13 +207,48 @@ def test_the_wait_for_ctrl_c_wakes_for_a_signal_handed_to_another_thread():
                 sent.append("main")
             done.wait(0.1)
 
-    previous = signal.signal(signal.SIGUSR1, lambda *_: None)  # never the default action (the end of pytest)
+    previous = signal.getsignal(signal.SIGUSR1)
+    waiting = SignalWait((signal.SIGUSR1,))  # never the default action (the end of pytest)
     other = threading.Thread(target=bystander, daemon=True)
     other.start()
     threading.Thread(target=sender, args=(other.ident, threading.main_thread().ident), daemon=True).start()
     try:
-        assert wait_for_a_signal((signal.SIGUSR1,)) == signal.SIGUSR1
+        assert waiting.wait() == signal.SIGUSR1
     finally:
         done.set()
+        waiting.close()
         signal.signal(signal.SIGUSR1, previous)
     assert "main" not in sent, f"the wait woke only when the main thread itself was signalled ({len(sent)} sent)"
+
+
+def test_ctrl_c_during_a_cold_warm_up_ends_the_app_and_its_compiling_worker(tmp_path, wait_ended):
+    """An empty numba cache (a fresh clone): python -m app tells each step of the training kernels'
+    warm-up; a Ctrl-C while they compile ends the app (rc 0, no traceback) and the worker compiling
+    them, which would otherwise compile for a minute more and hold the terminal's pipe (issue 39: the
+    app did not exit within 20 s on a loaded machine)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"))
+    proc = subprocess.Popen([sys.executable, "-m", "app", "--port", "0", "--no-record", "--notebook",
+                             str(tmp_path / "nb.db")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=env)
+    out, workers = [], []
+    try:
+        for line in proc.stdout:
+            out.append(line)
+            if "Ctrl-C stops" in line:
+                break
+        text = "".join(out)
+        assert "preparing the training kernels: step 1 of 7, forward kinematics" in text, text
+        children = Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()
+        workers = [int(pid) for pid in children
+                   if b"lab.running.worker" in Path(f"/proc/{pid}/cmdline").read_bytes()]
+        assert workers  # the spare, compiling
+    finally:
+        proc.send_signal(signal.SIGINT)
+        rest, _ = wait_or_kill(proc, 60)
+    assert proc.returncode == 0 and "Traceback" not in rest, rest[-3000:]
+    for pid in workers:
+        wait_ended(pid, 30)
