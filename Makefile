@@ -154,7 +154,7 @@ test: install browser $(WARM)
 # the students' notebook in Jupyter; Jupyter (the notebook extra in pyproject.toml) is installed the first time
 notebook: install
 	@$(PY) -c "import notebook" 2>/dev/null || { $(call QUIET_PIP,Jupyter,-e ".[notebook]"); }
-	$(VENV)/bin/jupyter notebook examples/evolve_an_arm.ipynb
+	$(VENV)/bin/jupyter notebook $$( [ "$$(id -u)" = 0 ] && echo --allow-root ) examples/evolve_an_arm.ipynb
 
 bench: install
 	$(PY) benchmarks/bench_fk.py --arms planar,scara,ur5,panda,kinova
