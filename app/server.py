@@ -301,8 +301,8 @@ class LabApp:
             base = self._map_key.name
             scene.add_image(f"{base}/bar", key.image, key.width, key.height, format="png",
                             position=(*key.center, z), cast_shadow=False, receive_shadow=False)
-            for end, (xy, text) in (("top", key.top), ("bottom", key.bottom)):
-                scene.add_label(f"{base}/{end}", text, position=(*xy, z), anchor="center-right")
+            for end, (xy, text, anchor) in (("top", key.top), ("bottom", key.bottom)):
+                scene.add_label(f"{base}/{end}", text, position=(*xy, z), anchor=anchor)
         self._drawn = (-1, arm)  # built for this arm: the render loop draws the views, without a second build
 
     def training_goals(self) -> np.ndarray:

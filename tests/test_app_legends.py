@@ -20,7 +20,7 @@ import viser
 import lab
 import robots
 from app import viser_private
-from app.panels.views import MAP_SCALE, map_key, map_legend, map_scale, yellow_words
+from app.panels.views import MAP_SCALE, map_grid, map_key, map_legend, map_scale, yellow_words
 from app.tab.goals import READY_ID, about, fmt_len
 from app.tab.scene import body_bounds, frame_workspace
 from conftest import NEEDS_CHROMIUM, session_of, wait_until
@@ -43,15 +43,23 @@ def test_the_error_maps_legends_give_the_same_yellow_in_the_arms_units(robot):
     assert scale == pytest.approx(MAP_SCALE * (arm.workspace_bounds[1] - arm.workspace_bounds[0]).max())
     key = map_key(arm, fmt)
     unit = "mm" if robots.in_metres(robot) else "units"
-    assert f"≥ {fmt(scale)} " in key.top[1] and fmt(scale).endswith(unit) and "10 % of the workspace" in key.top[1]
+    top = " ".join(key.top[1].split())  # its lines as one
+    assert f"≥ {fmt(scale)} (10 % of the workspace)" in top and fmt(scale).endswith(unit) and top.startswith("error map")
     assert "dark purple = on the goal" == key.bottom[1]
     text = map_legend(arm, np.array([0.0, 0.5 * scale, np.nan]), fmt)
     assert yellow_words(arm, fmt) in text and f"{fmt(scale)} or more" in text
     if robots.in_metres(robot):  # a real arm's also in % of its reach
         assert f"{100 * scale / arm.reach_radius:.0f} % of its reach" in text
     # the bar stands beside the reachable cells, to their left (away from the panel), its colours from
-    # dark purple (the first row, drawn at -y) to yellow
-    assert key.top[0][0] < key.center[0] and key.top[0][1] > key.bottom[0][1]
+    # dark purple (the first row, drawn at -y) to yellow; each label starts at the bar's left edge and runs
+    # to the right (a page whose scene begins near the bar: a lesson's column, a phone), the top one above
+    # the bar's top end, the bottom one below its bottom end, in short lines
+    grid = map_grid(arm)
+    assert key.center[0] + 0.5 * key.width < grid.origin[0] + grid.cell * grid.cells[:, 0].min()
+    assert key.top[0][0] == key.bottom[0][0] == pytest.approx(key.center[0] - 0.5 * key.width)
+    assert key.top[0][1] == pytest.approx(key.center[1] + 0.5 * key.height) and key.top[2] == "bottom-left"
+    assert key.bottom[0][1] == pytest.approx(key.center[1] - 0.5 * key.height) and key.bottom[2] == "top-left"
+    assert max(len(line) for line in key.top[1].splitlines() + key.bottom[1].splitlines()) <= 36
     assert key.image[0].sum() < key.image[-1].sum()
 
 

@@ -127,13 +127,15 @@ class MapKey:
     center: np.ndarray  # (2,) x, y of the bar's centre in the map's plane
     width: float
     height: float
-    top: tuple[np.ndarray, str]  # (x, y) of the bar's top end and its label
-    bottom: tuple[np.ndarray, str]
+    top: tuple[np.ndarray, str, str]  # (x, y) where the label of the bar's top end is anchored, its text, anchor
+    bottom: tuple[np.ndarray, str, str]
 
 
 def map_key(arm: robots.Arm, fmt) -> MapKey:
-    """Where and what the scene's legend of map_grid(arm)'s error map is (its labels end at the
-    bar, their text runs to the left, away from the panel)."""
+    """Where and what the scene's legend of map_grid(arm)'s error map is. Each label starts at the bar's
+    left edge and runs to the right, the top one above the bar and the bottom one below it (screen up is
+    +y in the map's plane in every default camera), so that no text runs off a page whose scene begins
+    near the bar (a lesson's column on the left, a phone); short lines, so the text stays narrow."""
     grid = map_grid(arm)
     side = grid.n * grid.cell
     width, height = 0.06 * side, 0.3 * side
@@ -141,10 +143,11 @@ def map_key(arm: robots.Arm, fmt) -> MapKey:
     x = lo[0] - 0.05 * side  # beside the reachable cells' left edge, half way up them
     y0 = 0.5 * (lo[1] + hi[1]) - 0.5 * height
     image = ramp(np.linspace(0.0, 1.0, 32))[:, None, :]
+    left = x - 0.5 * width
     return MapKey(image, np.array([x, y0 + 0.5 * height]), width, height,
-                  top=(np.array([x - width, y0 + height]), f"error map: yellow = misses by ≥ {fmt(map_scale(arm))} "
-                                                            f"({100 * MAP_SCALE:.0f} % of the workspace)"),
-                  bottom=(np.array([x - width, y0]), "dark purple = on the goal"))
+                  top=(np.array([left, y0 + height]), f"error map\nyellow = misses by ≥ {fmt(map_scale(arm))}\n"
+                                                      f"({100 * MAP_SCALE:.0f} % of the workspace)", "bottom-left"),
+                  bottom=(np.array([left, y0]), "dark purple = on the goal", "top-left"))
 
 
 # ---------------------------------------------------------------------------- network drawing
