@@ -224,8 +224,8 @@ def test_the_wait_for_ctrl_c_wakes_for_a_signal_handed_to_another_thread():
 def test_ctrl_c_during_a_cold_warm_up_ends_the_app_and_its_compiling_worker(tmp_path, wait_ended):
     """An empty numba cache (a fresh clone): python -m app tells each step of the training kernels'
     warm-up; a Ctrl-C while they compile ends the app (rc 0, no traceback) and the worker compiling
-    them, which would otherwise compile for a minute more and hold the terminal's pipe (issue 39: the
-    app did not exit within 20 s on a loaded machine)."""
+    them, which would otherwise compile for a minute more and hold the terminal's pipe (the app is not
+    to outlive a Ctrl-C by that minute on a loaded machine)."""
     import subprocess
     import sys
     from pathlib import Path
