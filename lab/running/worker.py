@@ -134,8 +134,12 @@ class ProcessRunner(RunBase):
 
     backend = None
 
-    def __init__(self, config: TrainConfig, blas_threads: int | None = 1, history_limit: int | None = None):
+    def __init__(self, config: TrainConfig, blas_threads: int | None = 1, history_limit: int | None = None,
+                 spare: bool = True):
+        """spare: take the prestarted worker when there is one (False: always a worker of its own, so
+        that runs beside the app's own, a class's students', leave the spare to the app's next Start)."""
         super().__init__(config, history_limit=history_limit)
+        self.use_spare = spare
         self.history_limit = history_limit
         self.blas_threads = blas_threads
         self._proc: subprocess.Popen | None = None
@@ -161,7 +165,7 @@ class ProcessRunner(RunBase):
     def start(self) -> "ProcessRunner":
         """Hand the run to a worker process; returns at once."""
         self._claim()
-        self._proc = _take_worker()
+        self._proc = _take_worker() if self.use_spare else _spawn(spare=False)
         self._command("run", self.config, self.run_id, self.blas_threads, self.history_limit)
         if self._speed is not None:
             self._command("speed", self._speed)

@@ -1,0 +1,332 @@
+"""Students' own runs on a classroom server: their names, a queue, a few worker processes, the board's rows.
+
+    runs = ClassRuns(notebook, limits, workers=1)
+    runs.set_name(tab_id, "Ada")                 # None, or why not ("taken", bad characters, too long)
+    runs.submit(tab_id, TrainConfig(...))        # None (queued, started when a worker is free) or why not
+    runs.run_of(tab_id).status()                 # "queued, place 2 of 3", "running, generation 40", ...
+    runs.stop_tab(tab_id); runs.drop_tab(tab_id) # a student's Stop; a closed tab (its name freed too)
+    runs.shutdown()                              # the server stops: every queued and running run ends, stopped
+
+Nothing here knows viser (the panels are app/panels/my_run.py and app/panels/class_board.py). Each
+run trains in a worker process of its own (lab.running.worker.ProcessRunner, as the shared run does,
+but never the prestarted spare, which stays for the presenter's next Start). At most `workers` run at
+once (default: the cores the shared run and the server leave, at least 1); the others wait in one
+queue, first come first served. A tab has one run at a time (queued or running), within the server's
+limits (app/classroom/limits.py); the queue holds at most MAX_QUEUED runs. A run's end writes its
+notebook entry (app/training/notebook.py) with the student's name; at shutdown the queued runs are
+written too, stopped, with 0 generations.
+
+Names are labels, not identities: at most NAME_MAX characters, letters, digits, spaces and . _ ' -
+(anything else is refused, naming the characters), unique per server among the open tabs (compared
+without case). A tab without one is "student N".
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import os
+import threading
+import time
+import uuid
+from collections import deque
+
+import lab
+from lab.running.worker import STOP_GRACE, ProcessRunner
+
+from app.classroom.limits import refusal as limits_refusal
+from app.training.live import RunTrack
+from app.training.notebook import entry_from_summary
+
+log = logging.getLogger(__name__)
+
+NAME_MAX = 24  # characters of a display name
+NAME_PUNCTUATION = " .'_-"
+MAX_QUEUED = 60  # runs waiting at most: a flood of tabs gets a refusal, never an unbounded queue
+HISTORY_POINTS = 4096  # a student run's kept history (as the shared run's, app/training/state.py)
+ENDED = ("finished", "stopped", "failed")
+
+
+def default_workers(cores: int | None = None) -> int:
+    """Worker processes for students' runs: the cores left by the shared run and the server (its
+    drag loop and redraws), at least 1."""
+    cores = cores if cores is not None else (os.cpu_count() or 2)
+    return max(1, cores - 2)
+
+
+def clean_name(text) -> tuple[str | None, str | None]:
+    """(the name, None) or (None, why it is refused). Runs of spaces fold into one; the ends are trimmed."""
+    if not isinstance(text, str):
+        return None, "a name is text"
+    name = " ".join(text.split())
+    if not name:
+        return None, "a name needs at least one letter or digit"
+    bad = sorted({c for c in name if not (c.isalnum() or c in NAME_PUNCTUATION)})
+    if bad:
+        shown = " ".join(repr(c) for c in bad[:8]) + (" ..." if len(bad) > 8 else "")
+        return None, f"a name has letters, digits, spaces and . ' _ - only, not {shown}"
+    if len(name) > NAME_MAX:
+        return None, f"a name has at most {NAME_MAX} characters, this one has {len(name)}"
+    if not any(c.isalnum() for c in name):
+        return None, "a name needs at least one letter or digit"
+    return name, None
+
+
+def describe(config: lab.TrainConfig) -> str:
+    """A run's settings in a few words ("planar, CMA-ES, pop 20, 16 hidden, 70 goals, 20 gen, seed 0")."""
+    length = f"{config.seconds:g} s" if config.seconds is not None else f"{config.generations:,} gen"
+    return (f"{config.robot}, {lab.methods.get(config.method).label}, pop {config.population}, "
+            f"{config.hidden} hidden, {config.targets} goals, {length}, seed {config.seed}")
+
+
+class StudentRun:
+    """One student's run: queued, then running in a worker process, then finished, stopped or failed."""
+
+    def __init__(self, tab: int, name: str, config: lab.TrainConfig, owner: "ClassRuns"):
+        self.tab, self.name, self.config, self._owner = tab, name, config, owner
+        self.id = uuid.uuid4().hex[:12]  # the runner's run_id once it starts
+        self.state = "queued"
+        self.runner: ProcessRunner | None = None
+        self.track = RunTrack(lab.methods.get(config.method))
+        self.summary = None
+        self.note: str | None = None  # why it stopped or failed, when not by its own end
+        self.submitted = time.time()
+        self.started: float | None = None
+        self.controller = None  # the best so far (the tab's own arm shows it)
+        self.version = 0  # bumped when `controller` changes
+
+    @property
+    def ended(self) -> bool:
+        return self.state in ENDED
+
+    @property
+    def generation(self) -> int:
+        return len(self.track)
+
+    def best(self) -> float | None:
+        """The best training MSE so far (None before the first generation)."""
+        _gens, best, _median = self.track.curves()
+        return float(best[-1]) if len(best) else None
+
+    def held_out(self) -> float | None:
+        """The held-out MSE of its final controller (None until it has ended with one)."""
+        s = self.summary
+        return float(s.test_mse) if s is not None and s.controller is not None else None
+
+    def status(self) -> str:
+        """Its state in words: "queued, place 2 of 3", "running, generation 40 of 100", "finished", ..."""
+        if self.state == "queued":
+            place, of = self._owner.place(self)
+            return f"queued, place {place} of {of}" if place else "queued"
+        total = "" if self.config.seconds is not None else f" of {self.config.generations:,}"
+        if self.state in ("running", "paused"):
+            waits = getattr(self.runner, "preparing", None) if self.runner is not None else None
+            if waits:
+                return f"running: preparing the training kernels ({waits})"
+            return f"running, generation {self.generation}{total}"
+        text = f"{self.state}, {self.generation} generation{'s' if self.generation != 1 else ''}"
+        why = self.note or (self.summary.error if self.summary is not None else None)
+        return text + (f" ({why})" if why else "")
+
+    # the runner's subscriber: each generation, and its end
+    def __call__(self, event) -> None:
+        self.track.add(event)
+        if event.improved or event.index == 0:
+            self.controller, self.version = event.controller, self.version + 1
+
+    def on_end(self, summary) -> None:
+        self._owner._ended(self, summary)
+
+
+class ClassRuns:
+    def __init__(self, notebook, limits: dict | None, workers: int | None = None,
+                 stop_grace: float = STOP_GRACE):
+        """notebook: where ended runs go (app.training.notebook.Notebook); limits: the server's bounds
+        (None: the lab's own); workers: runs at once (None: default_workers())."""
+        self.notebook, self.limits = notebook, limits
+        self.workers = max(1, int(workers)) if workers is not None else default_workers()
+        self.stop_grace = stop_grace
+        self._lock = threading.RLock()
+        self.runs: dict[str, StudentRun] = {}  # every run of the session, in order (the board's rows)
+        self._queue: deque[StudentRun] = deque()
+        self._names: dict[int, str] = {}  # tab -> its name
+        self._numbers = itertools.count(1)
+        self.closed = False
+        self.version = 0  # bumped at every change of a run's state (the board redraws)
+
+    # ------------------------------------------------------------------ names
+    def name_of(self, tab: int) -> str:
+        """The tab's name (a new "student N", not taken, the first time)."""
+        with self._lock:
+            name = self._names.get(tab)
+            while name is None:
+                candidate = f"student {next(self._numbers)}"
+                if not self._taken(candidate, tab):
+                    name = self._names[tab] = candidate
+            return name
+
+    def _taken(self, name: str, tab: int) -> bool:
+        key = name.casefold()
+        return any(n.casefold() == key for t, n in self._names.items() if t != tab)
+
+    def set_name(self, tab: int, text) -> str | None:
+        """Give the tab this name (None) or refuse, saying why (cleaned as clean_name; taken)."""
+        name, why = clean_name(text)
+        if why is not None:
+            return f"refused: {why}"
+        with self._lock:
+            if self._taken(name, tab):
+                return f"refused: the name {name!r} is taken; pick another"
+            self._names[tab] = name
+            for run in self.runs.values():  # the tab's runs carry its name on the board
+                if run.tab == tab and not run.ended:
+                    run.name = name
+            self.version += 1
+        return None
+
+    # ------------------------------------------------------------------ runs
+    def run_of(self, tab: int) -> StudentRun | None:
+        """The tab's latest run (None when it has none)."""
+        with self._lock:
+            for run in reversed(self.runs.values()):
+                if run.tab == tab:
+                    return run
+            return None
+
+    def place(self, run: StudentRun) -> tuple[int | None, int]:
+        """(its 1-based place in the queue or None, the queue's length)."""
+        with self._lock:
+            queue = list(self._queue)
+        return (queue.index(run) + 1 if run in queue else None), len(queue)
+
+    def submit(self, tab: int, config: lab.TrainConfig) -> str | None:
+        """Queue the tab's run (started at once when a worker is free); refused, saying why, while
+        the tab has a run queued or running, beyond the server's limits, when the queue is full or the
+        server is stopping."""
+        if (why := limits_refusal(config, self.limits)) is not None:
+            return f"refused: {why}"
+        with self._lock:
+            if self.closed:
+                return "refused: the server is stopping"
+            mine = self.run_of(tab)
+            if mine is not None and not mine.ended:
+                return f"refused: your run is {mine.status()}; one run at a time per tab (stop it first)"
+            if len(self._queue) >= MAX_QUEUED:
+                return f"refused: the class's queue is full ({MAX_QUEUED} runs wait); try again when some have run"
+            run = StudentRun(tab, self.name_of(tab), config, self)
+            self.runs[run.id] = run
+            self._queue.append(run)
+            self.version += 1
+            self._pump()
+        return None
+
+    def running(self) -> list[StudentRun]:
+        with self._lock:
+            return [r for r in self.runs.values() if r.state in ("running", "paused")]
+
+    def _pump(self) -> None:
+        """Start queued runs while a worker is free (under the lock)."""
+        while self._queue and not self.closed and len(self.running()) < self.workers:
+            run = self._queue.popleft()
+            try:
+                runner = ProcessRunner(run.config, history_limit=HISTORY_POINTS, spare=False)
+                runner.run_id = run.id
+                runner.subscribe(run)
+                run.runner, run.state, run.started = runner, "running", time.time()
+                runner.start()
+            except Exception as e:  # noqa: BLE001 - a run that cannot start fails; the queue goes on
+                log.exception("student run %s could not start", run.id)
+                run.state, run.note = "failed", f"it could not start: {e}"
+            self.version += 1
+
+    def _ended(self, run: StudentRun, summary) -> None:
+        """A run's end (its reader thread): its state, its notebook entry, the next queued run."""
+        with self._lock:
+            run.summary, run.state = summary, summary.state
+            if summary.controller is not None:
+                run.controller, run.version = summary.controller, run.version + 1
+            self.version += 1
+        self._write(run, summary)
+        with self._lock:
+            self._pump()
+
+    def _write(self, run: StudentRun, summary=None) -> None:
+        try:
+            if summary is not None:
+                entry = entry_from_summary(summary, run.started or run.submitted, None)
+            else:  # a queued run the server's stop ended before it started
+                entry = {"run_id": run.id, "robot": run.config.robot, "method": run.config.method,
+                         "seed": run.config.seed, "settings": run.config.to_dict(), "state": "stopped",
+                         "generations": 0, "evaluations": 0, "seconds": 0.0, "train_mse": None, "test_mse": None,
+                         "started": time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(run.submitted)),
+                         "recording": None, "controller": None}
+            entry["student"] = run.name
+            if run.note and not entry.get("error"):
+                entry["error"] = run.note
+            self.notebook.add(entry, timeout=1.0)
+        except Exception:  # noqa: BLE001 - a bug of ours: logged, the class goes on
+            log.exception("could not write the notebook entry of student run %s", run.id)
+
+    def stop(self, run_id: str, note: str | None = None, wait: bool = False) -> str | None:
+        """Stop a run: a queued one leaves the queue (stopped, never started), a running one ends after
+        its generation in flight (its worker killed if it has not stop_grace s later). Refused when
+        there is no such run or it has ended."""
+        with self._lock:
+            run = self.runs.get(run_id)
+            if run is None:
+                return "refused: no such run"
+            if run.ended:
+                return f"refused: this run has already {run.state}"
+            run.note = note
+            if run.state == "queued":
+                self._queue.remove(run)
+                run.state = "stopped"
+                self.version += 1
+                return None
+            runner = run.runner
+        if wait:
+            runner.stop_or_kill(self.stop_grace)
+        else:
+            threading.Thread(target=runner.stop_or_kill, args=(self.stop_grace,), daemon=True,
+                             name=f"class-stop-{run_id}").start()
+        return None
+
+    def stop_tab(self, tab: int, note: str | None = None) -> str | None:
+        """The tab's own Stop."""
+        run = self.run_of(tab)
+        if run is None or run.ended:
+            return "refused: you have no run queued or running"
+        return self.stop(run.id, note or "stopped by its student")
+
+    def drop_tab(self, tab: int) -> None:
+        """A tab has closed: its queued run is dropped, its running run stops, its name is free again."""
+        run = self.run_of(tab)
+        if run is not None and not run.ended:
+            self.stop(run.id, "its tab closed")
+        with self._lock:
+            self._names.pop(tab, None)
+
+    def shutdown(self) -> None:
+        """The server stops: every queued run ends stopped (its notebook entry written, 0 generations)
+        and every running run stops (its worker killed after stop_grace s); returns once they have ended."""
+        with self._lock:
+            self.closed = True
+            queued, self._queue = list(self._queue), deque()
+            for run in queued:
+                run.state, run.note = "stopped", "the server stopped before it started"
+            running = self.running()
+            for run in running:
+                run.note = "the server stopped"
+            self.version += 1
+        for run in queued:
+            self._write(run)
+        for run in running:
+            run.runner.stop(wait=False)
+        for run in running:
+            run.runner.stop_or_kill(self.stop_grace)
+        for run in running:
+            run.runner.join(10)
+
+    def rows(self) -> list[StudentRun]:
+        with self._lock:
+            return list(self.runs.values())
