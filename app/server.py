@@ -32,8 +32,11 @@ import lab
 import lab.running.worker as lab_worker
 
 from app.classroom.access import Access, is_loopback
+from app.classroom.class_runs import ClassRuns
 from app.classroom.lesson import lesson_link, lesson_params, open_lesson
 from app.classroom.limits import limits_for
+from app.panels.class_board import ClassBoard
+from app.panels.my_run import MyRunPanel
 from app.panels.runs import RunsPanel
 from app.panels.train import TrainingPanel, notify
 from app.panels.views import error_map, has_map, map_grid, map_key, map_legend, network_svg
@@ -130,13 +133,16 @@ class LabApp:
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, *, robot: str = "planar",
                  notebook: str | Notebook = DEFAULT_PATH, recordings: str = "recordings", startup=True,
                  record: bool = True, presenter_token: str | None = None, open_access: bool = False,
-                 limits: dict[str, int] | None = None, speed: float | None = None):
+                 limits: dict[str, int] | None = None, speed: float | None = None,
+                 class_workers: int | None = None):
         """notebook: a Notebook or its path (NotebookError, before anything starts, if the path holds
         something else). presenter_token, open_access: who may change shared state (app/classroom/access.py:
         beyond loopback only tabs opened with `presenter_url`; on loopback every tab unless a token
         is given; open_access: every tab, on purpose). limits: bounds raised (or set) at start,
         app/classroom/limits.py: beyond loopback the classroom's bounds apply, with these in their place.
         speed: generations a second runs start at (None: as fast as they go; `python -m app`: 20).
+        class_workers: students' own runs at once (app/classroom/class_runs.py; None: the cores the
+        shared run and the server leave, at least 1).
         startup: True (each arm's shipped controller, else a quickly trained one),
         a controller (shown on the arm it was made for), or None. Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
         notebook = notebook if isinstance(notebook, Notebook) else Notebook(notebook)
@@ -146,7 +152,7 @@ class LabApp:
             from app.startup import startup_controller
 
             startup, startups = None, startup_controller
-        lab_worker.prestart()  # a warmed-up training process, so that Start trains at once
+        lab_worker.prestart(robot)  # a warmed-up training process (its kernels for this robot first): Start trains at once
         self.state = LabState(robot, notebook, startup=startup, startups=startups,
                               recorder=rerun_recorder(recordings) if record else None,
                               limits=limits_for(is_loopback(host), limits), speed=speed)
@@ -154,6 +160,8 @@ class LabApp:
         self.recordings = recordings
         self.access = Access(host, presenter_token, open_access)
         self.upload_refusal = self.access.refusal  # uploads: viewers are refused as a transfer starts
+        # students' own runs (a viewer's "My experiment"), queued to worker processes of their own
+        self.class_runs = ClassRuns(notebook, self.state.limits, workers=class_workers)
         # the render loop, the run's reader and viser's thread pool all update handles: each update's
         # wake-up of viser's sender must reach its event loop safely (see app/viser_private.py)
         install_loop_safe_wakeups()
@@ -183,6 +191,8 @@ class LabApp:
             self.map_legend = gui.add_markdown("")
         with tabs.add_tab("Runs", viser.Icon.LIST):
             self.runs = RunsPanel(gui, self)
+        with tabs.add_tab("Class", viser.Icon.USERS):
+            self.board = ClassBoard(gui, self.class_runs)
         with tabs.add_tab("About", viser.Icon.INFO_CIRCLE):
             gui.add_markdown(MORE)
         self.show_map.on_update(lambda e: self._show_map(self.show_map.value and has_map(self.state.arm)))
@@ -229,11 +239,14 @@ class LabApp:
         follow_portrait(client, lambda: session.ws)  # a phone held upright sees the whole workspace
         # a viewer replays in its own tab (a presenter replays for every tab, in the Runs tab)
         session.replay = None if presenter else TabReplay(client, session, self.runs)
+        # a viewer's own run (a presenter has the shared Train panel): app/panels/my_run.py
+        session.my_run = None if presenter else MyRunPanel(client, session, self.class_runs)
         with self._sessions_lock:
             gone = client.client_id in self._gone  # the tab closed while its scene was being built
             if not gone:
                 self.sessions[client.client_id] = session
         if gone:
+            self.class_runs.drop_tab(client.client_id)
             session.close()
             self.access.disconnected(client.client_id)
             return
@@ -252,6 +265,7 @@ class LabApp:
             session = self.sessions.pop(client.client_id, None)
             self._gone.add(client.client_id)
         self.access.disconnected(client.client_id)
+        self.class_runs.drop_tab(client.client_id)  # its queued run dropped, its running run stopped
         if session is not None:
             session.close()
 
@@ -367,6 +381,7 @@ class LabApp:
                     last_panel = t0
                     self.panel.refresh()
                     self.access.sync_viewers()
+                    self._refresh_class(sessions)
                 if t0 - last_views > VIEWS_PERIOD * hall or self._drawn[1] is not self.state.arm:
                     last_views = t0
                     self._draw_views()
@@ -379,6 +394,13 @@ class LabApp:
             except Exception:  # the loop must survive anything one frame does
                 log.exception("render loop")
             self._stop.wait(max(0.0, period - (time.perf_counter() - t0)))
+
+    def _refresh_class(self, sessions: list) -> None:
+        """The class board and each viewer's own run (its status, curve and arm)."""
+        self.board.refresh()
+        for s in sessions:
+            if getattr(s, "my_run", None) is not None:
+                s.my_run.refresh()
 
     @staticmethod
     def _sync_replays(sessions: list) -> None:
@@ -416,6 +438,7 @@ class LabApp:
 
     def stop(self) -> None:
         self._stop.set()
+        self.class_runs.shutdown()  # every student run ends, stopped, in the notebook
         for logger in list(getattr(self.state.recorder, "live", ())):
             logger.block_on_end = False  # the writer finishes the file after we have gone
         self.state.reset() if self.state.running else None
