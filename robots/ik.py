@@ -301,6 +301,34 @@ def _turned(q, p, goal, bearing, lower, upper, continuous) -> np.ndarray:
     return q
 
 
+def _vector_tools(arm: Arm):
+    """(within, to_pin, limited): arm.within_limits and arm.to_pinocchio of one joint vector, without
+    their checks and batching (refine's own, for a goal's inner loop; within changes x in place), and
+    the mask of the joints with limits (not continuous)."""
+    lower, upper = arm.lower, arm.upper
+    limited = ~arm.chain.continuous.astype(bool)
+    wrapped = [(int(j), float(lower[j])) for j in np.flatnonzero(arm.chain.continuous)]
+    cos_at, sin_at = arm.chain.idx_q[~limited], arm.chain.idx_q[~limited] + 1
+    plain_at, q_ref = arm.chain.idx_q[limited], arm.q_ref
+    direct = arm.model.nq == arm.nq
+
+    def within(x):
+        for j, lo in wrapped:  # whole turns into [lo, lo + 2 pi)
+            v = float(x[j])
+            if not lo <= v < lo + 2 * np.pi:
+                x[j] = lo + (v - lo) % (2 * np.pi)
+        return np.minimum(np.maximum(x, lower), upper)
+
+    def to_pin(x):
+        if direct:
+            return x
+        out = q_ref.copy()
+        out[plain_at], out[cos_at], out[sin_at] = x[limited], np.cos(x[~limited]), np.sin(x[~limited])
+        return out
+
+    return within, to_pin, limited
+
+
 def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, damping: float = 1e-3,
            halvings: int = 4, turn: bool = True, curved: bool = True, flips: bool = True,
            angle_tol: float | None = None) -> RefineResult:
@@ -383,29 +411,8 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     lam2_eye = (damping * size) ** 2 * np.eye(goals.shape[1])
     tol = default_tolerance(arm) if tol is None else float(tol)
     model, data = arm.model, _data(arm)
-    direct = model.nq == arm.nq
-    limited = ~arm.chain.continuous.astype(bool)
     lower, upper = arm.lower, arm.upper
-
-    wrapped = [(int(j), float(lower[j])) for j in np.flatnonzero(arm.chain.continuous)]
-    cos_at, sin_at = arm.chain.idx_q[~limited], arm.chain.idx_q[~limited] + 1
-    plain_at, q_ref = arm.chain.idx_q[limited], arm.q_ref
-
-    def within(x):
-        """arm.within_limits of one new vector x (changed in place), without its checks and batching."""
-        for j, lo in wrapped:  # whole turns into [lo, lo + 2 pi)
-            v = float(x[j])
-            if not lo <= v < lo + 2 * np.pi:
-                x[j] = lo + (v - lo) % (2 * np.pi)
-        return np.minimum(np.maximum(x, lower), upper)
-
-    def to_pin(x):
-        """arm.to_pinocchio of one vector."""
-        if direct:
-            return x
-        out = q_ref.copy()
-        out[plain_at], out[cos_at], out[sin_at] = x[limited], np.cos(x[~limited]), np.sin(x[~limited])
-        return out
+    within, to_pin, limited = _vector_tools(arm)
 
     def error(qi, goal):
         pin.forwardKinematics(model, data, to_pin(qi))
@@ -508,33 +515,6 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
 
 
 # ---------------------------------------------------------------- pose goals (robots.pose)
-def _pose_tools(arm: Arm):
-    """(within, to_pin) of one joint vector of this arm: arm.within_limits and arm.to_pinocchio
-    without their checks and batching (refine's own, for a goal's inner loop)."""
-    lower, upper = arm.lower, arm.upper
-    limited = ~arm.chain.continuous.astype(bool)
-    wrapped = [(int(j), float(lower[j])) for j in np.flatnonzero(arm.chain.continuous)]
-    cos_at, sin_at = arm.chain.idx_q[~limited], arm.chain.idx_q[~limited] + 1
-    plain_at, q_ref = arm.chain.idx_q[limited], arm.q_ref
-    direct = arm.model.nq == arm.nq
-
-    def within(x):
-        for j, lo in wrapped:  # whole turns into [lo, lo + 2 pi)
-            v = float(x[j])
-            if not lo <= v < lo + 2 * np.pi:
-                x[j] = lo + (v - lo) % (2 * np.pi)
-        return np.minimum(np.maximum(x, lower), upper)
-
-    def to_pin(x):
-        if direct:
-            return x
-        out = q_ref.copy()
-        out[plain_at], out[cos_at], out[sin_at] = x[limited], np.cos(x[~limited]), np.sin(x[~limited])
-        return out
-
-    return within, to_pin, limited
-
-
 class _PoseProblem:
     """One arm's pose goals: the tool frame's residual (robots.pose.residual) at a joint vector, and
     damped Gauss-Newton steps on it within the joint limits, each goal's best iterate kept."""
@@ -544,7 +524,7 @@ class _PoseProblem:
         self.tol, self.angle_tol, self.halvings = tol, angle_tol, halvings
         self.length = tol / angle_tol  # an error at tolerance weighs as much in angle as in position
         self.lam2_eye = (damping * workspace_size(arm)) ** 2 * np.eye(6)
-        self.within, self.to_pin, self.limited = _pose_tools(arm)
+        self.within, self.to_pin, self.limited = _vector_tools(arm)
         self.model, self.data, self.fid = arm.model, _data(arm), arm.ee_frame_id
 
     def state(self, q, goal, jacobian: bool):
