@@ -400,7 +400,10 @@ class LabApp:
         self.board.refresh()
         for s in sessions:
             if getattr(s, "my_run", None) is not None:
-                s.my_run.refresh()
+                try:
+                    s.my_run.refresh()
+                except Exception:  # noqa: BLE001 - one tab's panel never stops the others'
+                    log.exception("my run panel of tab %s", s.client.client_id)
 
     @staticmethod
     def _sync_replays(sessions: list) -> None:

@@ -1,0 +1,146 @@
+"""A class experimenting together, with headless tabs (app/probe.py) on a server restricted by a presenter
+token: a viewer's tab has "My experiment" and its run trains in a process of its own, the shared run
+going on beside it; the Class board lists it with the name escaped; a markup or taken name is refused;
+a closed tab's run stops; the server's stop ends the students' runs, stopped in the notebook. The
+scheduler alone: tests/test_class_runs.py."""
+
+from __future__ import annotations
+
+import urllib.parse
+
+import pytest
+from viser import _messages
+
+import lab
+from app.probe import Probe
+from conftest import make_app, wait_until
+
+pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
+TOKEN = "s3cret-Token_class"
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    lab_app = make_app(tmp_path_factory.mktemp("class"), presenter_token=TOKEN, class_workers=1, startup=None,
+                       limits={"population": 200})
+    yield lab_app
+    if lab_app.state.running:
+        lab_app.state.reset()
+    lab_app.stop()
+
+
+def tab_of(url, timeout: float = 60.0):
+    probe = Probe(url).start(timeout)
+    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label", timeout)
+    return probe
+
+
+def session_of(app, probe):
+    owner = int(probe.owner("/tab/goal0/marker"))
+    assert wait_until(lambda: owner in app.sessions, 60)
+    return app.sessions[owner]
+
+
+def gui_uuid(probe, label, timeout=30.0):
+    return probe.wait_for(lambda m: m["type"].startswith("Gui") and m.get("props", {}).get("label") == label,
+                          timeout)["uuid"]
+
+
+def has_gui(probe, label) -> bool:
+    return any(m["type"].startswith("Gui") and m.get("props", {}).get("label") == label for _t, m in list(probe.messages))
+
+
+def small(panel, generations=20):
+    assert panel.robot.value == "planar"
+    panel.population.value, panel.generations.value, panel.budget.value = 10.0, float(generations), 0.0
+
+
+def test_a_viewers_own_run_trains_beside_the_shared_run_and_the_board_lists_it(app):
+    presenter = tab_of(urllib.parse.unquote(app.presenter_url.split("websocket=")[1]))
+    viewer = tab_of(app.url)
+    try:
+        gui_uuid(viewer, "Start my run")
+        gui_uuid(presenter, "Stop this run")  # the Class tab, in every tab
+        assert not has_gui(presenter, "Start my run")  # a presenter has the shared Train panel instead
+        mine = session_of(app, viewer).my_run
+        # the shared run goes on for good while the student's runs
+        assert app.state.start(lab.TrainConfig(robot="planar", generations=100_000, population=10)) is None
+        shared = app.state.runner
+        # a name with markup is refused, in the tab, and the name stays
+        before = mine.name.value
+        viewer.send(_messages.GuiUpdateMessage(uuid=gui_uuid(viewer, "Your name"), updates={"value": "<b>x</b>"}))
+        assert wait_until(lambda: "refused" in mine.message.content, 30) and "'<'" in mine.message.content
+        assert app.class_runs.name_of(mine.tab) == before
+        viewer.send(_messages.GuiUpdateMessage(uuid=gui_uuid(viewer, "Your name"), updates={"value": "Ada & co"}))
+        assert wait_until(lambda: "'&'" in mine.message.content, 30)
+        viewer.send(_messages.GuiUpdateMessage(uuid=gui_uuid(viewer, "Your name"), updates={"value": " Ada  L "}))
+        assert wait_until(lambda: app.class_runs.name_of(mine.tab) == "Ada L", 30)
+        # beyond the server's limits: refused with the reason
+        small(mine)
+        mine.population.value = 10_000.0
+        why = mine.start()
+        assert why.startswith("refused:") and "population" in why and "at most 200" in why
+        small(mine)
+        viewer.click("Start my run")
+        assert wait_until(lambda: app.class_runs.run_of(mine.tab) is not None, 30)
+        run = app.class_runs.run_of(mine.tab)
+        assert wait_until(lambda: run.ended, 300), run.status()
+        assert run.state == "finished" and run.generation == 20
+        assert run.runner.pid != shared.pid
+        entry = app.state.notebook.get(run.id)
+        assert entry["state"] == "finished" and entry["student"] == "Ada L" and entry["generations"] == 20
+        # the shared run went on throughout, untouched
+        assert app.state.runner is shared and shared.state == "running"
+        assert wait_until(lambda: "Finished" in mine.status.content, 30)
+        assert wait_until(lambda: "Ada L" in app.board.table.content, 30)
+        assert run.id[:6] not in app.board.choice.options  # an ended run is not offered to Stop
+    finally:
+        app.state.reset()
+        viewer.close()
+        presenter.close()
+
+
+def test_a_taken_name_is_refused_and_a_closed_tabs_run_stops(app, wait_ended):
+    one, two = tab_of(app.url), tab_of(app.url)
+    try:
+        a, b = session_of(app, one).my_run, session_of(app, two).my_run
+        assert app.class_runs.set_name(a.tab, "Grace") is None
+        two.send(_messages.GuiUpdateMessage(uuid=gui_uuid(two, "Your name"), updates={"value": "grace"}))
+        assert wait_until(lambda: "taken" in b.message.content, 30)
+        small(b, generations=100_000)
+        assert b.start() is None
+        run = app.class_runs.run_of(b.tab)
+        assert "one run at a time" in b.start()
+        assert wait_until(lambda: run.generation > 0, 300), run.status()
+        pid = run.runner.pid
+        two.close()
+        assert wait_until(lambda: run.ended, 60) and run.state == "stopped"
+        wait_ended(pid)
+        assert app.state.notebook.get(run.id)["error"] == "its tab closed"
+    finally:
+        one.close()
+        two.close()
+
+
+def test_the_servers_stop_ends_the_students_runs_as_stopped(tmp_path, wait_ended):
+    lab_app = make_app(tmp_path, presenter_token=TOKEN, class_workers=1, startup=None,
+                       limits={"population": 200})
+    tabs = [tab_of(lab_app.url), tab_of(lab_app.url)]
+    try:
+        panels = [session_of(lab_app, t).my_run for t in tabs]
+        for p in panels:
+            small(p, generations=100_000)
+            assert p.start() is None
+        running, queued = (lab_app.class_runs.run_of(p.tab) for p in panels)
+        assert queued.state == "queued" and queued.status() == "queued, place 1 of 1"
+        assert wait_until(lambda: running.generation > 0, 300), running.status()
+        pid = running.runner.pid
+        lab_app.stop()
+        assert running.state == "stopped" and queued.state == "stopped"
+        wait_ended(pid)
+        for run in (running, queued):
+            assert lab_app.state.notebook.get(run.id)["state"] == "stopped"
+    finally:
+        for t in tabs:
+            t.close()
+        lab_app.stop() if not lab_app._stop.is_set() else None
