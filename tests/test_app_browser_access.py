@@ -32,7 +32,7 @@ def test_two_browser_tabs_a_presenter_and_a_viewer(tmp_path):
             viewer = browser.new_page(viewport={"width": 1400, "height": 1000})
             viewer.goto(app.url)
             sync_api.expect(viewer.get_by_text("The presenter controls the run", exact=False)).to_be_visible(timeout=30_000)
-            start = viewer.get_by_role("button", name="Start")
+            start = viewer.get_by_role("button", name="Start", exact=True)
             sync_api.expect(start).to_be_disabled(timeout=15_000)
             start.click(force=True)  # even a forced click changes nothing
             viewer.wait_for_timeout(1000)
@@ -41,7 +41,7 @@ def test_two_browser_tabs_a_presenter_and_a_viewer(tmp_path):
             presenter = browser.new_page(viewport={"width": 1400, "height": 1000})
             presenter.goto(app.presenter_url)
             assert "classroom-42" in app.presenter_url
-            start_p = presenter.get_by_role("button", name="Start")
+            start_p = presenter.get_by_role("button", name="Start", exact=True)
             sync_api.expect(start_p).to_be_enabled(timeout=30_000)
             assert presenter.get_by_text("The presenter controls the run", exact=False).count() == 0
             start_p.click(force=True)  # enabled (checked above); the panel's layout may still be moving under load
@@ -49,7 +49,7 @@ def test_two_browser_tabs_a_presenter_and_a_viewer(tmp_path):
             # the viewer watches the same run
             sync_api.expect(viewer.get_by_text("Running", exact=False).first).to_be_visible(timeout=10_000)
             # the viewer's panel follows a refresh or two later (under load, seconds): wait as for Start
-            sync_api.expect(viewer.get_by_role("button", name="Stop")).to_be_disabled(timeout=15_000)
+            sync_api.expect(viewer.get_by_role("button", name="Stop", exact=True)).to_be_disabled(timeout=15_000)
             presenter.wait_for_timeout(1000)
             viewer.screenshot(path=os.path.join(shots, "viewer.png"))
             presenter.screenshot(path=os.path.join(shots, "presenter.png"))

@@ -48,7 +48,7 @@ def board_html(runs: ClassRuns) -> str:
         return ("<small>No student run yet. A student's tab (a viewer's) has the folder <b>My experiment</b>: "
                 "its runs appear here as they queue, train and end.</small>")
     going = sum(not r.ended for r in rows)
-    head = (f"<small>{len(rows)} run{'s' * (len(rows) != 1)} this session, {going} queued or running, "
+    head = (f"<small>{len(rows)} run{'s' * (len(rows) != 1)} since the server started, {going} queued or running, "
             f"{runs.workers} at once.</small>")
     cells = []
     for r in list(reversed(rows))[:ROWS]:

@@ -60,7 +60,7 @@ class MyRunPanel:
             self.stop_button = gui.add_button("Stop my run", icon=viser.Icon.PLAYER_STOP, disabled=True)
             self.show_on_arm = gui.add_checkbox("Show my run on my arm", True,
                                                 hint="while it trains on the arm the class sees, this tab's arms "
-                                                     "show its best network")
+                                                     "show its best network (off: the class's network)")
             self.status = gui.add_markdown("No run yet.")
             self.message = gui.add_markdown("")
             self.plot = gui.add_uplot(
@@ -186,7 +186,9 @@ class MyRunPanel:
             return
         if own is not None and not mine:
             return  # the tab's replay has the arms
-        if force or not mine or self._shown_version != (run.id, run.version):
+        # a new best (or Show turned on): once shown, "Back to the shared view" of the tab's replay
+        # folder gives the arms back to the class's network until the next new best
+        if force or self._shown_version != (run.id, run.version):
             self._shown_version = (run.id, run.version)
             s.own = Shown(s.state.arm, run.controller, f"{MINE} ({run.name}), generation {run.generation}",
                           next(_versions))
