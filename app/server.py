@@ -192,7 +192,7 @@ class LabApp:
         with tabs.add_tab("Runs", viser.Icon.LIST):
             self.runs = RunsPanel(gui, self)
         with tabs.add_tab("Class", viser.Icon.USERS):
-            self.board = ClassBoard(gui, self.class_runs)
+            self.board = ClassBoard(gui, self.class_runs, show=self.runs._show)
         with tabs.add_tab("About", viser.Icon.INFO_CIRCLE):
             gui.add_markdown(MORE)
         self.show_map.on_update(lambda e: self._show_map(self.show_map.value and has_map(self.state.arm)))

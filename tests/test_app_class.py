@@ -94,6 +94,17 @@ def test_a_viewers_own_run_trains_beside_the_shared_run_and_the_board_lists_it(a
         assert wait_until(lambda: "Finished" in mine.status.content, 30)
         assert wait_until(lambda: "Ada L" in app.board.table.content, 30)
         assert run.id[:6] not in app.board.choice.options  # an ended run is not offered to Stop
+        # the tab's own arms showed its run (the shared arm); the others' did not
+        assert session_of(app, viewer).shown.source.startswith("my run (Ada L)")
+        assert not session_of(app, presenter).shown.source.startswith("my run")
+        # the class chart has its point; the presenter shows it to the whole class
+        assert wait_until(lambda: "1 finished run" in app.board.chart.content, 30)
+        app.board.axis.value = "method"
+        assert wait_until(lambda: "against method" in app.board.chart.content, 30)
+        assert wait_until(lambda: any(run.id[:6] in o for o in app.board.show_choice.options), 30)
+        app.board.show_choice.value = next(o for o in app.board.show_choice.options if run.id[:6] in o)
+        assert app.board.show_chosen() is None
+        assert app.state.shown.controller is run.controller and "Ada L" in app.state.shown.source
     finally:
         app.state.reset()
         viewer.close()
@@ -144,3 +155,19 @@ def test_the_servers_stop_ends_the_students_runs_as_stopped(tmp_path, wait_ended
         for t in tabs:
             t.close()
         lab_app.stop() if not lab_app._stop.is_set() else None
+
+
+def test_the_class_chart_escapes_names_and_plots_only_finished_runs():
+    from types import SimpleNamespace
+
+    from app.panels.class_board import chart_svg
+
+    def run(name, hidden, mse, state="finished"):
+        config = lab.TrainConfig(robot="planar", generations=20, population=10, hidden=hidden)
+        return SimpleNamespace(name=name, config=config, state=state, held_out=lambda: mse)
+
+    runs = [run("<i>a</i>", 8, 0.1), run("b", 16, 0.01), run("c", 32, 0.02, state="stopped"), run("d", 64, None)]
+    svg = chart_svg(runs, "hidden units")
+    assert "2 finished runs" in svg and svg.count("<circle") == 2
+    assert "<i>" not in svg and "&lt;i&gt;a&lt;/i&gt;" in svg
+    assert "no finished run" in chart_svg(runs[2:], "population")
