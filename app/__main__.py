@@ -89,7 +89,21 @@ def parse(argv=None) -> argparse.Namespace:
                         "generations a second; 0: as fast as the machine goes); the Speed menu changes it")
     p.add_argument("--open", action="store_true",
                    help="every tab may change the run and the shared settings, also beyond loopback")
+    p.add_argument("--class-workers", type=_workers, default=None, metavar="N",
+                   help="students' own runs (a viewer's My experiment) trained at once, the others queued "
+                        "(default: the cores the shared run and the server leave, at least 1)")
     return p.parse_args(argv)
+
+
+def _workers(text: str) -> int:
+    """--class-workers: a whole number from 1 (argparse's error names the option otherwise)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a whole number from 1, got {text[:40]!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"a whole number from 1, got {n}")
+    return n
 
 
 def _cannot_listen_on(host: str) -> str | None:
@@ -167,7 +181,7 @@ def main(argv=None) -> int:
 
         app = LabApp(args.host, args.port, robot=args.robot, notebook=notebook, recordings=args.recordings,
                      record=not args.no_record, presenter_token=token, open_access=args.open,
-                     limits=limits, speed=args.speed or None)
+                     limits=limits, speed=args.speed or None, class_workers=args.class_workers)
     except KeyboardInterrupt:  # Ctrl-C while it starts: nothing to stop yet (the spare ends with us)
         print("stopped while starting", file=sys.stderr, flush=True)
         return 130

@@ -171,3 +171,12 @@ def test_the_class_chart_escapes_names_and_plots_only_finished_runs():
     assert "2 finished runs" in svg and svg.count("<circle") == 2
     assert "<i>" not in svg and "&lt;i&gt;a&lt;/i&gt;" in svg
     assert "no finished run" in chart_svg(runs[2:], "population")
+
+
+def test_python_m_app_takes_the_number_of_class_workers():
+    from app.__main__ import parse
+
+    assert parse([]).class_workers is None and parse(["--class-workers", "3"]).class_workers == 3
+    for bad in ("0", "-1", "two", "1.5"):
+        with pytest.raises(SystemExit):
+            parse(["--class-workers", bad])
