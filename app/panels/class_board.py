@@ -32,7 +32,7 @@ AXES = {"hidden units": lambda c: c.hidden, "population": lambda c: c.population
 ROWS = 60  # rows drawn at most (the newest); the notebook keeps every run
 
 
-def spark(best: np.ndarray, width: int = 90, height: int = 22) -> str:
+def spark(best: np.ndarray, width: int = 56, height: int = 20) -> str:
     """A small SVG polyline of a best-MSE curve on a log scale (empty below 2 points)."""
     values = np.asarray(best, float)
     values = values[np.isfinite(values) & (values > 0)]
@@ -67,7 +67,7 @@ def board_html(runs: ClassRuns) -> str:
             "<tr>" + "".join(f"<td>{c}</td>" for c in (
                 f"<b>{html.escape(r.name)}</b>", html.escape(describe(r.config)), html.escape(r.status()),
                 str(r.generation), fmt(r.best()), fmt(r.held_out()), spark(best))) + "</tr>")
-    return (head + '<table style="font-size:11px;border-collapse:collapse">'
+    return (head + '<table style="font-size:11px;border-collapse:collapse;width:100%;table-layout:auto">'
             "<tr><th>name</th><th>settings</th><th>state</th><th>gen.</th><th>best train MSE</th>"
             "<th>held-out MSE</th><th>curve</th></tr>" + "".join(cells) + "</table>")
 

@@ -33,13 +33,15 @@ MINE = "my run"  # the start of the source of what this tab's arms show from its
 
 
 class MyRunPanel:
-    def __init__(self, client, session, runs: ClassRuns, order: float = 1.5):
+    def __init__(self, client, session, runs: ClassRuns, order: float = 0.7):
+        """order: above the shared panel's tabs (1), below the tab's replay folder (0.5): a student finds
+        it without scrolling past the shared Train panel; folded until opened."""
         self.client, self.session, self.runs = client, session, runs
         self.tab = client.client_id
         gui = client.gui
         arm = session.state.arm.name
         d = lab.TrainConfig.preset(robot=arm)
-        self.folder = gui.add_folder("My experiment (this tab)", order=order)
+        self.folder = gui.add_folder("My experiment (this tab)", order=order, expand_by_default=False)
         with self.folder:
             gui.add_markdown("Your own run, trained on the server beside the class's: only this tab sees it "
                              "(and the Class tab lists it for everyone).")
@@ -132,7 +134,7 @@ class MyRunPanel:
         why = self.runs.submit(self.tab, config)
         if why is not None:
             return self._tell(why)
-        self.message.content = f"Queued: {describe(config)}."
+        self.message.content = ""  # the status says where it stands
         self.refresh()
         return None
 
