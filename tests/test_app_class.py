@@ -50,6 +50,12 @@ def has_gui(probe, label) -> bool:
     return any(m["type"].startswith("Gui") and m.get("props", {}).get("label") == label for _t, m in list(probe.messages))
 
 
+def wait_for_options(app, run):
+    """The board's Stop choices, once they offer `run` (the render loop refreshes the board)."""
+    assert wait_until(lambda: run.id in app.board._ids.values(), 30)
+    return list(app.board._ids.items())
+
+
 def small(panel, generations=20):
     assert panel.robot.value == "planar"
     panel.population.value, panel.generations.value, panel.budget.value = 10.0, float(generations), 0.0
@@ -123,6 +129,20 @@ def test_a_taken_name_is_refused_and_a_closed_tabs_run_stops(app, wait_ended):
         run = app.class_runs.run_of(b.tab)
         assert "one run at a time" in b.start()
         assert wait_until(lambda: run.generation > 0, 300), run.status()
+        # tab one's run waits behind it (one worker); a viewer cannot stop another's run from the board
+        small(a, generations=100_000)
+        assert a.start() is None
+        waiting = app.class_runs.run_of(a.tab)
+        assert waiting.state == "queued"
+        label = next(k for k, v in wait_for_options(app, waiting) if v == waiting.id)
+        app.board.choice.value = label
+        two.click("Stop this run")
+        assert wait_until(lambda: any("Notification" in m["type"] and "presenter" in str(m)
+                                      for _t, m in list(two.messages)), 30)
+        assert not run.ended and waiting.state == "queued"
+        # the presenter can
+        assert app.board.stop_chosen() is None
+        assert waiting.state == "stopped" and waiting.note == "stopped by the presenter" and not run.ended
         pid = run.runner.pid
         two.close()
         assert wait_until(lambda: run.ended, 60) and run.state == "stopped"

@@ -243,6 +243,7 @@ class ClassRuns:
         """A run's end (its reader thread): its state, its notebook entry, the next queued run."""
         with self._lock:
             run.summary, run.state = summary, summary.state
+            run.track.population = None  # an ended run keeps its numbers, not its last population's networks
             if summary.controller is not None:
                 run.controller, run.version = summary.controller, run.version + 1
             self.version += 1
