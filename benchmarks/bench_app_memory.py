@@ -43,6 +43,7 @@ def main() -> None:
 
     sys.path.insert(0, str(ROOT))
     import robots.arm as robot_arm
+    from lab.methods import DEFAULT_METHOD
     from app.classroom.lesson import lesson_link
     from app.probe import Probe
     from app.server import LabApp
@@ -80,7 +81,7 @@ def main() -> None:
         for r in range(args.rounds):
             t0, opened = time.perf_counter(), []
             for name in names:
-                link = lesson_link(app.url, {"lesson": "1", "robot": name, "method": "cmaes"})
+                link = lesson_link(app.url, {"lesson": "1", "robot": name, "method": DEFAULT_METHOD})
                 ws = unquote(link.split("?websocket=", 1)[1]).replace("ws://", "http://")
                 tabs = [Probe(ws, loop=loop).start(120) for _ in range(args.tabs)]
                 tabs[-1].wait_for(lambda m: m.get("name") == "/tab/goal0/label", 120)

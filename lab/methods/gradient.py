@@ -153,7 +153,7 @@ METHOD = register(Method(
     defaults=defaults, budget_defaults=budget_defaults, paper=None, min_population=1, min_hidden=1,
     search_title="Adam: gradient norm and learning rate",
     search_series="the norm of the loss gradient and the learning rate per step",
-    cost=1.0, step_evaluations=lambda arm, config: 1 + arm.nq,
+    cost=1.0, compile_seconds=(2.0, 0.5), step_evaluations=lambda arm, config: 1 + arm.nq,
     ablations=("margin=0.0", "margin=0.5", "hidden=16", "learning_rate=0.01", "final_rate=1.0"),
     live_plots=(
         LivePlot("gradient_norm", "Gradient norm", log=True, about=(

@@ -482,7 +482,7 @@ METHOD = register(Method(
     min_population=2, min_hidden=0,
     search_title="NEAT species and best network size",
     search_series="number of species, nodes and enabled connections of the best genome",
-    cost=6.0, ablations=("mutation_power=1.0", "margin=0.0", "features=reach"),
+    cost=6.0, compile_seconds=(7.0, 4.5), ablations=("mutation_power=1.0", "margin=0.0", "features=reach"),
     reference=SpeedReference("neat-python Population.run, random fitness", 1.5, reference_loop),
     live_plots=(
         LivePlot("species_sizes", "NEAT species sizes", kind="stacked", about=(

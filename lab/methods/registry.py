@@ -92,6 +92,8 @@ class Method:
         against (None: nothing to compare with).
     live_plots: its LivePlots (the app draws them beside the convergence curve, and shows their
         latest values beside the population view).
+    compile_seconds: (serial arm, tree) s its numba kernels take to compile on a cold cache, measured
+        on the 2-core machine (docs/log.md); lab/running/warmup.py tells a waiting Start from them.
     """
 
     name: str
@@ -114,6 +116,7 @@ class Method:
     reference: SpeedReference | None = field(default=None, compare=False)
     live_plots: tuple[LivePlot, ...] = ()
     budget_defaults: Callable[..., Mapping] | None = field(default=None, compare=False)
+    compile_seconds: tuple[float, float] = (10.0, 5.0)
 
     def __post_init__(self):
         if not (isinstance(self.name, str) and self.name.isidentifier() and self.name.islower()):

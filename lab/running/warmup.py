@@ -17,16 +17,14 @@ from dataclasses import dataclass
 from typing import Callable
 
 TREE = "talos-legs"  # the tree whose kernels are compiled (every tree shares them)
-FIRST_METHOD = "cmaes"  # what the app's page opens with (lab.methods.DEFAULT_METHOD): compiled first
 KINDS = ("arm", "tree")  # the kernels of a serial arm (one end effector), of a tree (several)
 KIND_LABELS = {"arm": "serial arms", "tree": "trees of several end effectors"}
 
-# s each step took on the 2-core machine of docs/log.md (2026-12-05, an empty numba cache, little else
-# running), a serial arm's before a tree's: a tree's kernels call most of an arm's, so a tree's step
-# before its method's arm step takes both (and the arm's then a fifth of its own). A warm-up estimates a
-# step from these, scaled by how the long steps done so far compared with them (a busy machine is slower)
-TYPICAL_SECONDS = {("kinematics", "all"): 1.0, ("cmaes", "arm"): 16.0, ("cmaes", "tree"): 13.0,
-                   ("gradient", "arm"): 2.0, ("gradient", "tree"): 0.5, ("neat", "arm"): 7.0, ("neat", "tree"): 4.5}
+# A step's estimate is its method's compile_seconds (lab.methods.Method, measured on the 2-core machine
+# of docs/log.md with an empty numba cache), a serial arm's before a tree's: a tree's kernels call most
+# of an arm's, so a tree's step before its method's arm step takes both (and the arm's then a fifth of
+# its own); scaled by how the long steps done so far compared with their estimates (a busy machine is slower)
+KINEMATICS_SECONDS = 1.0
 SCALED_BY = 5.0  # s: only steps at least this long scale the estimate (a short one is mostly imports)
 
 
@@ -61,12 +59,13 @@ def kind_of(robot: str) -> str:
         return "arm"
 
 
-def plan(first: str = FIRST_METHOD, first_kind: str = "arm") -> list[Step]:
-    """The warm-up's steps: the kinematics; `first`'s kernels for `first_kind`, then for the other
-    kind; then every other method's (lab.methods.names() order), a serial arm's first."""
+def plan(first: str | None = None, first_kind: str = "arm") -> list[Step]:
+    """The warm-up's steps: the kinematics; `first`'s kernels (None: lab.methods.DEFAULT_METHOD, what
+    the app's page opens with) for `first_kind`, then for the other kind; then every other method's (lab.methods.names() order), a serial arm's first."""
     from lab import methods
 
     names = methods.names()
+    first = methods.DEFAULT_METHOD if first is None else first
     order = [first] + [m for m in names if m != first] if first in names else list(names)
     pairs = [(order[0], first_kind), (order[0], next(k for k in KINDS if k != first_kind))]
     pairs += [(m, k) for m in order[1:] for k in KINDS]
@@ -98,7 +97,8 @@ def _method(method: str, robot: str) -> None:
 
 
 class Estimate:
-    """Seconds a step takes: TYPICAL_SECONDS (for the steps done so far) scaled by the long steps done."""
+    """Seconds a step takes: its method's compile_seconds (for the steps done so far) scaled by the long
+    steps done."""
 
     def __init__(self):
         self.done, self.typical_done = 0.0, 0.0
@@ -107,11 +107,19 @@ class Estimate:
     def scale(self) -> float:
         return self.done / self.typical_done if self.typical_done > 0 else 1.0
 
+    @staticmethod
+    def _typical(method: str, kind: str) -> float:
+        if method == "kinematics":
+            return KINEMATICS_SECONDS
+        from lab import methods
+
+        return methods.get(method).compile_seconds[KINDS.index(kind)]
+
     def typical(self, step: Step) -> float:
         method, kind = step.key
-        own = TYPICAL_SECONDS.get(step.key, 10.0)
+        own = self._typical(method, kind)
         if kind == "tree" and (method, "arm") not in self.keys:
-            return own + TYPICAL_SECONDS.get((method, "arm"), 0.0)
+            return own + self._typical(method, "arm")
         if kind == "arm" and (method, "tree") in self.keys:
             return own / 5
         return own
@@ -127,7 +135,7 @@ class Estimate:
         self.keys.add(step.key)
 
 
-def compile_kernels(progress: Callable | None = None, first: str = FIRST_METHOD) -> float:
+def compile_kernels(progress: Callable | None = None, first: str | None = None) -> float:
     """Call every kernel once (forward kinematics, each method's fitness and controller, for a serial
     arm and a tree); seconds taken. progress(step, seconds): told before each step, with the s it is
     expected to take (None: silent)."""
