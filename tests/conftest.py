@@ -78,13 +78,19 @@ def make_app(folder, **kwargs):
     return LabApp(port=0, notebook=str(Path(folder) / "notebook.db"), recordings=str(Path(folder) / "rec"), **kwargs)
 
 
-def open_tab(app):
-    """A headless tab (app.probe.Probe) connected to app, once its first goal's label has arrived."""
+def tab_of(url, timeout: float = 60.0):
+    """A headless tab (app.probe.Probe) of url, once the server has sent its first goal's label
+    (generous: a loaded machine)."""
     from app.probe import Probe
 
-    probe = Probe(app.url).start()
-    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label")
+    probe = Probe(url).start(timeout)
+    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label", timeout)
     return probe
+
+
+def open_tab(app):
+    """A headless tab connected to app, once its first goal's label has arrived."""
+    return tab_of(app.url)
 
 
 @pytest.fixture(scope="module")

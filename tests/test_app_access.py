@@ -11,9 +11,8 @@ import pytest
 from viser import _messages
 
 from app.classroom.access import REFUSED, Access, is_loopback
-from app.probe import Probe
 from app.server import LabApp
-from conftest import wait_or_kill, wait_until
+from conftest import tab_of, wait_or_kill, wait_until
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 TOKEN = "s3cret-Token_1"
@@ -29,13 +28,6 @@ def app(tmp_path_factory):
     if lab_app.state.running:
         lab_app.state.reset()
     lab_app.stop()
-
-
-def tab_of(url, timeout: float = 60.0):
-    """A headless tab of url, once the server has sent its scene (generous: a loaded machine)."""
-    probe = Probe(url).start(timeout)
-    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label", timeout)
-    return probe
 
 
 @pytest.fixture

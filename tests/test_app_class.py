@@ -12,8 +12,7 @@ import pytest
 from viser import _messages
 
 import lab
-from app.probe import Probe
-from conftest import make_app, wait_until
+from conftest import make_app, tab_of, wait_until
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 TOKEN = "s3cret-Token_class"
@@ -27,12 +26,6 @@ def app(tmp_path_factory):
     if lab_app.state.running:
         lab_app.state.reset()
     lab_app.stop()
-
-
-def tab_of(url, timeout: float = 60.0):
-    probe = Probe(url).start(timeout)
-    probe.wait_for(lambda m: m.get("name") == "/tab/goal0/label", timeout)
-    return probe
 
 
 def session_of(app, probe):
