@@ -84,3 +84,29 @@ def test_a_stopped_worker_is_killed_by_stop_or_kill_and_keeps_its_generations(wa
         except ProcessLookupError:
             pass
         runner.stop(wait=True, timeout=5)
+
+
+def test_a_worker_that_answered_stop_is_not_killed_while_its_reader_lags(monkeypatch, caplog):
+    """On a busy machine the reader may read the worker's end after Stop's grace: the worker that
+    answered (it ended and exited) is not killed, and its run ends as its own summary says."""
+    import logging
+
+    from lab.running import worker
+
+    runner = worker.ProcessRunner(lab.TrainConfig.preset(robot="planar", method="cmaes", population=10,
+                                                         generations=100_000, seed=3))
+    runner.set_speed(20)  # what it sends while the reader sleeps stays far below the pipe's size
+    seen = []
+    runner.subscribe(seen.append)
+    runner.start()
+    try:
+        assert wait_until(lambda: len(seen) >= 3)
+        monkeypatch.setattr(worker, "READ_PERIOD", 4.0)  # the reader's next read comes seconds late
+        assert wait_until(lambda: runner._answered())  # it has read a batch and sleeps on the next
+        with caplog.at_level(logging.WARNING, logger=worker.__name__):
+            assert runner.stop_or_kill(grace=0.5) is False
+        summary = runner.join(30)
+        assert summary is not None and summary.state == "stopped" and summary.error is None
+        assert summary.controller is not None and not any("killed" in r.getMessage() for r in caplog.records)
+    finally:
+        runner.stop(wait=True, timeout=10)

@@ -225,9 +225,27 @@ class ProcessRunner(RunBase):
         self.stop(wait=True, timeout=grace)
         if self._proc is None or self._done.is_set():
             return False
+        # a worker that answered (it has ended, or sent what the reader, slowed by a busy machine, has
+        # not read yet) is not killed: its reader concludes with what it sent
+        deadline = time.monotonic() + grace
+        while self._answered() and not self._done.is_set() and time.monotonic() < deadline:
+            self._done.wait(0.05)
+        if self._done.is_set() or self._proc.poll() is not None:
+            self._done.wait(max(grace, 5.0))
+            return False
         self.kill(f"the training process did not answer Stop within {grace:g} s and was killed")
         self._done.wait(max(grace, 5.0))  # the reader sees the end of the pipe and concludes
         return True
+
+    def _answered(self) -> bool:
+        """The worker has ended, or has written to its pipe what the reader has not read yet."""
+        if self._proc.poll() is not None:
+            return True
+        try:
+            readable, _, _ = select.select([self._proc.stdout], [], [], 0)
+        except (OSError, ValueError):  # closed by the reader: it has read the end
+            return True
+        return bool(readable)
 
     def kill(self, reason: str, quiet: bool = False) -> None:
         """End the worker at once; the run ends "stopped" with the generations received, `reason`
