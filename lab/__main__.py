@@ -65,6 +65,8 @@ def _train_parser(sub) -> None:
     p.add_argument("--heads", type=int, default=None,
                    help="MLP output heads, each a joint-value proposal; the one closest to the goal answers "
                         "(default: the method's for the arm, else 1)")
+    p.add_argument("--goal", default="position", choices=("position", "pose"),
+                   help="what the network answers: positions, or tool frames (pose: a real arm; docs/pose.md)")
     p.add_argument("--features", default=None, choices=FEATURES, help="network inputs")
     p.add_argument("--margin", type=float, default=None, help="output range widening before clipping to the limits")
     p.add_argument("--test-goals", type=int, default=None, help="held-out goals (default 1000)")
@@ -132,7 +134,7 @@ def train(args) -> int:
             paper=args.paper, robot=args.robot, method=args.method, generations=args.generations,
             population=args.population, targets=args.targets, seed=args.seed, hidden=args.hidden,
             heads=args.heads, features=args.features, margin=args.margin, test_goals=args.test_goals, resample=args.resample,
-            seconds=args.seconds, **given_options(args))
+            seconds=args.seconds, goal=args.goal, **given_options(args))
     except (ValueError, TypeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -180,6 +182,9 @@ def train(args) -> int:
           f"parameters {run.n_params}  time {run.seconds:.1f} s"
           + (f" (budget {config.seconds:g} s{', spent' if summary.ended_by == 'seconds' else ''})"
              if config.seconds is not None else ""))
+    if config.goal == "pose":
+        print("fitness: mean of ||p - p_goal||^2 + (L angle)^2 over the pose goals "
+              f"(L = {runner.problem.encoding.weight:.4g} m/rad)")
     print(f"training MSE  {run.train_mse:.6g}  ({config.targets} goals)")
     print(f"held-out MSE  {run.test_mse:.6g}  ({config.test_goals} goals)")
     if logger is not None and logger.failure() is None:

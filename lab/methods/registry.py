@@ -94,6 +94,8 @@ class Method:
         latest values beside the population view).
     compile_seconds: (serial arm, tree) s its numba kernels take to compile on a cold cache, measured
         on the 2-core machine (docs/log.md); lab/running/warmup.py tells a waiting Start from them.
+    pose_defaults(arm, seconds) -> dict: optional, the settings that differ for pose goals
+        (TrainConfig.goal "pose", a real arm; seconds None without a budget), over defaults_for's.
     """
 
     name: str
@@ -117,6 +119,7 @@ class Method:
     live_plots: tuple[LivePlot, ...] = ()
     budget_defaults: Callable[..., Mapping] | None = field(default=None, compare=False)
     compile_seconds: tuple[float, float] = (10.0, 5.0)
+    pose_defaults: Callable[..., Mapping] | None = field(default=None, compare=False)
 
     def __post_init__(self):
         if not (isinstance(self.name, str) and self.name.isidentifier() and self.name.islower()):
@@ -135,10 +138,14 @@ class Method:
             object.__setattr__(self, "backend_class", cls)
         return self.backend_class
 
-    def defaults_for(self, arm, seconds: float | None = None) -> dict:
+    def defaults_for(self, arm, seconds: float | None = None, goal: str = "position") -> dict:
         """The settings the method runs with on `arm` when none are given: defaults(arm) without a
         time budget (seconds None); with one, budget_defaults(arm, seconds), or where the method has
-        none, defaults(arm) less its generations (those were chosen for a run without a budget)."""
+        none, defaults(arm) less its generations (those were chosen for a run without a budget).
+        goal="pose" (pose goals, a real arm): those, with pose_defaults(arm, seconds) over them."""
+        if goal == "pose":
+            base = self.defaults_for(arm, seconds)
+            return {**base, **(self.pose_defaults(arm, seconds) if self.pose_defaults is not None else {})}
         if seconds is None:
             return dict(self.defaults(arm))
         if self.budget_defaults is not None:
@@ -162,7 +169,8 @@ class Method:
                              f"{', '.join(self.options.names()) or 'none'}")
         return given
 
-    def options_for(self, arm, given: Mapping | Options | None = None, seconds: float | None = None) -> Options:
+    def options_for(self, arm, given: Mapping | Options | None = None, seconds: float | None = None,
+                    goal: str = "position") -> Options:
         """The method's options on `arm` (with a time budget of `seconds`: defaults_for): its
         defaults there, with `given` values over them."""
         if isinstance(given, self.options):
@@ -170,7 +178,7 @@ class Method:
         if isinstance(given, Options):
             raise ValueError(f"options of {type(given).__name__} given to method {self.name}")
         given = self.known_options(given)
-        base = {k: v for k, v in self.defaults_for(arm, seconds).items() if k in self.options.names()}
+        base = {k: v for k, v in self.defaults_for(arm, seconds, goal).items() if k in self.options.names()}
         return self.options(**{**base, **given})
 
 

@@ -1,7 +1,9 @@
 """Neuro-controllers: goal positions in, joint values out.
 
 Two kinds, one contract (`Controller`): called on goals (n, len(task_axes)) (a tree's: (n, E,
-len(task_axes)), lab/problem/tree_encoding.py) they return joint values (n, nq) within the joint limits; `to_dict()` is complete enough to rebuild them
+len(task_axes)), lab/problem/tree_encoding.py; a pose controller's, whose encoding is a PoseEncoding
+and whose `goal` is "pose": poses (n, 4, 4), lab/problem/pose_encoding.py) they return joint values
+(n, nq) within the joint limits; `to_dict()` is complete enough to rebuild them
 (`controller_from_dict`), which is how the Rerun logger stores them.
 
 - `MLPController`: the paper's fixed-topology MLP (section 4.3), a weight vector.
@@ -127,6 +129,15 @@ class MLPController:
         return self.weights.size
 
     @property
+    def goal(self) -> str:
+        """"pose" when it answers pose goals (n, 4, 4) (a PoseEncoding), else "position"."""
+        return getattr(self.encoding, "goal", "position")
+
+    def proposals(self, goals) -> np.ndarray:
+        """(k, n, nq) every head's answer, the nearest its goal first (lab.problem.controllers.proposals)."""
+        return proposals(self, goals)
+
+    @property
     def n_outputs(self) -> int:
         """The network's outputs: heads x joints."""
         return self.heads * self.encoding.n_outputs
@@ -196,6 +207,8 @@ def mlp_head_outputs(encoding: Encoding, hidden: int, offsets: np.ndarray, W: np
 
 def head_errors(encoding: Encoding, chain: tuple, Q: np.ndarray, goals) -> np.ndarray:
     """(..., heads, g) squared end-effector errors (inf where not finite), Q (..., heads, g, nq)."""
+    if getattr(encoding, "goal", "position") == "pose":  # ||p - p_g||^2 + (L angle)^2 (lab/problem/pose_encoding.py)
+        return encoding.sq_errors(Q, goals)
     goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
     lead = Q.shape[:-3]
     heads, g, nq = Q.shape[-3:]
@@ -261,6 +274,11 @@ class GraphController:
     def n_params(self) -> int:
         """Evolved parameters of the expressed network: enabled weights + node biases."""
         return sum(len(links) for _, _, _, links in self.nodes) + len(self.nodes)
+
+    @property
+    def goal(self) -> str:
+        """"pose" when it answers pose goals (n, 4, 4) (a PoseEncoding), else "position"."""
+        return getattr(self.encoding, "goal", "position")
 
     @property
     def n_hidden(self) -> int:

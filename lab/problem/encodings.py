@@ -21,5 +21,10 @@ def encoding_for(arm: robots.Arm, features: str = "cartesian", margin: float = 0
 
 
 def encoding_from_dict(d: dict) -> Encoding:
-    """An encoding read back from its `to_dict()`: a tree's carries its "effectors"."""
+    """An encoding read back from its `to_dict()`: a tree's carries its "effectors", a pose
+    network's its "goal" (lab/problem/pose_encoding.py)."""
+    if d.get("goal") == "pose":
+        from lab.problem.pose_encoding import PoseEncoding
+
+        return PoseEncoding.from_dict(d)
     return (TreeEncoding if "effectors" in d else Encoding).from_dict(d)

@@ -48,7 +48,9 @@ class Geometry:
         lo, hi = arm.workspace_bounds
         object.__setattr__(self, "arm", arm)
         object.__setattr__(self, "goals", goals)
-        object.__setattr__(self, "goals3", arm.to_3d(goals).reshape(-1, 3))
+        # pose goals (n, 4, 4): their positions are drawn
+        points = goals[:, :3, 3] if goals.ndim == 3 and goals.shape[1:] == (4, 4) else goals
+        object.__setattr__(self, "goals3", arm.to_3d(points).reshape(-1, 3))
         object.__setattr__(self, "radius", 0.003 * float(np.max(hi - lo)))
 
 

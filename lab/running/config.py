@@ -30,6 +30,7 @@ from lab.methods import Options
 from lab.problem.checks import flag, real, shown, whole
 from lab.problem.controllers import MAX_HEADS
 from lab.problem.encoding import FEATURES
+from lab.problem.pose_encoding import check_goal, check_pose_robot
 
 # upper bounds that keep a run within this machine's memory and time (a population of 10^9 would
 # hang in pycma's or neat's setup; hidden 256 is a CMA-ES search space of about 2,300 weights)
@@ -68,13 +69,14 @@ class TrainConfig:
     seconds: float | None = None  # time budget: s of optimizer time (None: none; generations then default to UNBOUNDED)
     turn: bool | None = None  # the first joint (a tree: each lone limb's) turned toward the goal in closed form (None: the default)
     wiring: bool | None = None  # a tree's MLP wired per limb group (lab/problem/wiring.py; None: the method's default)
+    goal: str = "position"  # "pose": the network answers tool frames (n, 4, 4) (lab/problem/pose_encoding.py; a real arm)
 
     def __init__(self, robot: str = "planar", method: str = methods.DEFAULT_METHOD, generations: int | None = None,
                  population: int | None = None, targets: int | None = None, seed: int = 0, test_goals: int = 1000,
                  goal_seed: int = 0, features: str | None = None, margin: float | None = None,
                  hidden: int | None = None, options: Options | dict | None = None, paper: bool = False,
                  resample: bool = False, heads: int | None = None, seconds: float | None = None,
-                 turn: bool | None = None, wiring: bool | None = None, **option_values):
+                 turn: bool | None = None, wiring: bool | None = None, goal: str = "position", **option_values):
         if option_values:
             base = options.to_dict() if isinstance(options, Options) else dict(options or {})
             options = {**base, **option_values}
@@ -83,7 +85,7 @@ class TrainConfig:
                             ("test_goals", test_goals), ("goal_seed", goal_seed), ("features", features),
                             ("margin", margin), ("hidden", hidden), ("options", options), ("paper", paper),
                             ("resample", resample), ("heads", heads), ("seconds", seconds), ("turn", turn),
-                            ("wiring", wiring)):
+                            ("wiring", wiring), ("goal", goal)):
             object.__setattr__(self, name, value)
         self.__post_init__()
 
@@ -91,14 +93,17 @@ class TrainConfig:
         method = methods.get(self.method)
         if not isinstance(self.robot, str) or self.robot not in robots.names():
             raise ValueError(f"unknown robot {shown(self.robot)}; known robots: {', '.join(robots.names())}")
+        check_goal(self.goal)
+        if self.goal == "pose":
+            check_pose_robot(self.robot)  # a real arm, or an error naming the robot
         self._check(method)  # what was given, before any arm is loaded
         arm = robots.load(self.robot)
         budget = {} if self.seconds is None else {"generations": UNBOUNDED}
-        defaults = {**PROTOCOL, **budget, **method.defaults_for(arm, self.seconds)}
+        defaults = {**PROTOCOL, **budget, **method.defaults_for(arm, self.seconds, goal=self.goal)}
         for name in _PER_METHOD:
             if getattr(self, name) is None:
                 object.__setattr__(self, name, defaults[name])
-        object.__setattr__(self, "options", method.options_for(arm, self.options, self.seconds))
+        object.__setattr__(self, "options", method.options_for(arm, self.options, self.seconds, goal=self.goal))
         self._check(method)  # and the defaults filled in
         if arm.is_tree and self.heads > 1:
             raise ValueError(f"{self.robot} is a tree of {arm.n_effectors} end effectors: "
@@ -207,4 +212,6 @@ class TrainConfig:
             del d["turn"]
         if not d["wiring"]:  # no wiring: likewise, as before wired networks existed
             del d["wiring"]
+        if d["goal"] == "position":  # position goals: likewise, as before pose goals existed
+            del d["goal"]
         return {**d, **self.options.to_dict()}

@@ -43,7 +43,8 @@ class Run:
 
 def evolve(robot: str = "planar", method: str = DEFAULT_METHOD, generations: int | None = None,
            population: int | None = None, targets: int | None = None, seed: int = 0, *, paper: bool = False,
-           seconds: float | None = None, subscribers: Iterable[Callable] = (), **options) -> Run:
+           seconds: float | None = None, goal: str = "position", subscribers: Iterable[Callable] = (),
+           **options) -> Run:
     """Evolve a neuro-controller for `robot` with `method` (lab.methods.names()); blocks until done.
 
     generations, population, targets: None is the method's default for the arm (the paper's
@@ -55,11 +56,14 @@ def evolve(robot: str = "planar", method: str = DEFAULT_METHOD, generations: int
     paper=True uses the paper's literal method (the method's paper preset); options override
     single settings: TrainConfig's (hidden, features, margin, test_goals, goal_seed) and the
     method's own options by name (CMA-ES: sigma0, diagonal, restarts; NEAT: mutation_power, ...).
+    goal="pose": the controller answers tool frames (n, 4, 4) (robots.pose.sample_poses) with joint
+    values, its fitness the position error plus the weighted angle (lab/problem/pose_fitness.py;
+    a real arm only).
     subscribers get every GenerationEvent (see lab.running.runner).
     """
     config = TrainConfig.preset(paper=paper, robot=robot, method=method, generations=generations,
                                 population=population, targets=targets, seed=seed, seconds=seconds,
-                                **options)
+                                goal=goal, **options)
     runner = Runner(config)
     for s in subscribers:
         runner.subscribe(s)

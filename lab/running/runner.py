@@ -106,6 +106,11 @@ class RunSummary:
 
 def build_problem(config: TrainConfig) -> Problem:
     arm = robots.load(config.robot)
+    if config.goal == "pose":  # tool frames (n, 4, 4): lab/problem/pose_fitness.py
+        from lab.problem.pose_fitness import pose_problem
+
+        return pose_problem(arm, config.features, config.margin, config.turn, config.targets, config.test_goals,
+                            config.goal_seed, config.seed if config.resample else None)
     enc = encoding_for(arm, config.features, config.margin, config.turn)
     return Problem(arm, enc, targets=config.targets, test_goals=config.test_goals, goal_seed=config.goal_seed,
                    resample_seed=config.seed if config.resample else None)
@@ -276,7 +281,8 @@ class Runner(RunBase):
         self._generations_done = 0
         self._ended_by: str | None = None  # "generations" or "seconds" once the run has run out of either
         self.on_hold = None  # callable(generations done), in the run's thread, each time it starts holding
-        self._display = display_goal(self.problem.arm)[None]
+        self._display = (self.problem.display_goals() if getattr(self.problem, "goal", "position") == "pose"
+                         else display_goal(self.problem.arm)[None])
 
     # ------------------------------------------------------------------ control
     def start(self) -> "Runner":

@@ -1,0 +1,222 @@
+"""How pose goals enter a network, and how far an answer is from its pose.
+
+A pose goal is the tool frame as a 4 x 4 transform (robots.pose). A pose network sees its
+position through a position `Encoding` (the same features, scaled the same way, as a position
+network of the arm: "sphere" on a real arm) followed by its orientation in a continuous form
+(robots.pose.pose_features): the 6-D rotation (the first two columns of R, Zhou et al. 2019) on an
+arm held to a full pose, the approach axis's direction on the SO arms (whose roll is free). Those
+are already in [-1, 1]. The outputs map onto joint values as the position encoding maps them
+(margin, clip, continuous joints), and the first joint may be turned in closed form toward the
+position's bearing (Encoding.turn): any exact answer has that bearing, and the turn moves the
+orientation with it, rigidly about the first joint's axis.
+
+Error of an answer on a pose goal (the pose fitness, lab.problem.pose_fitness):
+
+    e = ||p - p_g||^2 + (L theta)^2
+
+theta the geodesic angle between the tool's rotation and the goal's (an SO arm: the angle between
+the approach axes), L = `weight` metres per radian (POSE_WEIGHT x the arm's reach: docs/pose.md,
+"Training").
+
+`PoseEncoding` carries everything the compiled error needs: the arm's kinematic chain, the tool
+frame's rotation in the chain's last joint frame (robots.pose's tool rotation) and the approach
+axis. `to_dict()` stores it all, so a pose controller reloads without the arm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+import robots
+from lab.problem import pose_kernels
+from lab.problem.encoding import Encoding
+from lab.problem.kernels import check_chain
+
+POSE_WEIGHT = 0.1  # L / reach: an angle of 1 rad weighs as an error of a tenth of the arm's reach
+GOALS = ("position", "pose")
+
+
+def check_goal(goal) -> str:
+    """goal as given when it is one of GOALS; ValueError naming it otherwise."""
+    if not isinstance(goal, str) or goal not in GOALS:
+        raise ValueError(f"goal must be one of {', '.join(GOALS)}, got {goal!r}")
+    return goal
+
+
+def check_pose_robot(name: str) -> None:
+    """ValueError, naming the robot and why, unless pose goals can train a network on it: a real arm
+    (robots' kind "real") whose tool frame robots.pose knows (a full pose, or the SO arms' approach axis)."""
+    kind = robots.kind(name)
+    if kind != "real":
+        what = {"paper": "one of the paper's arms", "snake": "a planar snake", "tree": "a tree of several end effectors"}
+        real = ", ".join(n for n in robots.names() if robots.kind(n) == "real")
+        raise ValueError(f"goal='pose' is for a real arm ({real}); {name} is {what.get(kind, kind)}")
+    from robots import pose
+
+    pose.approach_axis(robots.load(name))  # ValueError naming why for an arm without a pose
+
+
+@dataclass(frozen=True, eq=False)
+class PoseEncoding:
+    """A pose network's inputs and output mapping, and the compiled pose error (see the module).
+
+    position: the position encoding (inputs of the goal's position, the output mapping, the turn);
+    chain: the arm's kinematic arrays (kernels' chain); tool: (3, 3) the tool frame's rotation in
+    the chain's last joint frame; axis: (3,) the approach axis in the tool frame (None: a full pose);
+    weight: L, metres of error per radian of angle in the fitness."""
+
+    position: Encoding
+    chain: tuple
+    tool: np.ndarray
+    axis: np.ndarray | None
+    weight: float
+    goal = "pose"
+
+    def __post_init__(self):
+        if not isinstance(self.position, Encoding) or tuple(self.position.task_axes) != (0, 1, 2):
+            raise ValueError("a pose encoding's position part must be a serial arm's Encoding on the axes x, y, z")
+        nq = len(self.position.q_lo)
+        object.__setattr__(self, "chain", check_chain(self.chain, nq))
+        tool = np.ascontiguousarray(np.asarray(self.tool, dtype=np.float64))
+        if tool.shape != (3, 3) or not np.all(np.isfinite(tool)) or np.abs(tool.T @ tool - np.eye(3)).max() > 1e-6:
+            raise ValueError(f"tool must be a 3 x 3 rotation, got {np.asarray(self.tool).tolist()}")
+        object.__setattr__(self, "tool", tool)
+        if self.axis is not None:
+            axis = np.asarray(self.axis, dtype=np.float64).reshape(-1)
+            if axis.shape != (3,) or not np.all(np.isfinite(axis)) or abs(np.linalg.norm(axis) - 1) > 1e-6:
+                raise ValueError(f"axis must be a unit 3-vector or None, got {self.axis!r}")
+            object.__setattr__(self, "axis", np.ascontiguousarray(axis))
+        if not (isinstance(self.weight, (int, float)) and np.isfinite(self.weight) and self.weight > 0):
+            raise ValueError(f"weight must be a positive number of metres per radian, got {self.weight!r}")
+        object.__setattr__(self, "weight", float(self.weight))
+
+    @classmethod
+    def for_arm(cls, arm: robots.Arm, features: str = "sphere", margin: float = 0.0, turn: bool = False,
+                weight: float | None = None) -> "PoseEncoding":
+        """The pose encoding of a real arm; weight None: POSE_WEIGHT x the arm's reach."""
+        from robots import pose
+
+        axis = pose.approach_axis(arm)  # ValueError for an arm without a pose
+        return cls(Encoding.for_arm(arm, features, margin, turn), arm.chain.arrays, pose._tool_rotation(arm),
+                   None if axis is None else np.array(axis), POSE_WEIGHT * arm.reach_radius if weight is None
+                   else weight)
+
+    # ------------------------------------------------------------ what the position part decides
+    def __getattr__(self, name: str):
+        """The output mapping's arrays and the turn (q_lo, q_offset, clip_lo, turns, ...) are the
+        position encoding's."""
+        if name.startswith("__") or name == "position":
+            raise AttributeError(name)
+        return getattr(self.__dict__["position"] if "position" in self.__dict__ else None, name)
+
+    @property
+    def features(self) -> str:
+        return self.position.features
+
+    @property
+    def task_axes(self) -> tuple[int, ...]:
+        return (0, 1, 2)
+
+    @property
+    def n_rotation(self) -> int:
+        """Inputs of the orientation: 6 (the 6-D rotation) or 3 (the approach axis's direction)."""
+        return 6 if self.axis is None else 3
+
+    @property
+    def n_inputs(self) -> int:
+        return self.position.n_inputs + self.n_rotation
+
+    @property
+    def n_outputs(self) -> int:
+        return self.position.n_outputs
+
+    @property
+    def input_names(self) -> list[str]:
+        rot = ["r11", "r21", "r31", "r12", "r22", "r32"] if self.axis is None else ["ax", "ay", "az"]
+        return self.position.input_names + rot
+
+    # ------------------------------------------------------------ goals in, joints out
+    def check(self, poses) -> np.ndarray:
+        """poses (n, 4, 4) as float64, ValueError naming what is wrong (robots.pose.check_poses)."""
+        from robots import pose
+
+        return pose.check_poses(poses, what="pose goals")
+
+    def rotation_features(self, poses: np.ndarray) -> np.ndarray:
+        """(n, n_rotation): the 6-D rotation (columns 1 and 2 of R, robots.pose.rotation_6d) or R axis."""
+        R = poses[:, :3, :3]
+        if self.axis is None:
+            return np.concatenate([R[:, :, 0], R[:, :, 1]], axis=1)
+        return R @ self.axis
+
+    def inputs(self, poses) -> np.ndarray:
+        """Poses (n, 4, 4) -> network inputs (n, n_inputs) in about [-1, 1]."""
+        poses = self.check(poses)
+        return np.concatenate([self.position.inputs(poses[:, :3, 3]), self.rotation_features(poses)], axis=1)
+
+    def joints(self, a: np.ndarray, poses=None) -> np.ndarray:
+        """Outputs (..., n, nq) -> joint values (..., n, nq), turned toward each pose's position when the
+        encoding turns (then poses are needed)."""
+        if not self.position.turns:
+            return self.position.mapped(a)
+        if poses is None:
+            raise ValueError("this encoding turns the first joint toward each goal's bearing: joints() needs the poses")
+        return self.position.joints(a, np.asarray(poses, dtype=np.float64)[:, :3, 3])
+
+    def mapped(self, a: np.ndarray) -> np.ndarray:
+        return self.position.mapped(a)
+
+    # ------------------------------------------------------------ errors
+    def spec(self) -> tuple:
+        """The pose error's arrays as the pose kernels take them: (tool, axis in the last joint frame,
+        mode (0 full pose, 1 approach axis), L^2)."""
+        axis_j = np.zeros(3) if self.axis is None else np.ascontiguousarray(self.tool @ self.axis)
+        return (self.tool, axis_j, 0 if self.axis is None else 1, self.weight ** 2)
+
+    def goal_arrays(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (3, n), orientations (9, n) row-major R or (3, n) approach directions) as the
+        kernels take the goals."""
+        poses = np.asarray(poses, dtype=np.float64)
+        GP = np.ascontiguousarray(poses[:, :3, 3].T)
+        if self.axis is None:
+            GR = np.ascontiguousarray(poses[:, :3, :3].reshape(-1, 9).T)
+        else:
+            GR = np.ascontiguousarray((poses[:, :3, :3] @ self.axis).T)
+        return GP, GR
+
+    def errors(self, q: np.ndarray, poses) -> tuple[np.ndarray, np.ndarray]:
+        """(position error [m], angle [rad]) of joint values q (..., n, nq) on poses (n, 4, 4), each
+        (..., n), by the compiled kinematics the fitness uses (no turn: q as given)."""
+        poses = self.check(poses)
+        q = np.asarray(q, dtype=np.float64)
+        lead, n, nq = q.shape[:-2], q.shape[-2], q.shape[-1]
+        QT = np.ascontiguousarray(q.reshape(-1, nq).T)
+        GP, GR = self.goal_arrays(poses)
+        reps = QT.shape[1] // max(n, 1)
+        GP, GR = np.ascontiguousarray(np.tile(GP, (1, reps))), np.ascontiguousarray(np.tile(GR, (1, reps)))
+        D, A = np.empty(QT.shape[1]), np.empty(QT.shape[1])
+        pose_kernels.pose_parts(QT, GP, GR, self.chain, self.spec(), D, A)
+        return np.sqrt(D).reshape(*lead, n), A.reshape(*lead, n)
+
+    def sq_errors(self, q: np.ndarray, poses) -> np.ndarray:
+        """(..., n) the fitness's error of each answer: ||p - p_g||^2 + (L angle)^2 (inf where not finite)."""
+        d, a = self.errors(q, poses)
+        e = d * d + (self.weight * a) ** 2
+        return np.where(np.isfinite(e), e, np.inf)
+
+    # ------------------------------------------------------------ storage
+    def to_dict(self) -> dict:
+        return {"goal": "pose", "position": self.position.to_dict(),
+                "chain": dict(zip(("rot", "pos", "kind", "identity", "ee_pos"),
+                                  (np.asarray(x).tolist() for x in self.chain))),
+                "tool": self.tool.tolist(), "axis": None if self.axis is None else self.axis.tolist(),
+                "weight": self.weight}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "PoseEncoding":
+        if d.get("goal") != "pose":
+            raise ValueError(f"not a pose encoding: its goal is {d.get('goal')!r}")
+        return cls(Encoding.from_dict(d["position"]), d["chain"], np.asarray(d["tool"], dtype=np.float64),
+                   d.get("axis"), d["weight"])

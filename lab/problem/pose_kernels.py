@@ -1,0 +1,196 @@
+"""Compiled pose-fitness kernels: network + forward kinematics + position and angle error, fused.
+
+The pose counterpart of kernels.py, with its layout (goals along the contiguous axis) and its
+building blocks (the MLP and graph forward passes, the output mapping, the chain's frames, the
+first joint's turn). For each answer:
+
+    e = ||p - p_g||^2 + L^2 theta^2
+
+p = P + R ee_pos the tool frame's origin, R the chain's last joint frame; the tool's rotation is
+R tool. theta: a full pose, the geodesic angle of R_g^T R_tool, atan2(|skew|, (trace - 1) / 2)
+(exact near 0 and pi, as robots.pose.rotation_angle); an approach axis, atan2(|a x g|, a . g), a =
+R (tool axis). spec = (tool (3, 3), axis in the joint frame (3,), mode (0 full, 1 axis), L^2).
+
+The turn (qmap[4], kernels.NO_TURN's layout) turns the first joint toward the position's bearing;
+the frame turns rigidly with it about the joint's axis (Rodrigues), so no second pass of the chain.
+A controller whose output or error is NaN or infinite gets +inf.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from lab.problem.kernels import (_JIT, _chain_frames, _graph_rows, _graph_scratch, _segment_means, _to_joints_row,
+                                 _turn_row, mlp_offset_outputs)
+
+
+@numba.njit(**_JIT)
+def _turned_frames(Q, GP, chain, turn, R, P):
+    """R (3, 3, N), P (3, N) <- the last joint's frame of Q (nq, N), the first joint turned toward each
+    goal position's bearing when turn[0] is set (Q[0] then holds the turned values)."""
+    _chain_frames(Q, chain, R, P)
+    if turn[0] == 0.0:
+        return
+    n = Q.shape[1]
+    before = Q[0].copy()
+    E = np.empty(n)
+    _turn_row(P, R, chain[4], Q, GP, turn, E, True)
+    cx, cy, cz, wx, wy, wz = turn[1], turn[2], turn[3], turn[4], turn[5], turn[6]
+    for g in range(n):
+        d = Q[0, g] - before[g]
+        if d == 0.0:
+            continue
+        s, c = math.sin(d), math.cos(d)
+        v = 1.0 - c
+        # Rodrigues: K = c I + s [w]x + (1 - c) w w^T
+        k00, k01, k02 = c + v * wx * wx, v * wx * wy - s * wz, v * wx * wz + s * wy
+        k10, k11, k12 = v * wy * wx + s * wz, c + v * wy * wy, v * wy * wz - s * wx
+        k20, k21, k22 = v * wz * wx - s * wy, v * wz * wy + s * wx, c + v * wz * wz
+        for b in range(3):
+            r0, r1, r2 = R[0, b, g], R[1, b, g], R[2, b, g]
+            R[0, b, g] = k00 * r0 + k01 * r1 + k02 * r2
+            R[1, b, g] = k10 * r0 + k11 * r1 + k12 * r2
+            R[2, b, g] = k20 * r0 + k21 * r1 + k22 * r2
+        u0, u1, u2 = P[0, g] - cx, P[1, g] - cy, P[2, g] - cz
+        P[0, g] = cx + k00 * u0 + k01 * u1 + k02 * u2
+        P[1, g] = cy + k10 * u0 + k11 * u1 + k12 * u2
+        P[2, g] = cz + k20 * u0 + k21 * u1 + k22 * u2
+
+
+@numba.njit(**_JIT)
+def _pose_rows(R, P, GP, GR, chain, spec, D, A):
+    """D (N,) <- squared position errors, A (N,) <- angles, of the frames R, P against the goals."""
+    tool, axis_j, mode = spec[0], spec[1], spec[2]
+    e0, e1, e2 = chain[4][0], chain[4][1], chain[4][2]
+    t00, t01, t02, t10, t11, t12, t20, t21, t22 = (tool[0, 0], tool[0, 1], tool[0, 2], tool[1, 0], tool[1, 1],
+                                                   tool[1, 2], tool[2, 0], tool[2, 1], tool[2, 2])
+    a0, a1, a2 = axis_j[0], axis_j[1], axis_j[2]
+    for g in range(R.shape[2]):
+        r00, r01, r02 = R[0, 0, g], R[0, 1, g], R[0, 2, g]
+        r10, r11, r12 = R[1, 0, g], R[1, 1, g], R[1, 2, g]
+        r20, r21, r22 = R[2, 0, g], R[2, 1, g], R[2, 2, g]
+        dx = GP[0, g] - (P[0, g] + r00 * e0 + r01 * e1 + r02 * e2)
+        dy = GP[1, g] - (P[1, g] + r10 * e0 + r11 * e1 + r12 * e2)
+        dz = GP[2, g] - (P[2, g] + r20 * e0 + r21 * e1 + r22 * e2)
+        D[g] = dx * dx + dy * dy + dz * dz
+        if mode == 1:
+            ax = r00 * a0 + r01 * a1 + r02 * a2
+            ay = r10 * a0 + r11 * a1 + r12 * a2
+            az = r20 * a0 + r21 * a1 + r22 * a2
+            gx, gy, gz = GR[0, g], GR[1, g], GR[2, g]
+            cx, cy, cz = ay * gz - az * gy, az * gx - ax * gz, ax * gy - ay * gx
+            A[g] = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), ax * gx + ay * gy + az * gz)
+            continue
+        # the tool's rotation M = R tool
+        m00 = r00 * t00 + r01 * t10 + r02 * t20
+        m01 = r00 * t01 + r01 * t11 + r02 * t21
+        m02 = r00 * t02 + r01 * t12 + r02 * t22
+        m10 = r10 * t00 + r11 * t10 + r12 * t20
+        m11 = r10 * t01 + r11 * t11 + r12 * t21
+        m12 = r10 * t02 + r11 * t12 + r12 * t22
+        m20 = r20 * t00 + r21 * t10 + r22 * t20
+        m21 = r20 * t01 + r21 * t11 + r22 * t21
+        m22 = r20 * t02 + r21 * t12 + r22 * t22
+        # E = G^T M (G the goal's rotation, row-major in GR)
+        g00, g01, g02, g10, g11, g12, g20, g21, g22 = (GR[0, g], GR[1, g], GR[2, g], GR[3, g], GR[4, g], GR[5, g],
+                                                       GR[6, g], GR[7, g], GR[8, g])
+        E00 = g00 * m00 + g10 * m10 + g20 * m20
+        E11 = g01 * m01 + g11 * m11 + g21 * m21
+        E22 = g02 * m02 + g12 * m12 + g22 * m22
+        E01 = g00 * m01 + g10 * m11 + g20 * m21
+        E10 = g01 * m00 + g11 * m10 + g21 * m20
+        E02 = g00 * m02 + g10 * m12 + g20 * m22
+        E20 = g02 * m00 + g12 * m10 + g22 * m20
+        E12 = g01 * m02 + g11 * m12 + g21 * m22
+        E21 = g02 * m01 + g12 * m11 + g22 * m21
+        sx, sy, sz = E21 - E12, E02 - E20, E10 - E01
+        A[g] = math.atan2(0.5 * math.sqrt(sx * sx + sy * sy + sz * sz), 0.5 * (E00 + E11 + E22 - 1.0))
+
+
+@numba.njit(**_JIT)
+def pose_parts(Q, GP, GR, chain, spec, D, A):
+    """D (N,) <- squared position errors, A (N,) <- angles [rad] of joint values Q (nq, N) (no turn)."""
+    n = Q.shape[1]
+    R, P = np.empty((3, 3, n)), np.empty((3, n))
+    _chain_frames(Q, chain, R, P)
+    _pose_rows(R, P, GP, GR, chain, spec, D, A)
+
+
+@numba.njit(**_JIT)
+def pose_sq_errors(Q, GP, GR, chain, turn, spec, E):
+    """E (N,) <- ||p - p_g||^2 + L^2 theta^2 of joint values Q (nq, N), the first joint turned first
+    when turn[0] is set (Q[0] then holds the turned values)."""
+    n = Q.shape[1]
+    R, P, A = np.empty((3, 3, n)), np.empty((3, n)), np.empty(n)
+    _turned_frames(Q, GP, chain, turn, R, P)
+    _pose_rows(R, P, GP, GR, chain, spec, E, A)
+    w2 = spec[3]
+    for g in range(n):
+        E[g] += w2 * A[g] * A[g]
+
+
+@numba.njit(**_JIT)
+def turn_toward(Q, GP, chain, turn):
+    """Q[0] <- the first joint turned toward each goal position's bearing (as the fitness turns it)."""
+    n = Q.shape[1]
+    R, P = np.empty((3, 3, n)), np.empty((3, n))
+    _turned_frames(Q, GP, chain, turn, R, P)
+
+
+@numba.njit(**_JIT)
+def _tiled(G, P):
+    n = G.shape[1]
+    out = np.empty((G.shape[0], P * n))
+    for p in range(P):
+        out[:, p * n:(p + 1) * n] = G
+    return out
+
+
+@numba.njit(**_JIT)
+def _heads_mse(A, heads, GP, GR, qmap, chain, spec, n, out):
+    """A (heads nq, P n) outputs of P controllers side by side -> out (P,) <- the mean over goals of
+    the least error over the heads."""
+    nq = qmap[0].shape[0]
+    P = out.shape[0]
+    GPt, GRt = _tiled(GP, P), _tiled(GR, P)
+    E = np.full(P * n, np.inf)
+    Eh = np.empty(P * n)
+    Q = np.empty((nq, P * n))
+    for h in range(heads):
+        for o in range(nq):
+            Q[o] = A[h * nq + o]
+            _to_joints_row(Q[o], o, qmap)
+        pose_sq_errors(Q, GPt, GRt, chain, qmap[4], spec, Eh)
+        for g in range(P * n):
+            if Eh[g] < E[g]:  # NaN never is: a goal no head reaches stays +inf
+                E[g] = Eh[g]
+    _segment_means(E, n, out)
+
+
+@numba.njit(**_JIT)
+def pose_mlp_mse(XT, GP, GR, W, nh, offsets, qmap, chain, spec, out):
+    """The pose fitness of the MLP of every row of W (P, D) on inputs XT (ni, n) and pose goals (GP
+    (3, n), GR): out (P,). offsets (heads nq,): each head's fixed output pre-activation offsets
+    (zeros for one head); a goal counts its least error over the heads."""
+    nq = qmap[0].shape[0]
+    heads = offsets.shape[0] // nq
+    n = XT.shape[1]
+    A = np.empty((heads * nq, W.shape[0] * n))
+    mlp_offset_outputs(XT, W, nh, offsets, A)
+    _heads_mse(A, heads, GP, GR, qmap, chain, spec, n, out)
+
+
+@numba.njit(**_JIT)
+def pose_graph_mse(XT, GP, GR, program, qmap, chain, spec, out):
+    """The pose fitness of every compiled graph (lab.problem.controllers.compile_programs): out (P,)."""
+    starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot, no = program
+    n = XT.shape[1]
+    V = _graph_scratch(XT, n_nodes)
+    A = np.empty((no, starts.shape[0] * n))
+    for p in range(starts.shape[0]):
+        _graph_rows(XT, p, starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot, V,
+                    A[:, p * n:(p + 1) * n])
+    _heads_mse(A, 1, GP, GR, qmap, chain, spec, n, out)
