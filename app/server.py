@@ -134,7 +134,7 @@ class LabApp:
                  notebook: str | Notebook = DEFAULT_PATH, recordings: str = "recordings", startup=True,
                  record: bool = True, presenter_token: str | None = None, open_access: bool = False,
                  limits: dict[str, int] | None = None, speed: float | None = None,
-                 class_workers: int | None = None):
+                 class_workers: int | None = None, class_runner=None):
         """notebook: a Notebook or its path (NotebookError, before anything starts, if the path holds
         something else). presenter_token, open_access: who may change shared state (app/classroom/access.py:
         beyond loopback only tabs opened with `presenter_url`; on loopback every tab unless a token
@@ -142,7 +142,8 @@ class LabApp:
         app/classroom/limits.py: beyond loopback the classroom's bounds apply, with these in their place.
         speed: generations a second runs start at (None: as fast as they go; `python -m app`: 20).
         class_workers: students' own runs at once (app/classroom/class_runs.py; None: the cores the
-        shared run and the server leave, at least 1).
+        shared run and the server leave, at least 1); class_runner: makes their runners (None: local worker
+        processes; lab.running.ray_runner.RayRunner: a Ray cluster's actors).
         startup: True (each arm's shipped controller, else a quickly trained one),
         a controller (shown on the arm it was made for), or None. Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
         notebook = notebook if isinstance(notebook, Notebook) else Notebook(notebook)
@@ -161,7 +162,7 @@ class LabApp:
         self.access = Access(host, presenter_token, open_access)
         self.upload_refusal = self.access.refusal  # uploads: viewers are refused as a transfer starts
         # students' own runs (a viewer's "My experiment"), queued to worker processes of their own
-        self.class_runs = ClassRuns(notebook, self.state.limits, workers=class_workers)
+        self.class_runs = ClassRuns(notebook, self.state.limits, workers=class_workers, runner=class_runner)
         # the render loop, the run's reader and viser's thread pool all update handles: each update's
         # wake-up of viser's sender must reach its event loop safely (see app/viser_private.py)
         install_loop_safe_wakeups()

@@ -54,6 +54,11 @@ def default_workers(cores: int | None = None) -> int:
     return max(1, cores - 2)
 
 
+def local_runner(config: lab.TrainConfig, history_limit: int | None = None) -> ProcessRunner:
+    """A student run's runner on this machine: a worker process of its own, never the prestarted spare."""
+    return ProcessRunner(config, history_limit=history_limit, spare=False)
+
+
 def clean_name(text) -> tuple[str | None, str | None]:
     """(the name, None) or (None, why it is refused). Runs of spaces fold into one; the ends are trimmed."""
     if not isinstance(text, str):
@@ -140,10 +145,13 @@ class StudentRun:
 
 class ClassRuns:
     def __init__(self, notebook, limits: dict | None, workers: int | None = None,
-                 stop_grace: float = STOP_GRACE):
+                 stop_grace: float = STOP_GRACE, runner=None):
         """notebook: where ended runs go (app.training.notebook.Notebook); limits: the server's bounds
-        (None: the lab's own); workers: runs at once (None: default_workers())."""
+        (None: the lab's own); workers: runs at once (None: default_workers()); runner: makes a run's
+        runner, runner(config, history_limit=N) (None: a local worker process, local_runner; a Ray
+        cluster's: lab.running.ray_runner.RayRunner)."""
         self.notebook, self.limits = notebook, limits
+        self.make_runner = runner or local_runner
         self.workers = max(1, int(workers)) if workers is not None else default_workers()
         self.stop_grace = stop_grace
         self._lock = threading.RLock()
@@ -229,7 +237,7 @@ class ClassRuns:
         while self._queue and not self.closed and len(self.running()) < self.workers:
             run = self._queue.popleft()
             try:
-                runner = ProcessRunner(run.config, history_limit=HISTORY_POINTS, spare=False)
+                runner = self.make_runner(run.config, history_limit=HISTORY_POINTS)
                 runner.run_id = run.id
                 runner.subscribe(run)
                 run.runner, run.state, run.started = runner, "running", time.time()
