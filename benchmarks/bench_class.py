@@ -3,6 +3,7 @@ presenter's shared run trains and the presenter drags a goal.
 
     python benchmarks/bench_class.py                          # 30 students, 30 s runs, the default workers
     python benchmarks/bench_class.py --students 30 --seconds 3 --workers 1
+    python benchmarks/bench_class.py --ray 127.0.0.1:6390           # the runs on a Ray cluster's actors
 
 Each student tab (app/probe.py, one event loop for all, in this process) gets a name, a planar CMA-ES
 run with a time budget of --seconds, and presses "Start my run"; the presenter's tab drags its goal
@@ -10,7 +11,9 @@ marker 10 times a second throughout. Reports: how long the last run waited in th
 class's wall time, the presenter's drags (the server's work per drag, callback to pose sent: p50/p95,
 app.latency; and the round trip the probe saw, inflated by its sharing this process), how long the
 Class board took to show each run's end (the largest), and that every run finished and has its
-notebook entry with its student's name.
+notebook entry with its student's name. With --ray ADDRESS the runs go to that Ray cluster (as
+`python -m app --ray ADDRESS`; "local": a local instance), at most its CPUs at once unless --workers
+says otherwise, and it counts the runs each node trained.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ def main() -> None:
     ap.add_argument("--students", type=int, default=30)
     ap.add_argument("--seconds", type=float, default=30.0, help="each student run's time budget")
     ap.add_argument("--workers", type=int, default=None, help="student runs at once (default: cores - 2, at least 1)")
+    ap.add_argument("--ray", default=None, metavar="ADDRESS", help="run the students' runs on this Ray cluster")
     ap.add_argument("--hz", type=float, default=10.0, help="the presenter's drags a second")
     args = ap.parse_args()
 
@@ -45,10 +49,16 @@ def main() -> None:
     from app.probe import Probe
     from app.server import LabApp
 
+    runner, workers, where = None, args.workers, "local worker processes"
+    if args.ray:
+        from lab.running import ray_runner
+
+        where = ray_runner.connect(args.ray)
+        runner, workers = ray_runner.RayRunner, args.workers or ray_runner.cpus()
     folder = tempfile.mkdtemp(prefix="bench-class-")
     token = "bench-class-presenter-token"
     app = LabApp(port=0, notebook=os.path.join(folder, "notebook.db"), recordings=os.path.join(folder, "rec"),
-                 record=False, presenter_token=token, class_workers=args.workers, startup=None, speed=20.0,
+                 record=False, presenter_token=token, class_workers=workers, class_runner=runner, startup=None, speed=20.0,
                  limits={"population": 200})
     loop = asyncio.new_event_loop()
     threading.Thread(target=loop.run_forever, daemon=True, name="probes").start()
@@ -146,7 +156,13 @@ def main() -> None:
         "board_update_max_s": round(max(board), 2) if board else None,
         "board_seen": len(board),
         "shared_run_still_running": shared_ok,
+        "runs_went_to": where,
     }
+    if args.ray:
+        import collections
+
+        nodes = collections.Counter(getattr(r.runner, "node_id", None) for r in runs)
+        result["runs_per_node"] = {(k or "none")[:12]: v for k, v in nodes.items()}
     print(json.dumps(result), flush=True)
     for p in [presenter, *students]:
         p.close()
