@@ -5,6 +5,7 @@
     python -m app --port 9000 --robot ur5
     python -m app --host 0.0.0.0 --open   # every tab may change the run (on purpose)
     python -m app --host 0.0.0.0 --presenter-token-file ~/.lab-token   # a token of your own, not in `ps`
+    python -m app --host 0.0.0.0 --ray HOST:6379   # students' runs on a Ray cluster ("local": one started here)
 
 Beyond loopback only presenter tabs (opened with the printed presenter link) change the run and the
 shared settings; every other tab is a viewer (app/classroom/access.py). A token of your own (at least
@@ -91,7 +92,11 @@ def parse(argv=None) -> argparse.Namespace:
                    help="every tab may change the run and the shared settings, also beyond loopback")
     p.add_argument("--class-workers", type=_workers, default=None, metavar="N",
                    help="students' own runs (a viewer's My experiment) trained at once, the others queued "
-                        "(default: the cores the shared run and the server leave, at least 1)")
+                        "(default: the cores the shared run and the server leave, at least 1; with --ray the "
+                        "cluster's CPUs)")
+    p.add_argument("--ray", default=None, metavar="ADDRESS",
+                   help="train students' own runs on this Ray cluster (HOST:PORT, as `ray start --head` prints; "
+                        "local: a Ray instance started here); needs the ray extra (pip install -e \".[ray]\")")
     return p.parse_args(argv)
 
 
@@ -167,6 +172,18 @@ def main(argv=None) -> int:
     except NotebookError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    class_runner, args.class_runs_go_to = None, "local worker processes"
+    if args.ray is not None:  # before the server starts: a missing Ray or an unreachable cluster stops here
+        from lab.running import ray_runner
+
+        try:
+            args.class_runs_go_to = ray_runner.connect(args.ray)
+        except (ray_runner.RayMissing, ConnectionError, ValueError) as e:
+            print(f"error: --ray {args.ray}: {e}", file=sys.stderr)
+            return 2
+        class_runner = ray_runner.RayRunner
+        if args.class_workers is None:
+            args.class_workers = ray_runner.cpus()
     print("starting Neuro-IK Lab (the first start after an install compiles what its page needs: under a "
           "minute; later starts take seconds)", flush=True)
     # the training kernels compile in the spare training process (lab/running/worker.py), started now
@@ -181,7 +198,8 @@ def main(argv=None) -> int:
 
         app = LabApp(args.host, args.port, robot=args.robot, notebook=notebook, recordings=args.recordings,
                      record=not args.no_record, presenter_token=token, open_access=args.open,
-                     limits=limits, speed=args.speed or None, class_workers=args.class_workers)
+                     limits=limits, speed=args.speed or None, class_workers=args.class_workers,
+                     class_runner=class_runner)
     except KeyboardInterrupt:  # Ctrl-C while it starts: nothing to stop yet (the spare ends with us)
         print("stopped while starting", file=sys.stderr, flush=True)
         return 130
@@ -198,6 +216,10 @@ def main(argv=None) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             signal.signal(sig, _already_stopping)
         app.stop()
+        if args.ray is not None:  # after every student run has ended; a local instance ends with it
+            import ray
+
+            ray.shutdown()
     return 0
 
 
@@ -219,6 +241,8 @@ def _serve(args, app, t0: float) -> None:
               "other tabs viewers", flush=True)
     else:
         print("  --open: every tab may change the run", flush=True)
+    workers = app.class_runs.workers
+    print(f"  students' own runs: {args.class_runs_go_to}, {workers} at once", flush=True)
     print(f"  startup controller: {app.startup_note}; runs list: {args.notebook}. Ctrl-C stops.", flush=True)
 
 

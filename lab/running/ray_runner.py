@@ -62,6 +62,7 @@ def connect(address: str) -> str:
     RayMissing without Ray; ConnectionError (naming the address) when the cluster cannot be reached."""
     ray = _ray()
     if not ray.is_initialized():
+        _answers(address)
         kwargs = dict(runtime_env={"env_vars": ONE_THREAD}, log_to_driver=False, logging_level=logging.WARNING)
         try:
             if address == "local":
@@ -69,8 +70,28 @@ def connect(address: str) -> str:
             else:
                 ray.init(address=address, **kwargs)
         except Exception as e:  # noqa: BLE001 - ray raises ConnectionError, ValueError, RuntimeError, ...
-            raise ConnectionError(f"cannot join the Ray cluster at {address}: {_first_line(e)}") from e
+            hint = ("" if address == "local" or os.environ.get("RAY_AUTH_MODE") == "token" else
+                    "; a cluster with token authentication (`ray start`'s default) also needs RAY_AUTH_MODE=token "
+                    "here and its token (~/.ray/auth_token or RAY_AUTH_TOKEN)")
+            raise ConnectionError(f"cannot join the Ray cluster at {address}: {_first_line(e)}{hint}") from e
     return describe(address)
+
+
+def _answers(address: str, timeout: float = 5.0) -> None:
+    """ConnectionError unless something listens at a HOST:PORT address (ray.init would retry for
+    minutes); ValueError for an address that is none. "local", "auto" and ray:// addresses pass."""
+    if address in ("local", "auto") or "://" in address:
+        return
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"a Ray address is HOST:PORT (as `ray start --head` prints) or local, got {address!r}")
+    import socket
+
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except OSError as e:
+        raise ConnectionError(f"cannot join the Ray cluster at {address}: nothing answers there "
+                              f"({e.strerror or e})") from None
 
 
 def cpus() -> int:
