@@ -4,7 +4,7 @@ success within 1e-5 m and 1e-5 rad in a 5 ms budget a pose, one solve at a time 
     .venv/bin/pip install -e ".[pose-bench]"        # pin-pink, qpsolvers[daqp], ik-geo (keeps pin 4.1)
     .venv/bin/python benchmarks/bench_pose.py [--poses 10000] [--robots ur5,ur10,...] [--json out.json]
 
-Each pose is solved alone (one call, timed with perf_counter around it), with NUMBA_NUM_THREADS,
+Each pose is solved alone (one call, timed on the budget's clock), with NUMBA_NUM_THREADS,
 LAB_THREADS and the BLAS set to one thread (set here before numpy loads). Every solver aims at
 1e-5 m and 1e-5 rad and stops at 5 ms (a solver that checks its clock only between starts can run
 past it: such an answer counts as a failure). Columns:
@@ -13,8 +13,11 @@ past it: such an answer counts as a failure). Columns:
                     errors are norms (|dp| and the geodesic angle), at least as strict as TRAC-IK's
                     1e-5 on each axis of the twist.
     0.1 mm, 0.1 deg the same answers within 1e-4 m and 0.1 degree (and 5 ms)
-    mean, p99       wall time a pose, all poses (a failure costs its whole budget); cpu: the
-                    thread's CPU time a pose (time.thread_time), what the wall time is on a quiet machine
+    mean, p99       time a pose on the budget's clock, all poses (a failure costs its whole budget)
+
+The clock (--clock): "cpu", this thread's CPU time (time.thread_time, the default), what wall time
+is on a quiet machine and what a machine shared with other CPU-bound work leaves of it; "wall",
+perf_counter, for a quiet machine. The wall time's mean is printed beside it either way.
 
 On the 5-joint SO arms a pose is a position and the gripper's approach axis (5 constraints,
 robots.pose.approach_axis; the roll about it is free), for every solver.
@@ -69,6 +72,8 @@ BUDGET = 0.005  # [s] a pose, TRAC-IK's
 TOL = 1e-5  # [m] and [rad]
 ROBOTS = ("ur5", "ur10", "panda", "xarm7", "kinova", "z1", "so100", "so101")
 ANALYTIC = ("ur5", "ur10")  # ik-geo's family: three parallel axes, the last two intersecting
+CLOCKS = {"cpu": time.thread_time, "wall": time.perf_counter}
+clock = time.thread_time  # the budget's clock (--clock): this thread's CPU time, or wall time
 INSTALL = 'missing {what}: install the benchmark\'s extra with  .venv/bin/pip install -e ".[pose-bench]"'
 
 
@@ -91,24 +96,38 @@ def shipped_controller(name: str):
 
 def network_solver(arm, controller, restarts: bool):
     def solve(goal, i):
-        t0 = time.perf_counter()
+        t0 = clock()
         s = lab.solve(controller, arm, goal[None], steps=20, tol=TOL, angle_tol=TOL)
         q = s.q[0]
-        if restarts and not s.converged[0]:
-            left = BUDGET - (time.perf_counter() - t0)
-            if left > 0:
-                r = dls_pose_ik(arm, goal, q0=q, restarts=10**6, seconds=left, tol=TOL, angle_tol=TOL, seed=i)
-                q = r.q
-        return q, time.perf_counter() - t0
+        if restarts and not s.converged[0] and clock() - t0 < BUDGET:
+            rng = np.random.default_rng(i)
+            q = dls_restarts(arm, goal, arm.lower + (arm.upper - arm.lower) * rng.random(arm.nq), t0, i)
+            if max(*pose.pose_errors(arm, goal[None], s.q)) < max(*pose.pose_errors(arm, goal[None], q[None])):
+                q = s.q[0]
+        return q, clock() - t0
     return solve
 
 
 # ---------------------------------------------------------------- damped least squares
+def dls_restarts(arm, goal, start, t0: float, seed: int):
+    """dls_pose_ik's starts (at most 100 damped least-squares steps from `start`, then from uniformly
+    random joint vectors) while the budget lasts on the bench's clock: the best answer."""
+    rng = np.random.default_rng(seed)
+    best, score = None, math.inf
+    while True:
+        r = dls_pose_ik(arm, goal, q0=start, restarts=0, tol=TOL, angle_tol=TOL)
+        s = max(r.error, r.angle) / TOL
+        if s < score:
+            best, score = r.q, s
+        if r.converged or clock() - t0 >= BUDGET:
+            return best
+        start = arm.lower + (arm.upper - arm.lower) * rng.random(arm.nq)
+
+
 def dls_solver(arm):
     def solve(goal, i):
-        t0 = time.perf_counter()
-        r = dls_pose_ik(arm, goal, restarts=10**6, seconds=BUDGET, tol=TOL, angle_tol=TOL, seed=i)
-        return r.q, time.perf_counter() - t0
+        t0 = clock()
+        return dls_restarts(arm, goal, arm.rest, t0, i), clock() - t0
     return solve
 
 
@@ -149,13 +168,13 @@ def pink_solver(arm, restarts: bool):
         return p, a
 
     def solve(goal, i):
-        t0 = time.perf_counter()
+        t0 = clock()
         task.set_target(pin.SE3(goal @ offset))
         rng, start, best, best_e = rng_for(i), arm.rest, arm.rest, math.inf
         while True:
             cfg = pink.Configuration(model, data, arm.to_pinocchio(start))
             prev = p = a = math.inf
-            while time.perf_counter() - t0 < BUDGET:
+            while clock() - t0 < BUDGET:
                 p, a = errors(cfg, goal)
                 e = p + length * a
                 if e < best_e:
@@ -168,8 +187,8 @@ def pink_solver(arm, restarts: bool):
                 except PinkError:  # no QP solution from here: a stall
                     break
                 cfg.integrate_inplace(v, 1.0)
-            if not restarts or (p < TOL and a < TOL) or time.perf_counter() - t0 >= BUDGET:
-                return arm.within_limits(best), time.perf_counter() - t0
+            if not restarts or (p < TOL and a < TOL) or clock() - t0 >= BUDGET:
+                return arm.within_limits(best), clock() - t0
             start = arm.lower + (arm.upper - arm.lower) * rng.random(arm.nq)
     return solve
 
@@ -202,14 +221,14 @@ def ikgeo_solver(arm):
     lo, hi = arm.lower, arm.upper
 
     def solve(goal, i):
-        t0 = time.perf_counter()
+        t0 = clock()
         q = arm.rest
         for qs, _, least_squares in robot.get_ik_sorted((goal[:3, :3] @ R0.T).T, goal[:3, 3]):
             qs = np.asarray(qs)
             if not least_squares and np.all(qs >= lo) and np.all(qs <= hi):
                 q = qs
                 break
-        return q, time.perf_counter() - t0
+        return q, clock() - t0
     return solve
 
 
@@ -240,18 +259,18 @@ def ikgeo_agreement(arm, n: int = 300) -> dict:
 # ---------------------------------------------------------------- the run
 def measure(arm, poses, solve) -> dict:
     n = len(poses)
-    q, t, cpu = np.empty((n, arm.nq)), np.empty(n), np.empty(n)
+    q, t, wall = np.empty((n, arm.nq)), np.empty(n), np.empty(n)
     solve(poses[0], 0)  # warm: compiled kernels, first-call caches
     for i, g in enumerate(poses):
-        c0 = time.thread_time()
-        q[i], t[i] = solve(g, i)
-        cpu[i] = time.thread_time() - c0
+        w0 = time.perf_counter()
+        q[i], t[i] = solve(g, i)  # t: on the budget's clock
+        wall[i] = time.perf_counter() - w0
     p, a = pose.pose_errors(arm, poses, q)
     within = t <= BUDGET
     return {"trac": float(np.mean((p < TOL) & (a < TOL) & within)),
             "fine": float(np.mean((p < 1e-4) & (a < math.radians(0.1)) & within)),
             "mean_ms": 1e3 * float(t.mean()), "p99_ms": 1e3 * float(np.percentile(t, 99)),
-            "over_budget": float(np.mean(~within)), "cpu_mean_ms": 1e3 * float(cpu.mean())}
+            "over_budget": float(np.mean(~within)), "wall_mean_ms": 1e3 * float(wall.mean())}
 
 
 def solvers_for(name: str, arm):
@@ -275,8 +294,12 @@ def main():
     ap.add_argument("--poses", type=int, default=10_000, help="poses an arm (default 10000)")
     ap.add_argument("--robots", default=",".join(ROBOTS), help="comma-separated arms (default: the 8 real arms)")
     ap.add_argument("--solvers", default="", help="comma-separated substrings of solver names to run (default all)")
+    ap.add_argument("--clock", choices=sorted(CLOCKS), default="cpu",
+                    help="the budget's and the times' clock: this thread's CPU time (default) or wall time")
     ap.add_argument("--json", help="write the figures to this file")
     args = ap.parse_args()
+    global clock
+    clock = CLOCKS[args.clock]
     if args.poses < 1:
         ap.error("--poses must be at least 1")
     names = [s.strip() for s in args.robots.split(",") if s.strip()]
@@ -289,7 +312,8 @@ def main():
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
     header = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "commit": commit.strip(),
               "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
-              "load_start": open("/proc/loadavg").read().split()[:3], "poses": args.poses, "seed": SEED}
+              "load_start": open("/proc/loadavg").read().split()[:3], "poses": args.poses, "seed": SEED,
+              "clock": args.clock}
     print(json.dumps(header))
     results = {"header": header, "arms": {}}
     with threadpool_limits(1):
@@ -313,7 +337,7 @@ def main():
                 r["load"] = open("/proc/loadavg").read().split()[:3]
                 out[label] = r
                 print(f"  {label:<38} 1e-5/5ms {100 * r['trac']:6.2f} %  0.1mm/0.1deg {100 * r['fine']:6.2f} %  "
-                      f"mean {r['mean_ms']:6.3f} ms (cpu {r['cpu_mean_ms']:6.3f})  p99 {r['p99_ms']:6.3f} ms  over 5 ms {100 * r['over_budget']:.2f} %"
+                      f"mean {r['mean_ms']:6.3f} ms (wall {r['wall_mean_ms']:6.3f})  p99 {r['p99_ms']:6.3f} ms  over 5 ms {100 * r['over_budget']:.2f} %"
                       f"  load {' '.join(r['load'])}", flush=True)
             if args.json:
                 Path(args.json).write_text(json.dumps(results, indent=1))
