@@ -309,11 +309,27 @@ def budget_defaults(arm, seconds: float) -> dict:
     return d
 
 
+POSE_GENERATIONS = 20_000  # pose goals without a budget: about 5 minutes on one core (docs/log.md)
+POSE_HEADS = {}  # a real arm's heads for pose goals (the others: one)
+
+
+def pose_defaults(arm, seconds: float | None) -> dict:
+    """What differs for pose goals (TrainConfig.goal "pose", a real arm), over defaults_for's: the
+    real arm's inputs and output mapping with the first joint turned in closed form toward the
+    position's bearing (real_arm_io: any exact answer has that bearing, and the orientation turns
+    with it), POSE_HEADS heads, and without a budget POSE_GENERATIONS generations; chosen by short
+    budgeted runs (docs/log.md)."""
+    d = dict(real_arm_io(arm), heads=POSE_HEADS.get(arm.name, 1))
+    if seconds is None:
+        d["generations"] = POSE_GENERATIONS
+    return d
+
+
 METHOD = register(Method(
     name="cmaes", label="CMA-ES", color=(31, 119, 180),
     summary="CMA-ES (pycma) on the weights of a fixed-topology MLP",
     backend_class=CMAESBackend, options=CMAESOptions, controller="mlp",
-    defaults=defaults, budget_defaults=budget_defaults,
+    defaults=defaults, budget_defaults=budget_defaults, pose_defaults=pose_defaults,
     # the paper fixes no hidden size or step size: the values a reader of the paper would pick
     paper=dict(features="cartesian", margin=0.0, hidden=8, sigma0=0.5, diagonal=0, restarts=False),
     min_population=4, min_hidden=1, max_heads=MAX_HEADS,

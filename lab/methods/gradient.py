@@ -146,11 +146,21 @@ def budget_defaults(arm, seconds: float) -> dict:
     return {k: v for k, v in defaults(arm).items() if k != "generations"}
 
 
+POSE_TURN = True  # pose goals: the first joint turned toward the position's bearing (docs/log.md)
+
+
+def pose_defaults(arm, seconds: float | None) -> dict:
+    """Pose goals (TrainConfig.goal "pose", a real arm), over defaults_for's: the real-arm network and
+    inputs, the first joint turned when POSE_TURN (its gradient is then taken with that joint held:
+    lab.problem.pose_fitness.PoseProblem.mlp_gradient), chosen by short runs (docs/log.md)."""
+    return dict(real_arm_io(arm), margin=0.0, turn=POSE_TURN)
+
+
 METHOD = register(Method(
     name="gradient", label="Gradient (Adam)", color=(44, 160, 44),
     summary="Adam on the MLP's weights, gradient by backpropagation through the arm's Jacobian",
     backend_class=GradientBackend, options=GradientOptions, controller="mlp",
-    defaults=defaults, budget_defaults=budget_defaults, paper=None, min_population=1, min_hidden=1,
+    defaults=defaults, budget_defaults=budget_defaults, pose_defaults=pose_defaults, paper=None, min_population=1, min_hidden=1,
     search_title="Adam: gradient norm and learning rate",
     search_series="the norm of the loss gradient and the learning rate per step",
     cost=1.0, compile_seconds=(2.0, 0.5), step_evaluations=lambda arm, config: 1 + arm.nq,

@@ -472,11 +472,17 @@ def budget_defaults(arm, seconds: float) -> dict:
     return {k: v for k, v in defaults(arm).items() if k != "generations"}
 
 
+def pose_defaults(arm, seconds: float | None) -> dict:
+    """Pose goals (TrainConfig.goal "pose", a real arm): the real-arm inputs and output mapping every
+    method shares (real_arm_io: the first joint turned toward the position's bearing), over defaults_for's."""
+    return dict(real_arm_io(arm))
+
+
 METHOD = register(Method(
     name="neat", label="NEAT", color=(214, 39, 40),
     summary="NEAT (neat-python): topology and weights evolved together",
     backend_class=NEATBackend, options=NEATOptions, controller="graph",
-    defaults=defaults, budget_defaults=budget_defaults,
+    defaults=defaults, budget_defaults=budget_defaults, pose_defaults=pose_defaults,
     # the paper's parameters (section 4.3); NEAT starts with the inputs wired to the outputs
     paper=dict(features="cartesian", margin=0.0, hidden=0, mutation_power=1.0, add_node=0.002, add_connection=0.002),
     min_population=2, min_hidden=0,
