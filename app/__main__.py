@@ -70,6 +70,9 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
     p.add_argument("--port", type=int, default=8080, help="port; viser takes the next free one when taken")
     p.add_argument("--robot", default="planar", help="the arm (or tree of several end effectors: g1, allegro, ...) shown first")
+    p.add_argument("--goal", default="position", choices=("position", "pose"),
+                   help="what a goal is: a position, or a pose (position and orientation of the tool; the real "
+                        "arms: ur5 ur10 panda xarm7 kinova z1 so100 so101); the Train panel's Goal changes it")
     p.add_argument("--notebook", default=os.path.join("recordings", "notebook.db"),
                    help="the runs list (SQLite; a notebook.json of earlier versions is imported once), kept across restarts")
     p.add_argument("--recordings", default="recordings", help="folder of the runs' Rerun recordings")
@@ -140,6 +143,12 @@ def main(argv=None) -> int:
         print(f"error: unknown robot {args.robot!r}; known robots: {', '.join(robots.names())}",
               file=sys.stderr)
         return 2
+    if args.goal == "pose":
+        from app.tab.posegoal import pose_refusal
+
+        if (why := pose_refusal(args.robot)) is not None:
+            print(f"error: --goal pose --robot {args.robot}: {why}", file=sys.stderr)
+            return 2
     if not 0 <= args.port < 65536:
         print(f"error: --port must be in 0..65535, got {args.port}", file=sys.stderr)
         return 2
@@ -199,7 +208,7 @@ def main(argv=None) -> int:
         app = LabApp(args.host, args.port, robot=args.robot, notebook=notebook, recordings=args.recordings,
                      record=not args.no_record, presenter_token=token, open_access=args.open,
                      limits=limits, speed=args.speed or None, class_workers=args.class_workers,
-                     class_runner=class_runner)
+                     class_runner=class_runner, goal=args.goal)
     except KeyboardInterrupt:  # Ctrl-C while it starts: nothing to stop yet (the spare ends with us)
         print("stopped while starting", file=sys.stderr, flush=True)
         return 130

@@ -108,15 +108,17 @@ class Probe:
         """The owner stamp of a scene node this tab has (its client id for per-tab nodes)."""
         return self.wait_for(lambda m: m.get("name") == name and "owner" in m).get("owner", "")
 
-    def drag(self, name: str, position, timeout: float = 10.0, pose_prefix: str | None = None) -> float:
-        """Move a transform gizmo; seconds until the server's first pose message under pose_prefix."""
+    def drag(self, name: str, position, timeout: float = 10.0, pose_prefix: str | None = None,
+             wxyz=(1.0, 0.0, 0.0, 0.0)) -> float:
+        """Move (and turn, by the quaternion wxyz) a transform gizmo; seconds until the server's first
+        pose message under pose_prefix."""
         prefix = pose_prefix or name.rsplit("/", 1)[0] + "/arm/"
         owner = self.owner(name)
         with self._cond:
             since = len(self.messages)
         t0 = time.perf_counter()
         self.send(_messages.TransformControlsUpdateMessage(
-            name=name, wxyz=(1.0, 0.0, 0.0, 0.0), position=tuple(float(v) for v in position), owner=owner))
+            name=name, wxyz=tuple(float(v) for v in wxyz), position=tuple(float(v) for v in position), owner=owner))
         self.wait_for(lambda m: m["type"] in ("SetPositionMessage", "SetOrientationMessage")
                       and m["name"].startswith(prefix), timeout, since)
         with self._cond:

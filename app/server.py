@@ -134,7 +134,7 @@ class LabApp:
                  notebook: str | Notebook = DEFAULT_PATH, recordings: str = "recordings", startup=True,
                  record: bool = True, presenter_token: str | None = None, open_access: bool = False,
                  limits: dict[str, int] | None = None, speed: float | None = None,
-                 class_workers: int | None = None, class_runner=None):
+                 class_workers: int | None = None, class_runner=None, goal: str = "position"):
         """notebook: a Notebook or its path (NotebookError, before anything starts, if the path holds
         something else). presenter_token, open_access: who may change shared state (app/classroom/access.py:
         beyond loopback only tabs opened with `presenter_url`; on loopback every tab unless a token
@@ -143,7 +143,8 @@ class LabApp:
         speed: generations a second runs start at (None: as fast as they go; `python -m app`: 20).
         class_workers: students' own runs at once (app/classroom/class_runs.py; None: the cores the
         shared run and the server leave, at least 1); class_runner: makes their runners (None: local worker
-        processes; lab.running.ray_runner.RayRunner: a Ray cluster's actors).
+        processes; lab.running.ray_runner.RayRunner: a Ray cluster's actors). goal: "position" or "pose"
+        (a real arm's tool frame: app/tab/posegoal.py; ValueError naming why on another robot).
         startup: True (each arm's shipped controller, else a quickly trained one),
         a controller (shown on the arm it was made for), or None. Sets the interpreter's GIL switch interval to SWITCH_INTERVAL (process-wide)."""
         notebook = notebook if isinstance(notebook, Notebook) else Notebook(notebook)
@@ -156,7 +157,7 @@ class LabApp:
         lab_worker.prestart(robot)  # a warmed-up training process (its kernels for this robot first): Start trains at once
         self.state = LabState(robot, notebook, startup=startup, startups=startups,
                               recorder=rerun_recorder(recordings) if record else None,
-                              limits=limits_for(is_loopback(host), limits), speed=speed)
+                              limits=limits_for(is_loopback(host), limits), speed=speed, goal=goal)
         self.startup_note = self.state.shown.source
         self.recordings = recordings
         self.access = Access(host, presenter_token, open_access)

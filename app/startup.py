@@ -36,14 +36,28 @@ def default_method(robot: str) -> str:
     return lab.TrainConfig(robot=robot).method
 
 
-def pretrained_path(robot: str, method: str | None = None) -> str:
-    return os.path.join(PRETRAINED_DIR, f"{robot}-{method or default_method(robot)}.json")
+def pretrained_path(robot: str, method: str | None = None, goal: str = "position") -> str:
+    """app/pretrained/<robot>-<method>.json; a pose controller's <robot>-pose-<method>.json."""
+    kind = "pose-" if goal == "pose" else ""
+    return os.path.join(PRETRAINED_DIR, f"{robot}-{kind}{method or default_method(robot)}.json")
 
 
 def made_for(controller, arm: robots.Arm) -> bool:
-    """Whether a controller was made for this arm: its goals are the arm's task coordinates and
-    its outputs the arm's joints, within the arm's limits."""
+    """Whether a controller was made for this arm: its goals are the arm's task coordinates (a pose
+    controller's: the arm's pose goals, app/tab/posegoal.py) and its outputs the arm's joints,
+    within the arm's limits."""
     enc = getattr(controller, "encoding", None)
+    if getattr(controller, "goal", "position") == "pose":
+        from app.tab.posegoal import pose_refusal
+
+        if pose_refusal(arm.name) is not None:
+            return False
+        lo, hi = getattr(enc, "q_lo", None), getattr(enc, "q_hi", None)
+        if lo is not None and hi is not None and not (len(lo) == arm.nq and bool(np.allclose(lo, arm.lower))
+                                                      and bool(np.allclose(hi, arm.upper))):
+            return False
+        nq = getattr(controller, "nq", None)
+        return (lo is not None or nq is not None) and (nq is None or nq == arm.nq)
     fits = (enc is not None and tuple(enc.task_axes) == tuple(arm.task_axes) and len(enc.q_lo) == arm.nq
             and bool(np.allclose(enc.q_lo, arm.lower)) and bool(np.allclose(enc.q_hi, arm.upper)))
     chain = getattr(controller, "chain", None)  # a multi-head MLP picks its head by this arm's kinematics
@@ -51,25 +65,48 @@ def made_for(controller, arm: robots.Arm) -> bool:
                                           for a, b in zip(chain, arm.chain.arrays)))
 
 
-def load_pretrained(robot: str):
-    """(controller, description) of the shipped controller of `robot`; raises when there is none
-    or it does not load or does not fit the arm."""
-    with open(pretrained_path(robot), encoding="utf-8") as f:
+def load_pretrained(robot: str, goal: str = "position"):
+    """(controller, description) of the shipped controller of `robot` (goal "pose": its pose
+    controller); raises when there is none or it does not load or does not fit the arm."""
+    path = pretrained_path(robot, goal=goal)
+    if goal == "pose" and not os.path.exists(path):  # a pose controller of another method
+        import glob
+
+        path = next(iter(sorted(glob.glob(os.path.join(PRETRAINED_DIR, f"{robot}-pose-*.json")))), path)
+    with open(path, encoding="utf-8") as f:
         data = json.load(f)
     controller = lab.controller_from_dict(data["controller"])
     arm = robots.load(robot)
-    if not made_for(controller, arm):
-        raise ValueError(f"{pretrained_path(robot)} holds a controller for another arm")
-    controller(arm.sample_goals(1, seed=0))  # it runs
+    if not made_for(controller, arm) or (getattr(controller, "goal", "position") == "pose") != (goal == "pose"):
+        raise ValueError(f"{path} holds a controller for another arm or goal")
+    if goal == "pose":
+        from robots import pose
+
+        controller(pose.sample_poses(arm, 1, seed=0))  # it runs
+    else:
+        controller(arm.sample_goals(1, seed=0))  # it runs
     err = data.get("held_out")
-    what = (f"median error {err['median']:.3g} {err['unit']}" if err else f"held-out MSE {data['test_mse']:.3g}")
+    what = (f"median error {err['median']:.3g} {err['unit']}" if err and "median" in err and "unit" in err
+            else f"held-out MSE {data['test_mse']:.3g}")
     settings = data["settings"]  # a budgeted run's generations are only its cap: say its time
     budget = f"{settings['seconds']:g} s" if settings.get("seconds") else f"{settings['generations']:,} generations"
     return controller, f"shipped ({budget}, {what})"
 
 
-def startup_controller(robot: str = "planar"):
-    """(controller, description): the arm's shipped controller, else a quickly trained one."""
+def startup_controller(robot: str = "planar", goal: str = "position"):
+    """(controller, description): the arm's shipped controller, else a quickly trained one. For pose
+    goals the arm's shipped pose controller, else its position controller on the pose's position
+    (app/tab/posegoal.py PositionSeed: it ignores the turn; Start trains a pose controller)."""
+    if goal == "pose":
+        try:
+            return load_pretrained(robot, "pose")
+        except Exception as e:  # noqa: BLE001 - none shipped yet
+            log.info("no shipped pose controller for %s (%s); the position network stands in", robot, e)
+        from app.tab.posegoal import PositionSeed
+
+        position, _note = startup_controller(robot)
+        return PositionSeed(position), ("no pose network shipped for this arm: its position network, which "
+                                        "ignores the turn (Start trains a pose network)")
     try:
         return load_pretrained(robot)
     except Exception as e:  # missing, or written by an older lab: train one now

@@ -159,4 +159,5 @@ class RaceFields:
                 raise ValueError(f"{name} must be a whole number, got {v!r}")
             values[name] = int(v)
         return lab.TrainConfig.preset(robot=main.robot, method=self._method_name(), generations=main.generations,
-                                      targets=main.targets, goal_seed=main.goal_seed, seconds=main.seconds, **values)
+                                      targets=main.targets, goal_seed=main.goal_seed, seconds=main.seconds, **values,
+                                      **({"goal": "pose"} if getattr(main, "goal", "position") == "pose" else {}))

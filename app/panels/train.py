@@ -29,6 +29,7 @@ from lab.running.config import UNBOUNDED
 
 from app.classroom.limits import refusal as limits_refusal
 from app.panels.teaching import RaceFields, Watching
+from app.tab.posegoal import GOAL_LABELS, goal_label, pose_refusal
 from app.training.live import decimate, lead_line, sample
 from app.training.state import SPEEDS, run_label, speed_label
 
@@ -87,6 +88,11 @@ class TrainingPanel:
         # arm and method, the run controls, the speed, the progress and the convergence plot; the
         # numbers behind a run, the race and the method's views follow
         self.robot = gui.add_dropdown("Robot", robots.names(), initial_value=state.arm.name)
+        # position or pose goals (app/tab/posegoal.py): a shared control, so the classroom gate covers it
+        self.goal = gui.add_dropdown("Goal", tuple(GOAL_LABELS), initial_value=goal_label(state.goal),
+                                     hint="Position: drag the goal; Pose (real arms): drag and turn it, the "
+                                          "network answers the tool's position and orientation")
+        self.goal.on_update(self._on_goal)
         self.method = gui.add_dropdown("Method", tuple(m.label for m in methods.all_methods()),
                                        initial_value=methods.get(d.method).label)
         self.expected = gui.add_markdown(expectation(d.robot, d.method, d.seconds))  # what it will be worth
@@ -218,8 +224,16 @@ class TrainingPanel:
                     raise ValueError(f"{handle.label.lower()} must be a whole number, got {v!r}")
                 v = int(v)
             options[name] = v
-        config = lab.TrainConfig.preset(robot=self.robot.value, method=method.name, seconds=self.seconds(), **values,
-                                        **options)
+        if self.state.goal == "pose":
+            options["goal"] = "pose"
+        try:
+            config = lab.TrainConfig.preset(robot=self.robot.value, method=method.name, seconds=self.seconds(),
+                                            **values, **options)
+        except TypeError as e:
+            if "goal" in str(e):
+                raise ValueError("training a pose network is not in this lab yet (lab.TrainConfig has no goal): "
+                                 "pick Goal: Position to train") from None
+            raise
         if (why := limits_refusal(config, self.state.limits)) is not None:
             raise ValueError(why)
         return config
@@ -264,6 +278,27 @@ class TrainingPanel:
             self._fill_defaults()  # the new arm's defaults
         self._valid[id(handle)] = handle.value
         self.message.content = ""
+
+    def _on_goal(self, event) -> None:
+        """Position or pose goals for every tab (refused while a run goes, and on an arm without poses)."""
+        kind = GOAL_LABELS.get(self.goal.value)
+        if kind is None or kind == self.state.goal:
+            return
+        msg = self.set_goal(kind)
+        if msg:
+            self.refuse(event.client, msg)
+            self.goal.value = goal_label(self.state.goal)
+        else:
+            self.message.content = ""
+
+    def set_goal(self, kind: str) -> str | None:
+        """The state's goal kind (refused with a line naming why); the menu follows."""
+        if kind == "pose" and (why := pose_refusal(self.state.arm.name)) is not None:
+            return f"refused: {why}"
+        msg = self.state.set_goal(kind)
+        if msg is None and self.goal.value != goal_label(kind):
+            self.goal.value = goal_label(kind)
+        return msg
 
     def _revert(self, handle) -> None:
         self._reverting = True
@@ -385,6 +420,8 @@ class TrainingPanel:
 
     def refresh(self, force: bool = False) -> None:
         """Show the run's progress (called by the render loop, a few times a second)."""
+        if self.goal.value != goal_label(self.state.goal):  # a robot without poses put it back to Position
+            self.goal.value = goal_label(self.state.goal)
         p = self.state.progress()
         n = p["generation"]
         partner = self.state.partner

@@ -30,9 +30,8 @@ class GoalExtras:
             view.visible = False
             self.partner_error = np.nan
             return
-        goal = self.goal
-        q = controller(goal[None])[0]
-        self.partner_error = float(np.max(np.linalg.norm(self.tab.arm.reach(q) - goal, axis=-1)))  # the worst effector
+        q = controller(self.query[None])[0]
+        self.partner_error = float(self.errors_of(q)[0].max())  # the worst effector
         with self.tab.client.atomic():
             view.set_q(q)
             if not view.visible:
@@ -118,7 +117,7 @@ class TabExtras:
                 return drew
             track = state.track
             population = track.population if track is not None and not state.replaying else state.replayed_population
-            goals = np.stack([g.goal for g in self.goals])
+            goals = np.stack([g.query for g in self.goals])
             key = (id(population), goals.tobytes(), self.show_population.value, self.faint_arms.value,
                    self.by_species.value)
             if key == self.population_drawn:
@@ -137,7 +136,10 @@ class TabExtras:
                 self.goals[0].draw_population(population.points, None, candidate_colors(population, self.by_species.value),
                                               False)
             return
-        q = population.joints(goals)  # (n, goals, nq)
+        if getattr(self, "goal_kind", "position") == "pose":  # pose controllers: each on the poses
+            q = np.stack([np.asarray(c(goals), dtype=np.float64) for c in population.controllers])
+        else:
+            q = population.joints(goals)  # (n, goals, nq)
         reach = self.arm.fk(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:2], -1, 3)  # (n, goals, E, 3)
         colors = candidate_colors(population, self.by_species.value)
         with self.client.atomic():

@@ -9,6 +9,12 @@ the network's answer refined by one closed-form turn of the base joint and at mo
 steps (robots.ik.refine: the practical use of a learned IK), and damped least squares from the rest pose (robots.ik.dls_ik), each with
 its error and time.
 
+In pose mode (app/tab/posegoal.py) each gizmo also turns: the goal is the 4 x 4 tool frame of its
+position and orientation, the arm shows a pose controller's answer for it, the label gives the
+position error in mm and the angle error in degrees, and the refined ghost is robots.ik.refine on
+the pose from the network's answers (and the ghost's last answer), at most POSE_REFINE_STEPS steps;
+the blue ghost robots.ik.dls_pose_ik.
+
 A marker update moves its arm at once, in the callback (in viser's event loop: one network
 forward pass, one forward kinematics, nq pose messages, then a flush); the IK query runs in its own thread, at
 most 10 times a second per tab; `refresh` (called by the render loop) redraws all goals when
@@ -30,9 +36,11 @@ import numpy as np
 import lab
 import robots
 from lab.problem.controllers import proposals
-from lab.running.decimation import display_goal
+from lab.running.decimation import DISPLAY_SEED, display_goal
 from lab.recording.population import ramp
-from robots.ik import dls_ik, refine
+from robots.ik import dls_ik, dls_pose_ik, refine
+
+from app.tab import posegoal
 
 from app.tab.extras import GoalExtras, TabExtras
 from app.training.live import swatch
@@ -76,6 +84,11 @@ POPULATION_KEY = ("<small>Each candidate of the generation at the goal, coloured
 GHOST = (120, 200, 255)  # damped least squares from the rest pose
 REFINED = (255, 170, 60)  # the network's answer refined
 REFINE_STEPS = 3
+# a pose goal's refined ghost: Gauss-Newton from the network's answers and the ghost's last answer
+# (0.05 rad off the answer: 3 steps bring 95-98 % of poses within tolerance, 10 all but 1 in 1,000,
+# docs/pose.md), about 0.1 ms a step, in the IK thread
+POSE_REFINE_STEPS = 10
+POSE_DLS_SECONDS = 0.05  # s: the blue ghost's damped least squares with restarts, at most this long
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 REDRAW_PERIOD = 0.2  # s: redraws caused by training (and table updates) at most 5 times a second
 SAME_POSE = 1e-4  # rad (or length): a redraw moves an arm only when a joint changes more than this
@@ -104,16 +117,22 @@ def effector_errors(arm: robots.Arm, q, goal) -> np.ndarray:
 
 class GoalView(GoalExtras):
     def __init__(self, tab: "TabSession", index: int, position: np.ndarray):
-        """position: the goal's 3D point (3,), or one per end effector (E, 3) on a tree."""
+        """position: the goal's 3D point (3,), or one per end effector (E, 3) on a tree; in pose mode
+        (tab.goal_kind "pose") its 4 x 4 tool frame (or a 3D point: the gizmo then starts unturned)."""
         self.tab, self.index = tab, index
         arm, scene, ws = tab.arm, tab.client.scene, tab.ws
         base = f"/tab/goal{index}"
-        points = np.asarray(position, float).reshape(-1, 3)
+        self.pose_mode = getattr(tab, "goal_kind", "position") == "pose"
+        position = np.asarray(position, float)
+        wxyz = IDENTITY
+        if self.pose_mode and position.shape == (4, 4):
+            wxyz, position = posegoal.matrix_to_wxyz(position[:3, :3]), position[:3, 3]
+        points = position.reshape(-1, 3)
         if len(points) != arm.n_effectors:
             raise ValueError(f"{arm.name}: a goal is {arm.n_effectors} point(s) (one per end effector), "
                              f"got {len(points)}")
         self.markers = [scene.add_transform_controls(
-            marker_name(index, e), scale=ws["gizmo"], position=p, disable_rotations=True,
+            marker_name(index, e), scale=ws["gizmo"], position=p, wxyz=wxyz, disable_rotations=not self.pose_mode,
             active_axes=tuple(k in arm.task_axes for k in range(3)), translation_limits=ws["limits"][e],
             depth_test=False) for e, p in enumerate(points)]
         self.marker = self.markers[0]
@@ -128,9 +147,11 @@ class GoalView(GoalExtras):
         self.partner_error = np.nan
         self.error, self.net_s = np.nan, np.nan  # error: the worst effector's
         self.errors = np.full(arm.n_effectors, np.nan)  # each effector's
+        self.angle = np.nan  # pose mode: the network's answer's angle error [rad]
         self.ik = None
         self.ik_error = np.nan  # the DLS answer's worst effector error
-        self.seeded = None  # (worst effector error, steps, seconds) of the network's answer refined
+        self.ik_angle = np.nan  # pose mode: its angle error [rad]
+        self.seeded = None  # (worst effector error, steps, seconds[, angle]) of the network's answer refined
         for e, marker in enumerate(self.markers):
             marker.on_update(self._callback(e))
 
@@ -146,6 +167,29 @@ class GoalView(GoalExtras):
         if len(self.markers) == 1:
             return np.asarray(self.marker.position, float)[axes]
         return np.array([m.position for m in self.markers], float)[:, axes]
+
+    @property
+    def pose(self) -> np.ndarray:
+        """The goal's 4 x 4 tool frame: the gizmo's position and orientation (pose mode)."""
+        return posegoal.gizmo_pose(self.marker.position, self.marker.wxyz)
+
+    @property
+    def query(self) -> np.ndarray:
+        """What the controller answers: the goal (position mode) or its pose (pose mode)."""
+        return self.pose if self.pose_mode else self.goal
+
+    def errors_of(self, q, query=None) -> tuple[np.ndarray, float]:
+        """(each effector's distance, angle error [rad] or NaN) of joints q for this goal (or `query`)."""
+        query = self.query if query is None else query
+        if self.pose_mode:
+            d, a = posegoal.errors(self.tab.arm, query, q)
+            return np.array([d]), a
+        return effector_errors(self.tab.arm, q, query), np.nan
+
+    def error_text(self, error: float, angle: float) -> str:
+        """A distance in the arm's units, and in pose mode the angle in degrees."""
+        text = fmt_len(self.tab.arm, error)
+        return f"{text}, {posegoal.fmt_angle(angle)}" if self.pose_mode else text
 
     async def _on_update(self, _event, effector: int = 0) -> None:
         """Runs in viser's event loop, which saves the hop to its thread pool (slow while training
@@ -181,15 +225,15 @@ class GoalView(GoalExtras):
         """Arm at controller(goal) and its error; the rest pose when there is no controller.
         moved=False (a redraw for a new controller): poses that change less than SAME_POSE
         in every joint are not sent again."""
-        arm, goal = self.tab.arm, self.goal
+        arm, query = self.tab.arm, self.query
         if controller is None:
             q, self.net_s = arm.rest, np.nan
-            self.errors = np.full(arm.n_effectors, np.nan)
+            self.errors, self.angle = np.full(arm.n_effectors, np.nan), np.nan
         else:
             t = time.perf_counter()
-            q = controller(goal[None])[0]
+            q = controller(query[None])[0]
             self.net_s = time.perf_counter() - t
-            self.errors = effector_errors(arm, q, goal)
+            self.errors, self.angle = self.errors_of(q, query)
         self.error = float(self.errors.max())
         with self.tab.client.atomic():  # one wake-up of the sender for all the messages
             if moved or self.arm_view.q is None or np.max(np.abs(q - self.arm_view.q)) > SAME_POSE:
@@ -197,7 +241,7 @@ class GoalView(GoalExtras):
             if moved:
                 at = np.asarray(self.markers[min(self.dragged, len(self.markers) - 1)].position)
                 set_pose(self.label, at + self.tab.ws["label_offset"], IDENTITY)
-            text = "no controller" if controller is None else f"net {fmt_len(arm, self.error)}" + (
+            text = "no controller" if controller is None else f"net {self.error_text(self.error, self.angle)}" + (
                 f" (worst of {len(self.markers)})" if len(self.markers) > 1 else "")
             if text != self.label.text:
                 self.label.text = text
@@ -206,15 +250,16 @@ class GoalView(GoalExtras):
         """The DLS answer (robots.ik.IKResult), and the refined network answer (RefineResult or None),
         for `goal` (the goal they were solved for; by default the marker's); their errors as the
         network's: the worst effector's distance."""
-        arm, goal = self.tab.arm, self.goal if goal is None else goal
+        goal = self.query if goal is None else goal
         self.ik = result
-        self.ik_error = float(effector_errors(arm, result.q, goal).max())
+        errors, self.ik_angle = self.errors_of(result.q, goal)
+        self.ik_error = float(errors.max())
         with self.tab.client.atomic():
             self.ghost.set_q(result.q)
             self.ghost.visible = True
             if seeded is not None:
-                self.seeded = (float(effector_errors(arm, seeded.q[0], goal).max()), int(seeded.steps[0]),
-                               seeded.seconds)
+                errors, angle = self.errors_of(seeded.q[0], goal)
+                self.seeded = (float(errors.max()), int(seeded.steps[0]), seeded.seconds, angle)
                 self.refined.set_q(seeded.q[0])
             else:
                 self.seeded = None
@@ -290,13 +335,13 @@ class TabSession(TabExtras):
         """What this tab's arms show: the tab's own replay (app/tab/replay.py) while it has one for the
         shared arm, else the shared state's."""
         own = self.own
-        if own is not None and own.arm is self.state.arm:
+        if own is not None and own.arm is self.state.arm and own.goal == self.state.shown.goal:
             return own
         return self.state.shown
 
     def controller(self):
         shown = self.shown
-        return shown.controller if shown.arm is self.arm else None
+        return shown.controller if shown.arm is self.arm and shown.goal == self.goal_kind else None
 
     def markers(self):
         return [m for g in self.goals for m in g.markers]
@@ -308,6 +353,7 @@ class TabSession(TabExtras):
                 g.remove()
             self.goals = []
             self.arm = self.state.arm
+            self.goal_kind = self.state.shown.goal  # "position" or "pose": the goals' kind
             self.ws = frame_workspace(self.arm)
             intro = READY + (INTRO_TREE if self.arm.is_tree else INTRO)
             if self.intro.content != intro:
@@ -322,6 +368,8 @@ class TabSession(TabExtras):
     def _default_goal(self, k: int) -> np.ndarray:
         """Goal k's starting place: the first where the runs draw the population (display_goal: on a
         tree, where its effectors are at rest, so a humanoid stands), the others sampled."""
+        if self.goal_kind == "pose":  # a reachable pose: the tool frame of the joints behind that goal
+            return posegoal.default_pose(self.arm, k if k else 0, seed=7 if k else DISPLAY_SEED)
         goal = display_goal(self.arm) if k == 0 else self.arm.sample_goals(k + 1, seed=7)[k]
         return to_world(self.arm, goal)
 
@@ -360,22 +408,32 @@ class TabSession(TabExtras):
         self.last_ik = time.monotonic()
         with self.lock:
             goal = self.goals[0] if self.goals and not self.closed else None
-            arm, target = self.arm, goal.goal if goal is not None else None
+            arm, target = self.arm, goal.query if goal is not None else None
             controller = self.controller()
+            last = goal.refined.q if goal is not None and goal.seeded is not None else None
         if goal is None:
             return
-        result = dls_ik(arm, target)
+        if goal.pose_mode:
+            result = dls_pose_ik(arm, target, seconds=POSE_DLS_SECONDS)
+        else:
+            result = dls_ik(arm, target)
         seeded = None
         if controller is not None:  # the network's answer, made exact (timed with its forward pass)
             t0 = time.perf_counter()
-            seeded = refine(arm, target[None], proposals(controller, target[None]), steps=REFINE_STEPS)
+            if goal.pose_mode:  # the network's answers, then the ghost's last one (a drag moves a little)
+                own = controller.proposals(target[None]) if hasattr(controller, "proposals") else \
+                    np.asarray(controller(target[None]), dtype=np.float64)[None]
+                q0 = own if last is None else np.concatenate([own, np.asarray(last, float)[None, None]])
+                seeded = refine(arm, target[None], q0, steps=POSE_REFINE_STEPS)
+            else:
+                seeded = refine(arm, target[None], proposals(controller, target[None]), steps=REFINE_STEPS)
             seeded = dataclasses.replace(seeded, seconds=time.perf_counter() - t0)
         with self.lock:
             if self.goals and self.goals[0] is goal and not self.closed:
                 goal.set_ik(result, seeded, target)
                 self.client.flush()
                 self.table_dirty = True
-                if not np.allclose(goal.goal, target):
+                if not np.allclose(goal.query, target):
                     self.request_ik()  # the marker moved while solving: solve where it is now
 
     def _toggle_ik(self) -> None:
@@ -410,9 +468,9 @@ class TabSession(TabExtras):
         with self.lock:
             if self.closed:
                 return drew
-            if shown.arm is not self.arm:
+            if shown.arm is not self.arm or shown.goal != self.goal_kind:
                 self.build()
-            controller = shown.controller if shown.arm is self.arm else None  # one snapshot for all
+            controller = shown.controller if shown.arm is self.arm and shown.goal == self.goal_kind else None
             for g in self.goals:
                 g.update(controller, moved=False)
             self.version = shown.version  # after the poses: a reader that sees it sees them
@@ -426,20 +484,22 @@ class TabSession(TabExtras):
         effector's in the details fold); the classical solvers' errors and the timings in the
         details fold."""
         shown, arm = shown or self.shown, self.arm
-        errors = ", ".join(f"goal {g.index + 1}: **{fmt_len(arm, g.error)}**" for g in self.goals)
+        errors = ", ".join(f"goal {g.index + 1}: **{g.error_text(g.error, g.angle)}**" for g in self.goals)
         g0_partner = (self.goals[0] if self.goals and self.goals[0].partner_view is not None
                       and self.goals[0].partner_view.visible else None)
         partner = f"; race partner (purple), goal 1: {fmt_len(arm, g0_partner.partner_error)}" if g0_partner else ""
-        what = f"the worst of {arm.n_effectors} effectors" if arm.is_tree else "the goal"
+        what = f"the worst of {arm.n_effectors} effectors" if arm.is_tree else (
+            "the goal's pose (position, angle)" if self.goal_kind == "pose" else "the goal")
         self.table.content = f"Network: {shown.source}  \nDistance to {what}: {errors}{partner}"
         rows = ["| goal | network | refined | DLS |", "|---|---|---|---|"]
         show = self.show_ik.value
         for g in self.goals:
             first = g.index == 0 and show
-            ik = fmt_len(arm, g.ik_error) if first and g.ik is not None else ""
-            seeded = fmt_len(arm, g.seeded[0]) if first and g.seeded is not None else ""
-            rows.append(f"| {g.index + 1} | {fmt_len(arm, g.error)} | {seeded} | {ik} |")
-        lines = ["Refined: the network's answer made exact by at most 3 Gauss-Newton steps; DLS: damped "
+            ik = g.error_text(g.ik_error, g.ik_angle) if first and g.ik is not None else ""
+            seeded = g.error_text(g.seeded[0], g.seeded[3]) if first and g.seeded is not None else ""
+            rows.append(f"| {g.index + 1} | {g.error_text(g.error, g.angle)} | {seeded} | {ik} |")
+        steps = POSE_REFINE_STEPS if self.goal_kind == "pose" else REFINE_STEPS
+        lines = [f"Refined: the network's answer made exact by at most {steps} Gauss-Newton steps; DLS: damped "
                  "least squares from the rest pose (turn on *Classical IK beside it*)."
                  + (" On this robot each is the worst of its effectors' distances." if arm.is_tree else ""),
                  "", *rows]

@@ -49,12 +49,14 @@ END_WRITE_WAIT = 1.0
 
 @dataclass(frozen=True)
 class Shown:
-    """What the arms show: a controller for `arm` (or None), where it came from, a version."""
+    """What the arms show: a controller for `arm` (or None), where it came from, a version, and the
+    goals it answers ("position", or "pose": app/tab/posegoal.py)."""
 
     arm: robots.Arm
     controller: object | None
     source: str
     version: int
+    goal: str = "position"
 
 
 @dataclass
@@ -96,13 +98,22 @@ class _Tap:
 
 class LabState:
     def __init__(self, robot: str = "planar", notebook: Notebook | None = None, startup=None,
-                 recorder=None, startups=None, limits: dict | None = None, speed: float | None = None):
+                 recorder=None, startups=None, limits: dict | None = None, speed: float | None = None,
+                 goal: str = "position"):
         """startup: controller shown first (or None); startups: callable(robot name) -> (controller,
         note), the controller an arm opens with (app.startup.startup_controller), called once per arm;
         recorder: callable(runner) -> object with .path that records the run
         (lab.recording.RerunLogger), or None for no recordings. limits: the bounds this server puts
         on settings (app/classroom/limits.py; None: the lab's own). speed: generations a second every
-        run starts with (None: as fast as it goes)."""
+        run starts with (None: as fast as it goes). goal: "position" or "pose" (a real arm only:
+        app/tab/posegoal.py); startups is called as startups(robot, "pose") for pose goals."""
+        from app.tab.posegoal import GOALS, pose_refusal
+
+        if goal not in GOALS:
+            raise ValueError(f"goal must be one of {', '.join(GOALS)}, got {goal!r}")
+        if goal == "pose" and (why := pose_refusal(robot)) is not None:
+            raise ValueError(why)
+        self.goal = goal
         self.limits = limits
         self._lock = threading.RLock()
         self.notebook = notebook or Notebook()
@@ -167,8 +178,12 @@ class LabState:
             arm = arm or self._shown.arm
             if controller is not None and not made_for(controller, arm):
                 return f"refused: this controller was not made for the {arm.name} arm ({source})"
+            kind = "pose" if getattr(controller, "goal", "position") == "pose" else "position"
+            if controller is not None and kind != self.goal:
+                return (f"refused: this is a {kind} controller and the goals are {self.goal}s: pick Goal: "
+                        f"{kind.capitalize()} in the Train panel first ({source})")
             self._version += 1
-            self._shown = Shown(arm, controller, source, self._version)
+            self._shown = Shown(arm, controller, source, self._version, self.goal)
             return None
 
     def show_replay(self, controller, source: str) -> str | None:
@@ -185,26 +200,50 @@ class LabState:
             self.replaying = False
             self.replayed_population = None
             snap = self.runner.snapshot() if self.runner is not None else None
-            if snap is not None and snap.controller is not None and self.runner.config.robot == self.arm.name:
+            if snap is not None and snap.controller is not None and self.runner.config.robot == self.arm.name \
+                    and getattr(self.runner.config, "goal", "position") == self.goal:
                 self.show(snap.controller, f"run {self.runner.run_id[:6]}, generation {snap.generation}")
             else:
                 self._show_startup()
 
     def _show_startup(self) -> None:
         arm = self.arm
-        if self._startups is not None and arm.name not in self._opened:
+        key = arm.name if self.goal == "position" else (arm.name, self.goal)
+        if self._startups is not None and key not in self._opened:
             try:
-                self._opened[arm.name] = self._startups(arm.name)
+                self._opened[key] = self._startups(arm.name) if self.goal == "position" else \
+                    self._startups(arm.name, self.goal)
             except Exception as e:  # noqa: BLE001 - an arm without a controller still shows
-                log.warning("no startup controller for %s: %s", arm.name, e)
-                self._opened[arm.name] = (None, "none (train one)")
-        if arm.name in self._opened:
-            start, note = self._opened[arm.name]
+                log.warning("no startup controller for %s (%s goals): %s", arm.name, self.goal, e)
+                self._opened[key] = (None, "none (train one)")
+        if key in self._opened:
+            start, note = self._opened[key]
         else:
             start, note = self._startup, "startup controller"
-        if start is None or not made_for(start, arm):
+        if start is None or not made_for(start, arm) or \
+                ("pose" if getattr(start, "goal", "position") == "pose" else "position") != self.goal:
             start, note = None, "none (train one)"
         self.show(start, note)
+
+    def set_goal(self, goal: str) -> str | None:
+        """Position or pose goals for every tab (refused while a run is going, and pose goals on an
+        arm that takes none: app/tab/posegoal.py); the arm's startup controller for them is shown."""
+        from app.tab.posegoal import GOALS, pose_refusal
+
+        if goal not in GOALS:
+            return f"refused: the goal is one of {', '.join(GOALS)}, not {goal!r}"
+        if goal == self.goal:
+            return None
+        if self.running:
+            return f"refused: a {self.runner.config.robot} run is going; stop it before changing the goal"
+        if goal == "pose" and (why := pose_refusal(self.arm.name)) is not None:
+            return f"refused: {why}"
+        with self._lock:
+            self.goal = goal
+            self.replaying = False
+            self.show(None, "none")
+            self._show_startup()
+        return None
 
     def set_robot(self, name: str) -> str | None:
         if name == self.arm.name:
@@ -215,7 +254,11 @@ class LabState:
             arm = robots.load(name)
         except Exception as e:  # an unknown name or a broken model: keep the current arm
             return f"refused: {e}"
+        from app.tab.posegoal import pose_refusal
+
         with self._lock:
+            if self.goal == "pose" and pose_refusal(name) is not None:
+                self.goal = "position"  # the arm takes no pose goals: the panel's Goal follows
             self.show(None, "none", arm)
             self._show_startup()
         return None
@@ -237,6 +280,11 @@ class LabState:
                 msg = self.set_robot(config.robot)
                 if msg:
                     return msg
+            goal = getattr(config, "goal", "position")
+            if partner is not None and getattr(partner, "goal", "position") != goal:
+                return "refused: a race runs both runs on the same goals (position or pose)"
+            if goal != self.goal and (msg := self.set_goal(goal)):
+                return msg
             try:
                 runners = [ProcessRunner(c, history_limit=HISTORY_POINTS) for c in (config, partner) if c is not None]
             except Exception as e:
@@ -376,7 +424,7 @@ class LabState:
             if (event.improved or event.index == 0) and not self.replaying:
                 self._version += 1
                 self._shown = Shown(self._shown.arm, event.controller,
-                                    f"run {runner.run_id[:6]}, generation {event.index + 1}", self._version)
+                                    f"run {runner.run_id[:6]}, generation {event.index + 1}", self._version, self.goal)
 
     def _on_partner_generation(self, runner: ProcessRunner, event: lab.GenerationEvent) -> None:
         with self._lock:
