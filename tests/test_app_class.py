@@ -193,3 +193,65 @@ def test_python_m_app_takes_the_number_of_class_workers():
     for bad in ("0", "-1", "two", "1.5"):
         with pytest.raises(SystemExit):
             parse(["--class-workers", bad])
+
+
+def test_a_run_on_another_robot_is_drawn_in_its_own_tab_reaching_for_the_goal_its_student_drags(app):
+    """The class sees the planar arm; a viewer's so100 run is drawn in that tab's own scene (beside the
+    class's arm), posed at its best network's answer for the goal the student drags; another tab has
+    none of it, and the shared scene is unchanged."""
+    import numpy as np
+    import pinocchio as pin
+
+    import robots
+    from conftest import last_pose
+    from robots.visual import se3_pose
+
+    presenter = tab_of(urllib.parse.unquote(app.presenter_url.split("websocket=")[1]))
+    viewer, other = tab_of(app.url), tab_of(app.url)
+    try:
+        mine = session_of(app, viewer).my_run
+        assert app.state.arm.name == "planar"
+        mine.robot.value = "so100"
+        mine.population.value, mine.generations.value, mine.budget.value = 10.0, 5.0, 0.0
+        assert mine.start() is None
+        run = app.class_runs.run_of(mine.tab)
+        assert wait_until(lambda: run.ended, 300), run.status()
+        assert run.state == "finished"
+        assert wait_until(lambda: mine.view is not None and mine.view.controller is run.controller, 60)
+        viewer.wait_for(lambda m: m.get("name") == "/tab/myrun/goal0", 30)
+        viewer.wait_for(lambda m: m.get("name") == "/tab/myrun/title" and "so100" in str(m), 30)
+        arm = robots.load("so100")
+        goal = arm.sample_goals(1, seed=3)[0]
+        view = mine.view
+        assert view.scale > 1.0  # drawn at the planar arm's size, beside it
+        viewer.drag("/tab/myrun/goal0", view.to_world(goal)[0] if arm.is_tree else view.to_world(goal),
+                    pose_prefix="/tab/myrun/arm/", timeout=30)
+        assert wait_until(lambda: np.allclose(mine.view.goal, goal), 30)
+        q = run.controller(goal[None])[0]
+        data = arm.model.createData()
+        pin.forwardKinematics(arm.model, data, arm.to_pinocchio(q))
+
+        def posed() -> bool:
+            for j in range(1, arm.model.njoints):
+                position, wxyz = last_pose(viewer, f"/tab/myrun/arm/j{j}")
+                want_p, want_q = se3_pose(data.oMi[j])
+                want_p = view.offset + view.scale * want_p  # where it stands in the tab's scene
+                if not (np.allclose(position, want_p, atol=1e-5) and
+                        (np.allclose(wxyz, want_q, atol=1e-6) or np.allclose(wxyz, -want_q, atol=1e-6))):
+                    return False
+            return True
+
+        assert wait_until(posed, 30)
+        assert np.isfinite(mine.view.error) and "net " in mine.view.label.text
+        # only that tab: no other tab, presenter or viewer, got any of it; the class's arm is the planar one
+        for tab in (presenter, other):
+            assert not any(str(m.get("name", "")).startswith("/tab/myrun") for _t, m in list(tab.messages))
+        assert app.state.arm.name == "planar"
+        # Show off: the robot leaves the tab's scene
+        mine.show_on_arm.value = False
+        assert wait_until(lambda: mine.view is None, 30)
+        viewer.wait_for(lambda m: m["type"] == "RemoveSceneNodeMessage" and m["name"] == "/tab/myrun/goal0", 30)
+    finally:
+        viewer.close()
+        other.close()
+        presenter.close()

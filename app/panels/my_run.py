@@ -6,9 +6,11 @@ goals, generations or a time budget, seed; the server's limits bound them), "Sta
 "Stop my run", a status line (its place in the queue, its generation, its end) and its own
 convergence curve. The run goes to the class's queue (app/classroom/class_runs.py) and trains in a
 worker process of its own; nothing shared changes. While it trains on the arm the class sees, this
-tab's arms show its best network (TabSession.own, as the tab's own replay does; "Show my run on my
-arm" turns that off); on another robot only its numbers and curve show (the tab's scene keeps the
-shared arm). A presenter's tab, and every tab of a server where every tab is a presenter (loopback
+tab's arms show its best network (TabSession.own, as the tab's own replay does); on another robot,
+that robot is drawn in this tab's own scene beside the class's arm (app/tab/run_view.py: scaled to
+its size, "your run: so100" above it, a goal the student drags, the run's best network reaching for
+it), the camera framing both. "Show my run on my arm" turns either off (the class's network on the
+tab's arms, the other robot gone, the camera on the class's arm again). A presenter's tab, and every tab of a server where every tab is a presenter (loopback
 without a token), has no such folder: it has the shared Train panel.
 """
 
@@ -25,6 +27,8 @@ from lab import methods
 from app.classroom.class_runs import ClassRuns, describe
 from app.panels.train import notify
 from app.tab.replay import _versions
+from app.tab.run_view import RunView
+from app.tab.scene import frame_workspace
 from app.training.live import decimate, sample
 from app.training.state import Shown
 
@@ -61,8 +65,9 @@ class MyRunPanel:
             self.start_button = gui.add_button("Start my run", icon=viser.Icon.PLAYER_PLAY)
             self.stop_button = gui.add_button("Stop my run", icon=viser.Icon.PLAYER_STOP, disabled=True)
             self.show_on_arm = gui.add_checkbox("Show my run on my arm", True,
-                                                hint="while it trains on the arm the class sees, this tab's arms "
-                                                     "show its best network (off: the class's network)")
+                                                hint="on the arm the class sees, this tab's arms show its best "
+                                                     "network; on another robot, that robot is drawn beside the "
+                                                     "class's arm (off: the class's network alone)")
             self.status = gui.add_markdown("No run yet.")
             self.message = gui.add_markdown("")
             self.plot = gui.add_uplot(
@@ -78,6 +83,10 @@ class MyRunPanel:
         self.show_on_arm.on_update(lambda e: self._show(force=True))
         self._drawn = None  # (run id, generation, state, status) last drawn
         self._shown_version = None
+        self.view: RunView | None = None  # the run's robot in this tab's scene, when it is not the class's
+        self._view_key = None  # (run id, robot, the class's arm) it was drawn for
+        self._view_version = None
+        self._view_broken = None  # the key of a view that could not be drawn (not tried again)
 
     # ------------------------------------------------------------------ actions
     def _tell(self, text: str, error: bool = True) -> str:
@@ -147,7 +156,8 @@ class MyRunPanel:
 
     # ------------------------------------------------------------------ the render loop
     def refresh(self) -> None:
-        """Status, buttons, curve and (on the shared arm) the tab's arms; cheap when nothing changed."""
+        """Status, buttons, curve, and the tab's arms (on the shared arm) or the run's robot beside them;
+        cheap when nothing changed."""
         run = self.runs.run_of(self.tab)
         if run is None:
             return
@@ -164,7 +174,9 @@ class MyRunPanel:
             held = run.held_out()
             text = (f"**{status[0].upper() + status[1:]}**  \n{describe(run.config)}" +
                     (f"  \nbest training MSE {best:.4g}" if best is not None else "") +
-                    (f", held-out MSE {held:.4g}" if held is not None else ""))
+                    (f", held-out MSE {held:.4g}" if held is not None else "") +
+                    (f"  \nYour {run.config.robot} stands left of the class's arm: drag its goal."
+                     if run.config.robot != self.session.state.arm.name and run.controller is not None else ""))
             self.status.content = text
             gens, values, _median = run.track.curves()
             m = int(gens[-1]) + 1 if len(gens) else 0
@@ -174,14 +186,15 @@ class MyRunPanel:
         self._show()
 
     def _show(self, force: bool = False) -> None:
-        """This tab's arms show the run's best while it is on the shared arm (and Show is on); never
-        over the tab's own replay."""
+        """This tab's arms show the run's best while it is on the shared arm (and Show is on), never
+        over the tab's own replay; on another robot, that robot beside the class's arm (_show_other)."""
         s = self.session
         own = s.own
         mine = own is not None and own.source.startswith(MINE)
         run = self.runs.run_of(self.tab)
-        wanted = (run is not None and run.controller is not None and self.show_on_arm.value
-                  and run.config.robot == s.state.arm.name)
+        has = run is not None and run.controller is not None and self.show_on_arm.value
+        self._show_other(run if has and run.config.robot != s.state.arm.name else None)
+        wanted = has and run.config.robot == s.state.arm.name
         if not wanted:
             if mine and force:
                 s.own = None
@@ -195,5 +208,30 @@ class MyRunPanel:
             s.own = Shown(s.state.arm, run.controller, f"{MINE} ({run.name}), generation {run.generation}",
                           next(_versions))
 
+    def _show_other(self, run) -> None:
+        """The run's robot in this tab's own scene (None: none), drawn again when the class's arm changes."""
+        shared = self.session.state.arm
+        key = None if run is None else (run.id, run.config.robot, shared.name)
+        if key != self._view_key and self.view is not None:
+            self.view.remove()
+            self.view, self._view_version = None, None
+        self._view_key = key
+        if run is None:
+            return
+        if self.view is None and key != self._view_broken:
+            try:
+                arm = robots.load(run.config.robot)
+                self.view = RunView(self.client, arm, frame_workspace(shared), f"your run: {arm.name}")
+            except Exception as e:  # noqa: BLE001 - its numbers and curve still show
+                self._view_broken = key
+                self.message.content = f"your run's robot cannot be drawn here: {e}"
+                return
+        if self.view is not None and self._view_version != run.version:
+            self._view_version = run.version
+            self.view.set_controller(run.controller)
+
     def close(self) -> None:
         self.runs.drop_tab(self.tab)
+        if self.view is not None:
+            self.view.remove()
+            self.view = None

@@ -33,18 +33,24 @@ _VIEWS = itertools.count()  # each ArmView's number, in its geometries' names
 
 
 class ArmView:
-    """One arm drawn under `name` in a viser scene (server.scene or client.scene)."""
+    """One arm drawn under `name` in a viser scene (server.scene or client.scene); scale and offset: drawn
+    at offset + scale x its own coordinates (a robot drawn beside another of another size; viser's
+    frames do not scale their children, so each joint's place and each geometry are scaled here)."""
 
     def __init__(self, scene, arm: robots.Arm, name: str, *, opacity: float | None = None,
-                 tint: tuple[int, int, int] | None = None):
+                 tint: tuple[int, int, int] | None = None, scale: float = 1.0, offset=(0.0, 0.0, 0.0)):
         self.arm, self.name, self.scene = arm, name, scene
+        self.scale, self.offset = float(scale), np.asarray(offset, dtype=np.float64)
         self.data = arm.model.createData()
         joints = sorted({j for j, *_ in visual_geometry(arm)} | set(range(1, arm.model.njoints)))
-        self.frames = {j: scene.add_frame(f"{name}/j{j}", show_axes=False) for j in joints}
+        self.frames = {j: scene.add_frame(f"{name}/j{j}", show_axes=False, position=self.offset) for j in joints}
         view = next(_VIEWS)
         for i, (j, pos, wxyz, kind, params, rgba) in enumerate(visual_geometry(arm)):
             color = tuple(int(255 * c) for c in rgba[:3]) if tint is None else tint
-            kw = dict(position=pos, wxyz=wxyz, opacity=opacity, cast_shadow=opacity is None)
+            kw = dict(position=self.scale * np.asarray(pos, np.float64), wxyz=wxyz, opacity=opacity,
+                      cast_shadow=opacity is None)
+            if self.scale != 1.0:
+                kw["scale"] = self.scale
             node = f"{name}/j{j}/g{i}-{view}"
             if kind == "Box":
                 scene.add_box(node, color=color, dimensions=params[0], **kw)
@@ -61,8 +67,10 @@ class ArmView:
         """Move the drawn arm to joint values q (nq,): one pose message per joint."""
         q = np.asarray(q, dtype=np.float64)
         pin.forwardKinematics(self.arm.model, self.data, self.arm.to_pinocchio(q))
+        scaled = self.scale != 1.0 or self.offset.any()
         for j, frame in self.moving.items():
-            set_pose(frame, *se3_pose(self.data.oMi[j]))
+            position, wxyz = se3_pose(self.data.oMi[j])
+            set_pose(frame, self.offset + self.scale * position if scaled else position, wxyz)
         self.q = q
 
     @property
