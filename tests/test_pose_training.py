@@ -119,3 +119,21 @@ def test_pose_gradient_equals_finite_differences(name):
         e[i] = h
         fd = (problem.mlp_mse((w + e)[None], 4)[0] - problem.mlp_mse((w - e)[None], 4)[0]) / (2 * h)
         assert g[i] == pytest.approx(fd, rel=1e-4, abs=1e-8)
+
+
+SHIPPED = sorted((__import__("pathlib").Path(__file__).resolve().parents[1] / "app" / "pretrained").glob("*-pose-*.json"))
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.name)
+def test_every_shipped_pose_controller_answers_poses_with_the_error_its_file_records(path):
+    doc = json.loads(path.read_text())
+    robot = doc["settings"]["robot"]
+    assert path.name.startswith(f"{robot}-pose-") and doc["settings"]["goal"] == "pose"
+    arm = robots.load(robot)
+    c = lab.controller_from_dict(doc["controller"])
+    assert c.goal == "pose" and np.allclose(c.encoding.q_lo, arm.lower) and np.allclose(c.encoding.q_hi, arm.upper)
+    held = doc["held_out"]
+    T = pose.sample_poses(arm, held["goals"], seed=held["seed"])
+    s = lab.solve(c, arm, T, steps=0)  # the network alone
+    assert 1000 * np.median(s.error) == pytest.approx(held["median_mm"], rel=1e-6)
+    assert np.degrees(np.median(s.angle)) == pytest.approx(held["median_deg"], rel=1e-6)
