@@ -88,6 +88,8 @@ def load_pretrained(robot: str, goal: str = "position"):
     err = data.get("held_out")
     what = (f"median error {err['median']:.3g} {err['unit']}" if err and "median" in err and "unit" in err
             else f"held-out MSE {data['test_mse']:.3g}")
+    if err and "median_deg" in err:  # a pose controller's angle error too
+        what += f", {err['median_deg']:.0f}°"
     settings = data["settings"]  # a budgeted run's generations are only its cap: say its time
     budget = f"{settings['seconds']:g} s" if settings.get("seconds") else f"{settings['generations']:,} generations"
     return controller, f"shipped ({budget}, {what})"

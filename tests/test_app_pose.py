@@ -15,6 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import lab
 import robots
 from app.tab.posegoal import gizmo_pose, matrix_to_wxyz
 from conftest import make_app, open_tab, session_of, wait_until
@@ -28,7 +29,7 @@ LABEL = re.compile(r"net \d+(\.\d)? (mm|µm), \d+(\.\d+)?(e-\d+)?°")
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    lab_app = make_app(tmp_path_factory.mktemp("app_pose"), robot=ROBOT, goal="pose")
+    lab_app = make_app(tmp_path_factory.mktemp("app_pose"), robot=ROBOT, goal="pose", record=True)
     yield lab_app
     lab_app.stop()
 
@@ -181,3 +182,50 @@ def test_position_mode_is_unchanged(app, tab):
         assert "°" not in session.table.content
     finally:
         assert app.panel.set_goal("pose") is None
+
+
+def test_start_in_pose_mode_trains_a_pose_network_drawn_recorded_and_noted(app, tab):
+    panel, state = app.panel, app.state
+    session = session_of(app, tab)
+    panel.budget.value = 0.0
+    panel.generations.value = 100_000
+    panel.population.value = 10
+    try:
+        assert panel.start() is None, panel.message.content
+        assert state.runner.config.goal == "pose"
+        assert wait_until(lambda: state.progress()["generation"] >= 3, timeout=120)
+        assert wait_until(lambda: state.shown.source.startswith("run"), timeout=60)
+        assert state.shown.controller.goal == "pose"
+        # the tab's arm answers its pose goal with the run's network; the population is drawn at it
+        assert wait_until(lambda: session.version == state.shown.version, timeout=30)
+        g = session.goals[0]
+        assert wait_until(lambda: g.cloud is not None and g.cloud.visible, timeout=30)
+        assert np.asarray(g.cloud.points).shape[0] == 10
+        assert state.recording is not None  # the Rerun recording of a pose run
+        run_id = state.runner.run_id
+    finally:
+        state.reset()
+        panel.generations.value = 1000
+    # the run's notebook entry replays in pose mode; in position mode, replaying it brings pose goals back
+    entry = next(e for e in state.notebook.entries() if e["run_id"] == run_id)
+    assert entry["settings"]["goal"] == "pose"
+    assert panel.set_goal("position") is None
+    try:
+        controller = lab.controller_from_dict(entry["controller"])
+        assert app.runs._show(entry["robot"], controller, "a pose run", None) is None
+        assert state.goal == "pose" and state.shown.controller.goal == "pose"
+        assert wait_until(lambda: session.goal_kind == "pose", timeout=30)
+    finally:
+        state.live()
+        assert panel.set_goal("pose") is None
+
+
+def test_a_lesson_link_carries_the_goal_kind(app):
+    from app.classroom.lesson import check_lesson, lesson_params
+
+    params = lesson_params(app.panel)
+    assert params["goal"] == "pose" and params["robot"] == ROBOT
+    main, _partner, _views, _text = check_lesson(params)
+    assert main.goal == "pose"
+    with pytest.raises(ValueError, match="real arms"):
+        check_lesson({**params, "robot": "planar"})

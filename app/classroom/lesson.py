@@ -78,6 +78,8 @@ LESSONS = _load_lessons()
 def lesson_params(panel) -> dict:
     """The panel's settings as a lesson's parameters (values as text)."""
     params = {"lesson": "1", "robot": panel.robot.value, "method": panel._method_name()}
+    if getattr(panel.state, "goal", "position") == "pose":  # pose goals (app/tab/posegoal.py)
+        params["goal"] = "pose"
     for name in ("population", "generations", "hidden", "seed"):
         params[name] = _whole(getattr(panel, name).value)
     race = panel.race
@@ -139,13 +141,22 @@ def lesson_configs(params: dict) -> tuple[lab.TrainConfig, lab.TrainConfig | Non
         except ValueError:
             raise ValueError(f"lesson {name} must be a whole number, got {params[name]!r}") from None
 
+    goal = params.get("goal", "position")
+    if goal not in ("position", "pose"):
+        raise ValueError(f"lesson goal must be position or pose, got {goal[:40]!r}")
+    if goal == "pose":
+        from app.tab.posegoal import pose_refusal
+
+        if (why := pose_refusal(params.get("robot", "planar"))) is not None:
+            raise ValueError(why)
     main = lab.TrainConfig.preset(robot=params.get("robot", "planar"), method=params.get("method", methods.DEFAULT_METHOD),
+                                  **({"goal": "pose"} if goal == "pose" else {}),
                                   **{k: whole(k) for k in ("population", "generations", "hidden", "seed") if k in params})
     if "partner" not in params:
         return main, None
     partner = lab.TrainConfig.preset(
         robot=main.robot, method=params["partner"], targets=main.targets, generations=main.generations,
-        **{k: whole(f"partner_{k}") for k in ("population", "hidden", "seed") if f"partner_{k}" in params})
+        **({"goal": "pose"} if goal == "pose" else {}), **{k: whole(f"partner_{k}") for k in ("population", "hidden", "seed") if f"partner_{k}" in params})
     return main, partner
 
 
@@ -180,6 +191,8 @@ def open_lesson(app, session, params: dict, client, presenter: bool) -> str | No
                 getattr(session, attr).value = views[view]
         if text is not None:
             show_lesson_text(session, params["lesson"], *text)
+        if getattr(session, "my_run", None) is not None:  # a viewer's part of a class's search (class_hidden=)
+            session.my_run.take_part(params)
     return refused
 
 
@@ -291,6 +304,8 @@ def apply_lesson(app, params: dict, client=None) -> str | None:
     panel.trained()
     msg = app.switch_robot(main.robot)
     if msg:
+        return _tell(client, msg, error=True)
+    if hasattr(panel, "set_goal") and (msg := panel.set_goal(getattr(main, "goal", "position"))):
         return _tell(client, msg, error=True)
     if panel.budget.value:  # a lesson's settings have no time budget (its link carries none)
         panel.budget.value = 0.0

@@ -197,6 +197,12 @@ class RunsPanel:
                 why = msg.removeprefix("refused: ")
                 return self.refuse(client, f"refused: this run is of the {robot} arm and the lab shows the {before} "
                                            f"arm, which it cannot leave now: {why}")
+        kind = "pose" if getattr(controller, "goal", "position") == "pose" else "position"
+        if kind != self.state.goal:  # a pose run's network answers pose goals: the goals follow it
+            msg = self.app.panel.set_goal(kind)
+            if msg:
+                return self.refuse(client, f"refused: this run's network answers {kind} goals, which the lab cannot "
+                                           f"switch to now: {msg.removeprefix('refused: ')}")
         msg = self.state.show_replay(controller, source)
         if msg:
             return self.refuse(client, msg)
