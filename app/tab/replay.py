@@ -112,6 +112,11 @@ class TabReplay:
                 return self._say(f"refused: this run is of the {of[:40]} arm and the presenter shows the {arm.name} "
                                  f"arm: it replays in this tab once the presenter shows the {of[:40]} arm")
             return self._say(f"refused: this run was made for another arm; the presenter shows the {arm.name} arm")
+        kind = "pose" if getattr(controller, "goal", "position") == "pose" else "position"
+        if kind != self.session.state.goal:  # the goals are the presenter's (Train panel: Goal)
+            return self._say(f"refused: this run's network answers {kind} goals and the presenter's goals are "
+                             f"{self.session.state.goal}s: it replays in this tab once the presenter picks Goal: "
+                             f"{kind.capitalize()}")
         self.recording = rec
         if rec is not None:
             first, last = rec.controllers[0][0], max(gen, rec.controllers[-1][0])
@@ -137,7 +142,7 @@ class TabReplay:
         return None
 
     def _show(self, controller, source: str) -> None:
-        self.session.own = Shown(self.session.state.arm, controller, source, next(_versions))
+        self.session.own = Shown(self.session.state.arm, controller, source, next(_versions), self.session.state.goal)
 
     def live(self) -> None:
         self.recording = None
