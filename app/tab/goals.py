@@ -50,6 +50,8 @@ from app.viser_private import set_pose
 
 MAX_GOALS = 8
 INTRO = "**Drag the arrows** to move the goal: the arm follows a neural network. **Start** trains a new one."
+INTRO_POSE = ("**Drag the arrows** to move the goal and **turn the rings** to turn it: the arm follows a neural "
+              "network to the tool's position and orientation. **Start** trains a new one.")
 # the page shows the lab once this element, first in the tab's intro, is there (app/server.py PAGE_HEAD)
 READY_ID = "lab-ready"
 READY = f'<span id="{READY_ID}"></span>'
@@ -355,7 +357,7 @@ class TabSession(TabExtras):
             self.arm = self.state.arm
             self.goal_kind = self.state.shown.goal  # "position" or "pose": the goals' kind
             self.ws = frame_workspace(self.arm)
-            intro = READY + (INTRO_TREE if self.arm.is_tree else INTRO)
+            intro = READY + (INTRO_TREE if self.arm.is_tree else INTRO_POSE if self.goal_kind == "pose" else INTRO)
             if self.intro.content != intro:
                 self.intro.content = intro
             text = about(self.arm, lab.TrainConfig.preset(robot=self.arm.name))
