@@ -229,3 +229,19 @@ def test_a_lesson_link_carries_the_goal_kind(app):
     assert main.goal == "pose"
     with pytest.raises(ValueError, match="real arms"):
         check_lesson({**params, "robot": "planar"})
+
+
+def test_the_pose_lesson_link_opens_pose_mode_and_position_lessons_go_back(app):
+    from app.classroom.lesson import LESSONS, apply_lesson
+
+    panel = app.panel
+    assert panel.set_goal("position") is None
+    try:
+        assert apply_lesson(app, {"lesson": "1", **LESSONS["position-or-pose"].params}) is None
+        assert app.state.goal == "pose" and app.state.arm.name == ROBOT and panel.goal.value == "Pose"
+        assert panel.config().goal == "pose"
+        # a lesson without goal= is a position lesson: it puts the goals back to positions
+        assert apply_lesson(app, {"lesson": "1", "robot": ROBOT, "method": panel._method_name()}) is None
+        assert app.state.goal == "position" and panel.goal.value == "Position"
+    finally:
+        assert panel.set_goal("pose") is None
