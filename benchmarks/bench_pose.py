@@ -26,8 +26,8 @@ Solvers:
     network + refine        the shipped pose controller app/pretrained/<arm>-pose-cmaes.json, all its
                             heads as proposals, then lab.solve's refinement (robots.ik.refine) to 1e-5
                             (at most 20 steps); "none shipped" where that file does not exist
-    ... then DLS restarts   the same, then, while the budget lasts, robots.ik.dls_pose_ik from the
-                            network's answer and random joint vectors
+    ... then DLS restarts   the same, then, while the budget lasts, the DLS baseline's starts (the
+                            rest pose, then random joint vectors) in what is left of it
     pink, rest pose         pink (Pinocchio's differential IK, a QP a step, daqp) from arm.rest: steps of
                             dt 1 with its configuration and velocity limits until 1e-5, a stall (|e| down
                             by less than 1 % in a step) or 5 ms
@@ -100,8 +100,7 @@ def network_solver(arm, controller, restarts: bool):
         s = lab.solve(controller, arm, goal[None], steps=20, tol=TOL, angle_tol=TOL)
         q = s.q[0]
         if restarts and not s.converged[0] and clock() - t0 < BUDGET:
-            rng = np.random.default_rng(i)
-            q = dls_restarts(arm, goal, arm.lower + (arm.upper - arm.lower) * rng.random(arm.nq), t0, i)
+            q = dls_restarts(arm, goal, arm.rest, t0, i)  # the DLS baseline's starts, in what is left
             if max(*pose.pose_errors(arm, goal[None], s.q)) < max(*pose.pose_errors(arm, goal[None], q[None])):
                 q = s.q[0]
         return q, clock() - t0
