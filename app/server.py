@@ -163,7 +163,8 @@ class LabApp:
         self.access = Access(host, presenter_token, open_access)
         self.upload_refusal = self.access.refusal  # uploads: viewers are refused as a transfer starts
         # students' own runs (a viewer's "My experiment"), queued to worker processes of their own
-        self.class_runs = ClassRuns(notebook, self.state.limits, workers=class_workers, runner=class_runner)
+        self.class_runs = ClassRuns(notebook, self.state.limits, workers=class_workers, runner=class_runner,
+                                    recorder=rerun_recorder(recordings.rstrip("/") + "/class") if record else None)
         # the render loop, the run's reader and viser's thread pool all update handles: each update's
         # wake-up of viser's sender must reach its event loop safely (see app/viser_private.py)
         install_loop_safe_wakeups()
@@ -194,10 +195,11 @@ class LabApp:
         with tabs.add_tab("Runs", viser.Icon.LIST):
             self.runs = RunsPanel(gui, self)
         with tabs.add_tab("Class", viser.Icon.USERS):
-            self.board = ClassBoard(gui, self.class_runs, show=self.runs._show)
+            self.board = ClassBoard(gui, self.class_runs, show=self.runs._show, replay=self.runs.open_file)
         with tabs.add_tab("About", viser.Icon.INFO_CIRCLE):
             gui.add_markdown(MORE)
-        self.show_map.on_update(lambda e: self._show_map(self.show_map.value and has_map(self.state.arm)))
+        self.show_map.on_update(lambda e: self._show_map(self.show_map.value and has_map(self.state.arm)
+                                                         and self.state.shown.goal == "position"))
         self._drawn = (-1, None)  # (shown version, arm) of the map and the network
         # the render loop and callers must not interleave draws, nor rebuilds of the shared scene (two
         # threads adding /floor at once make viser remove the handle the other is still setting up)
@@ -330,6 +332,9 @@ class LabApp:
         else:  # the goals of a run with the arm's defaults (the About text says how many)
             d = lab.TrainConfig.preset(robot=arm.name)
             goals = arm.sample_goals(d.targets, seed=d.goal_seed)
+        goals = np.asarray(goals)
+        if goals.shape[-2:] == (4, 4):  # a pose run's goals: their positions
+            return goals[:, :3, 3].reshape(-1, 3)
         return arm.to_3d(goals).reshape(-1, 3)  # a tree's: every effector's point of every goal
 
     def _draw_views(self) -> None:
@@ -345,6 +350,11 @@ class LabApp:
             self._build_shared()
         self._drawn = (shown.version, shown.arm)
         self.network.content = network_svg(shown.controller)
+        if shown.goal == "pose":  # the map is over positions: a pose goal has an orientation too
+            self._show_map(False)
+            self.map_legend.content = ("No error map for pose goals: the map is a network's error over a grid "
+                                       "of positions, and a pose goal also has an orientation.")
+            return
         if not has_map(shown.arm):
             self._show_map(False)
             self.map_legend.content = (

@@ -202,6 +202,8 @@ def test_start_in_pose_mode_trains_a_pose_network_drawn_recorded_and_noted(app, 
         assert wait_until(lambda: g.cloud is not None and g.cloud.visible, timeout=30)
         assert np.asarray(g.cloud.points).shape[0] == 10
         assert state.recording is not None  # the Rerun recording of a pose run
+        assert app.training_goals().shape == (state.runner.config.targets, 3)  # the red points: their positions
+        assert "No error map for pose goals" in app.map_legend.content
         run_id = state.runner.run_id
     finally:
         state.reset()
