@@ -255,3 +255,100 @@ def test_a_run_on_another_robot_is_drawn_in_its_own_tab_reaching_for_the_goal_it
         viewer.close()
         other.close()
         presenter.close()
+
+
+def test_the_class_chart_draws_the_class_curve_through_each_values_median():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from app.panels.class_board import chart_svg
+
+    def run(hidden, mse):
+        config = lab.TrainConfig(robot="planar", generations=20, population=10, hidden=hidden)
+        return SimpleNamespace(name="s", config=config, state="finished", held_out=lambda: mse)
+
+    runs = [run(2, 0.1), run(2, 0.4), run(2, 1.6), run(8, 0.01), run(64, 1.0)]
+    svg = chart_svg(runs, "hidden units")
+    assert svg.count("<circle") == 5 and svg.count("<polyline") == 1 and "class median" in svg
+    line = svg.split('<polyline points="')[1].split('"')[0]
+    ys = [float(p.split(",")[1]) for p in line.split()]
+    xs = [float(p.split(",")[0]) for p in line.split()]
+    # three points, left to right; the median of 2's three runs (0.4) lies between 8's (0.01) and 64's (1.0)
+    assert len(ys) == 3 and xs == sorted(xs) and ys[1] > ys[0] > ys[2]
+    # hidden units 2..64 on a log axis: 8 is as far from 2 as 64 from 16 would be, so halfway less than linear
+    assert np.isclose((xs[1] - xs[0]) / (xs[2] - xs[0]), np.log(4) / np.log(32))
+    assert "<polyline" not in chart_svg(runs, "method")  # a method is no curve
+
+
+def test_the_class_as_a_search_gives_each_student_tab_its_part(app):
+    """The lesson's link: the N-th viewer tab to open it gets the N-th number of hidden units of the link's
+    class_hidden= list as its My experiment's (seed 0; the next round of the list seed 1), and the
+    lesson's other settings; a tab's seat stays its own; a presenter's tab has no My experiment to set."""
+    from app.classroom.lesson import LESSONS
+    from app.probe import Probe
+
+    lesson = LESSONS["class-as-a-search"]
+    values = [int(v) for v in lesson.params["class_hidden"].split(".")]
+    url = urllib.parse.unquote(lesson.link(app.url).split("?websocket=", 1)[1]).replace("ws://", "http://")
+    tabs = []
+    try:
+        for k in range(2):
+            tabs.append(Probe(url).start(60))
+            tabs[-1].wait_for(lambda m: m.get("name") == "/tab/goal0/label", 60)
+        panels = [session_of(app, t).my_run for t in tabs]
+        for k, panel in enumerate(panels):
+            assert wait_until(lambda: "part of the class" in panel.message.content, 30)
+            config = panel.config()
+            assert (config.hidden, config.seed, config.generations, config.population) == \
+                (values[k], 0, int(lesson.params["generations"]), int(lesson.params["population"]))
+            assert config.robot == lesson.params["robot"] and config.seconds is None
+        seat = app.class_runs.lesson_seat(lesson.name, panels[1].tab)
+        assert seat == 1 and app.class_runs.lesson_seat(lesson.name, panels[0].tab) == 0
+        assert app.class_runs.lesson_seat(lesson.name, -5) == 2  # the next tab's seat
+        assert panels[0].take_part({**lesson.params, "lesson": lesson.name}) is None
+        assert panels[0].config().hidden == values[0]  # its own seat again
+        assert panels[0].take_part({"class_hidden": "2.x"}).startswith("refused")
+    finally:
+        for t in tabs:
+            t.close()
+
+
+def test_the_presenter_shows_a_finished_students_recording_and_scrubs_its_generations(tmp_path):
+    """On a server that records, a student's finished run has its recording; the board's show opens it
+    in the Runs tab for the whole class: the slider spans its generations and scrubbing one shows the
+    controller logged then."""
+    import os
+
+    import numpy as np
+
+    lab_app = make_app(tmp_path, presenter_token=TOKEN, class_workers=1, startup=None, record=True,
+                       limits={"population": 200})
+    viewer = tab_of(lab_app.url)
+    try:
+        mine = session_of(lab_app, viewer).my_run
+        small(mine, generations=20)
+        assert mine.start() is None
+        run = lab_app.class_runs.run_of(mine.tab)
+        assert wait_until(lambda: run.ended, 300), run.status()
+        assert run.recording and os.path.isfile(run.recording)
+        assert lab_app.state.notebook.get(run.id)["recording"] == run.recording
+        board = lab_app.board
+        assert wait_until(lambda: any(run.id[:6] in o for o in board.show_choice.options), 30)
+        board.show_choice.value = next(o for o in board.show_choice.options if run.id[:6] in o)
+        assert board.show_chosen() is None and "recording" in board.show_message.content
+        runs = lab_app.runs
+        assert runs.recording is not None and str(runs.recording.path) == run.recording
+        last = int(runs.recording.controller_doc()["generation"]) + 1  # its last new best, of 20 generations
+        assert not runs.slider.disabled and runs.slider.min == 1 and runs.slider.max == runs.slider.value == last > 1
+        goals = lab_app.state.arm.sample_goals(5, seed=1)
+        assert np.array_equal(lab_app.state.shown.controller(goals), run.controller(goals))  # its last: the final
+        assert runs.scrub(1) is None
+        first = lab.controller_from_dict(runs.recording.controller_doc(0)["controller"])
+        assert "generation 1" in lab_app.state.shown.source and lab_app.state.replaying
+        assert np.array_equal(lab_app.state.shown.controller(goals), first(goals))
+        runs.live()
+        assert not lab_app.state.replaying
+    finally:
+        viewer.close()
+        lab_app.stop()

@@ -115,3 +115,31 @@ def test_the_queue_is_bounded(notebook):
         assert runs.submit(tab, lab.TrainConfig(**SHORT)) is None
     why = runs.submit(MAX_QUEUED, lab.TrainConfig(**SHORT))
     assert why.startswith("refused:") and "queue is full" in why
+
+
+def test_a_recorded_runs_recording_ends_with_its_final_controller_and_its_entry_names_it(notebook, tmp_path):
+    """With a recorder (as the server has), a student run is recorded: its entry names a whole .rrd whose
+    last controller is the run's final one, its logged error that controller's training MSE."""
+    import numpy as np
+
+    from app.server import rerun_recorder
+    from lab.recording.replay import read_recording
+
+    runs = ClassRuns(notebook, CLASSROOM, workers=1, recorder=rerun_recorder(str(tmp_path / "class")))
+    assert runs.submit(7, lab.TrainConfig(**SHORT, seed=2)) is None
+    run = runs.run_of(7)
+    assert wait_until(lambda: run.ended, 300), run.status()
+    assert run.state == "finished"
+    entry = notebook.get(run.id)
+    assert entry["recording"] == run.recording and os.path.isfile(run.recording)
+    assert os.path.dirname(run.recording) == str(tmp_path / "class")
+    rec = read_recording(run.recording)
+    assert rec.last_generation == run.generation - 1 and rec.summary is not None
+    doc = rec.controller_doc()
+    controller = lab.controller_from_dict(doc["controller"])
+    problem = run.runner.problem
+    goals = problem.train_goals
+    assert np.array_equal(controller(goals), run.summary.controller(goals))  # bit for bit
+    q = controller(goals)
+    mse = float(np.mean(np.sum((problem.arm.reach(q) - goals) ** 2, axis=-1)))
+    assert doc["best_mse"] == pytest.approx(mse, rel=1e-6) == pytest.approx(run.summary.train_mse, rel=1e-9)

@@ -6,6 +6,7 @@
     runs.run_of(tab_id).status()                 # "queued, place 2 of 3", "running, generation 40", ...
     runs.stop_tab(tab_id); runs.drop_tab(tab_id) # a student's Stop; a closed tab (its name freed too)
     runs.shutdown()                              # the server stops: every queued and running run ends, stopped
+    ClassRuns(notebook, limits, recorder=rerun_recorder("recordings/class"))  # each run recorded (.rrd)
 
 Nothing here knows viser (the panels are app/panels/my_run.py and app/panels/class_board.py). Each
 run trains in a worker process of its own (lab.running.worker.ProcessRunner, as the shared run does,
@@ -13,8 +14,14 @@ but never the prestarted spare, which stays for the presenter's next Start). At 
 once (default: the cores the shared run and the server leave, at least 1); the others wait in one
 queue, first come first served. A tab has one run at a time (queued or running), within the server's
 limits (app/classroom/limits.py); the queue holds at most MAX_QUEUED runs. A run's end writes its
-notebook entry (app/training/notebook.py) with the student's name; at shutdown the queued runs are
-written too, stopped, with 0 generations.
+notebook entry (app/training/notebook.py) with the student's name and its recording; at shutdown the
+queued runs are written too, stopped, with 0 generations.
+
+With a recorder (app.server.rerun_recorder, as the shared run's), each run is recorded as the shared
+run is: a lab.recording.logger.RerunLogger subscribed to its runner before it starts, whose writer is a
+process of its own (the runner's reader thread only hands each generation's numbers to a pipe); the
+run's end waits for its file to be closed before its notebook entry names it, so an entry's recording
+is whole.
 
 Names are labels, not identities: at most NAME_MAX characters, letters, digits, spaces and . _ ' -
 (anything else is refused, naming the characters), unique per server among the open tabs (compared
@@ -97,6 +104,8 @@ class StudentRun:
         self.note: str | None = None  # why it stopped or failed, when not by its own end
         self.submitted = time.time()
         self.started: float | None = None
+        self.recording: str | None = None  # its .rrd, when the server records student runs
+        self.logger = None  # its RerunLogger
         self.controller = None  # the best so far (the tab's own arm shows it)
         self.version = 0  # bumped when `controller` changes
 
@@ -145,12 +154,13 @@ class StudentRun:
 
 class ClassRuns:
     def __init__(self, notebook, limits: dict | None, workers: int | None = None,
-                 stop_grace: float = STOP_GRACE, runner=None):
+                 stop_grace: float = STOP_GRACE, runner=None, recorder=None):
         """notebook: where ended runs go (app.training.notebook.Notebook); limits: the server's bounds
         (None: the lab's own); workers: runs at once (None: default_workers()); runner: makes a run's
         runner, runner(config, history_limit=N) (None: a local worker process, local_runner; a Ray
-        cluster's: lab.running.ray_runner.RayRunner)."""
-        self.notebook, self.limits = notebook, limits
+        cluster's: lab.running.ray_runner.RayRunner); recorder: callable(runner) -> a logger with .path,
+        subscribed to the runner (app.server.rerun_recorder), or None: no recordings."""
+        self.notebook, self.limits, self.recorder = notebook, limits, recorder
         self.make_runner = runner or local_runner
         self.workers = max(1, int(workers)) if workers is not None else default_workers()
         self.stop_grace = stop_grace
@@ -161,6 +171,7 @@ class ClassRuns:
         self._numbers = itertools.count(1)
         self.closed = False
         self.version = 0  # bumped at every change of a run's state (the board redraws)
+        self._seats: dict[str, dict[int, int]] = {}  # a lesson -> {tab: its seat} (lesson_seat)
 
     # ------------------------------------------------------------------ names
     def name_of(self, tab: int) -> str:
@@ -191,6 +202,14 @@ class ClassRuns:
                     run.name = name
             self.version += 1
         return None
+
+    def lesson_seat(self, lesson: str, tab: int) -> int:
+        """The tab's seat in a lesson (0 for the first tab that opened it, 1 for the next, ...; the same
+        seat when it opens it again): a lesson that gives each student a part of a search hands out the
+        seat's part."""
+        with self._lock:
+            seats = self._seats.setdefault(lesson, {})
+            return seats.setdefault(tab, len(seats))
 
     # ------------------------------------------------------------------ runs
     def run_of(self, tab: int) -> StudentRun | None:
@@ -239,6 +258,7 @@ class ClassRuns:
             try:
                 runner = self.make_runner(run.config, history_limit=HISTORY_POINTS)
                 runner.run_id = run.id
+                self._record(run, runner)  # before the run's own subscriber: its end closes the file first
                 runner.subscribe(run)
                 run.runner, run.state, run.started = runner, "running", time.time()
                 runner.start()
@@ -246,6 +266,16 @@ class ClassRuns:
                 log.exception("student run %s could not start", run.id)
                 run.state, run.note = "failed", f"it could not start: {e}"
             self.version += 1
+
+    def _record(self, run: StudentRun, runner) -> None:
+        if self.recorder is None:
+            return
+        try:
+            run.logger = self.recorder(runner)
+            run.recording = str(run.logger.path)
+        except Exception as e:  # noqa: BLE001 - a run without a recording is still a run
+            log.warning("no recording for student run %s: %s", run.id, e)
+            run.logger = run.recording = None
 
     def _ended(self, run: StudentRun, summary) -> None:
         """A run's end (its reader thread): its state, its notebook entry, the next queued run."""
@@ -262,7 +292,7 @@ class ClassRuns:
     def _write(self, run: StudentRun, summary=None) -> None:
         try:
             if summary is not None:
-                entry = entry_from_summary(summary, run.started or run.submitted, None)
+                entry = entry_from_summary(summary, run.started or run.submitted, run.recording)
             else:  # a queued run the server's stop ended before it started
                 entry = {"run_id": run.id, "robot": run.config.robot, "method": run.config.method,
                          "seed": run.config.seed, "settings": run.config.to_dict(), "state": "stopped",
@@ -326,6 +356,8 @@ class ClassRuns:
             running = self.running()
             for run in running:
                 run.note = "the server stopped"
+                if run.logger is not None:  # its writer finishes the file on its own: the server stops now
+                    run.logger.block_on_end = False
             self.version += 1
         for run in queued:
             self._write(run)

@@ -5,9 +5,10 @@ state (a queued run's place), the generation, the best training MSE, the held-ou
 ended, and a small curve of its best MSE (log scale). Everything a student typed is escaped
 (html.escape) before it is drawn: a name cannot put markup into another tab. The presenter can stop
 any run (a shared control: a viewer's click is dropped by the access gate, app/classroom/access.py).
-The presenter can also show any run's best network in the shared scene, for the whole class (`show`:
-the Runs panel's way of showing a replayed controller; the Runs tab's "Back to live" returns to the
-class's run), and a **class chart** plots the finished runs' held-out MSE (log scale) against a setting
+The presenter can also show any run in the shared scene, for the whole class: an ended run with a
+recording is opened as the Runs tab opens one (`replay`: its generation slider scrubs the run's
+generations, its population at each), any other run's best network is shown as a replayed controller
+(`show`); the Runs tab's "Back to live" returns to the class's run. And a **class chart** plots the finished runs' held-out MSE (log scale) against a setting
 the presenter picks (hidden units, population, goals, seed, method): the sweep the class has made.
 The render loop calls `refresh`; the table and chart are redrawn only when a run has changed.
 """
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import html
 import math
+import os
 
 import numpy as np
 
@@ -74,8 +76,9 @@ def board_html(runs: ClassRuns) -> str:
 
 def chart_svg(runs: list, axis: str, width: int = 320, height: int = 180) -> str:
     """SVG: each finished run's held-out MSE (log scale) against the setting `axis` (AXES), a point per
-    run, its name as the point's tooltip (escaped); a numeric setting on a linear axis, a method one
-    column each."""
+    run, its name as the point's tooltip (escaped), and on a numeric setting the class's curve (a line
+    through the median held-out MSE at each value); a numeric setting on a linear axis (a log one over a wide
+    range of positive values), a method one column each."""
     points = [(AXES[axis](r.config), r.held_out(), r.name) for r in runs if r.state == "finished"]
     points = [(x, y, n) for x, y, n in points if y is not None and math.isfinite(y) and y > 0]
     if not points:
@@ -85,9 +88,11 @@ def chart_svg(runs: list, axis: str, width: int = 320, height: int = 180) -> str
     pad_l, pad_b, pad_t, pad_r = 40, 30, 8, 10
     w, h = width - pad_l - pad_r, height - pad_t - pad_b
     if numeric:
-        lo, hi = float(min(xs)), float(max(xs))
+        # values over a wide range of positive numbers (hidden units 2 to 64) on a log axis, else linear
+        scale = np.log if min(xs) > 0 and max(xs) >= 8 * min(xs) else float
+        lo, hi = scale(min(xs)), scale(max(xs))
         span = hi - lo if hi > lo else 1.0
-        place = lambda x: pad_l + w * ((float(x) - lo) / span if hi > lo else 0.5)  # noqa: E731
+        place = lambda x: pad_l + w * ((scale(x) - lo) / span if hi > lo else 0.5)  # noqa: E731
     else:
         place = lambda x: pad_l + w * (xs.index(x) + 0.5) / len(xs)  # noqa: E731
     logs = np.log10([y for _x, y, _n in points])
@@ -97,7 +102,13 @@ def chart_svg(runs: list, axis: str, width: int = 320, height: int = 180) -> str
     dots = "".join(
         f'<circle cx="{place(x):.1f}" cy="{ypos(np.log10(y)):.1f}" r="3.5" fill="#d62728" fill-opacity="0.7">'
         f'<title>{html.escape(n)}: {html.escape(str(x))}, held-out MSE {y:.3g}</title></circle>' for x, y, n in points)
-    ticks = xs if len(xs) <= 8 else [xs[0], xs[len(xs) // 2], xs[-1]]
+    curve = ""
+    if numeric and len(xs) > 1:  # the class's curve: the median held-out MSE (in log) at each value
+        medians = [(x, float(np.median([np.log10(y) for px, y, _n in points if px == x]))) for x in xs]
+        line = " ".join(f"{place(x):.1f},{ypos(m):.1f}" for x, m in medians)
+        curve = (f'<polyline points="{line}" fill="none" stroke="#1f77b4" stroke-width="2">'
+                 f'<title>the class\'s median held-out MSE at each {html.escape(axis)}</title></polyline>')
+    ticks = xs if len(xs) <= 10 else [xs[0], xs[len(xs) // 2], xs[-1]]
     xlabels = "".join(f'<text x="{place(x):.1f}" y="{height - 16}" font-size="9" text-anchor="middle">'
                       f'{html.escape(str(x))}</text>' for x in ticks)
     axes = (f'<line x1="{pad_l}" y1="{pad_t + h}" x2="{pad_l + w}" y2="{pad_t + h}" stroke="#888"/>'
@@ -107,15 +118,17 @@ def chart_svg(runs: list, axis: str, width: int = 320, height: int = 180) -> str
             f'<text x="{pad_l + w / 2:.0f}" y="{height - 3}" font-size="10" text-anchor="middle">'
             f'{html.escape(axis)}</text>')
     return (f"<div><small><b>Class chart</b>: held-out MSE (log scale) of {len(points)} finished run"
-            f"{'s' * (len(points) != 1)} against {html.escape(axis)}</small>"
-            f'<svg width="{width}" height="{height}" xmlns="http://www.w3.org/2000/svg">{axes}{xlabels}{dots}</svg></div>')
+            f"{'s' * (len(points) != 1)} against {html.escape(axis)}"
+            f"{'; the line: the class median at each value' if curve else ''}</small>"
+            f'<svg width="{width}" height="{height}" xmlns="http://www.w3.org/2000/svg">{axes}{xlabels}{curve}{dots}</svg></div>')
 
 
 class ClassBoard:
-    def __init__(self, gui, runs: ClassRuns, show=None):
+    def __init__(self, gui, runs: ClassRuns, show=None, replay=None):
         """gui: server.gui (inside the Class tab); show(robot, controller, source, client) -> None or why
-        not: shows a network in the shared scene (app.panels.runs.RunsPanel._show)."""
-        self.runs, self.show = runs, show
+        not: shows a network in the shared scene (app.panels.runs.RunsPanel._show); replay(path, client,
+        entry) -> None or why not: opens a recording in the Runs tab (app.panels.runs.RunsPanel.open_file)."""
+        self.runs, self.show, self.replay = runs, show, replay
         self.table = gui.add_html(board_html(runs))
         self.axis = gui.add_dropdown("Chart against", tuple(AXES), initial_value="hidden units",
                                      hint="the class chart's horizontal axis: a setting of the runs")
@@ -123,8 +136,9 @@ class ClassBoard:
         with gui.add_folder("Presenter: show a run to the class", expand_by_default=False):
             self.show_choice = gui.add_dropdown("Run to show", (NOTHING,), initial_value=NOTHING)
             self.show_button = gui.add_button("Show in the shared scene",
-                                              hint="every tab's arms show this run's best network (the Runs tab's "
-                                                   "Back to live returns to the class's run)")
+                                              hint="every tab's arms show this run: an ended run's recording opens in "
+                                                   "the Runs tab (its slider scrubs the generations), a running run's "
+                                                   "best network shows (Back to live returns to the class's run)")
             self.show_message = gui.add_markdown("")
         with gui.add_folder("Presenter: stop a run", expand_by_default=False):
             self.choice = gui.add_dropdown("Run", (NONE,), initial_value=NONE)
@@ -165,15 +179,21 @@ class ClassBoard:
             self.chart.content = content
 
     def show_chosen(self, client=None) -> str | None:
-        """Show the chosen run's best network to the class (refused, saying why, as the Runs panel's
-        replay is: another arm while the shared run goes on it)."""
+        """Show the chosen run to the class: an ended run's recording opened in the Runs tab (its
+        generations to scrub), else its best network (refused, saying why, as the Runs panel's replay
+        is: another arm while the shared run goes on it)."""
         run = self.runs.runs.get(self._shows.get(self.show_choice.value, ""))
+        recorded = run is not None and run.ended and run.recording and os.path.isfile(run.recording)
         if run is None or run.controller is None or self.show is None:
             why = "refused: no run with a network chosen"
+        elif recorded and self.replay is not None:
+            entry = self.runs.notebook.get(run.id)
+            why = self.replay(run.recording, client, entry)
         else:
             why = self.show(run.config.robot, run.controller,
                             f"{run.name}'s run, generation {run.generation}", client)
-        self.show_message.content = html.escape(why) if why else f"The class sees {html.escape(run.name)}'s run."
+        how = " (its recording: the Runs tab's slider scrubs its generations)" if recorded and not why else ""
+        self.show_message.content = html.escape(why) if why else f"The class sees {html.escape(run.name)}'s run{how}."
         return why
 
     def stop_chosen(self) -> str | None:

@@ -75,6 +75,7 @@ class MyRunPanel:
                                     viser.uplot.Series(label="my best MSE", stroke="#d62728", width=2)),
                 scales={"x": viser.uplot.Scale(time=False), "y": viser.uplot.Scale(distr=3, log=10)},
                 aspect=2.0)
+        self._defaults_for = (self.robot.value, self.method.value)  # the fields hold their defaults
         self.name.on_update(lambda e: self._rename())
         self.robot.on_update(lambda e: self._defaults())
         self.method.on_update(lambda e: self._defaults())
@@ -111,7 +112,11 @@ class MyRunPanel:
         return next(m.name for m in methods.all_methods() if m.label == self.method.value)
 
     def _defaults(self) -> None:
-        """The robot's and method's defaults into the fields."""
+        """The robot's and method's defaults into the fields (when they have changed: a write of the same
+        robot or method, as a lesson's take_part makes, keeps the fields)."""
+        if (self.robot.value, self.method.value) == self._defaults_for:
+            return
+        self._defaults_for = (self.robot.value, self.method.value)
         try:
             d = lab.TrainConfig.preset(robot=self.robot.value, method=self._method_name())
         except ValueError as e:
@@ -152,6 +157,39 @@ class MyRunPanel:
         if why is not None:
             return self._tell(why)
         self.refresh()
+        return None
+
+    def take_part(self, params: dict) -> str | None:
+        """A lesson that makes the class a search (its link's `class_hidden=2.3.4...`): this tab's fields
+        get the lesson's run with the hidden units of its seat (app/classroom/class_runs.ClassRuns.
+        lesson_seat: the N-th tab to open the lesson gets the N-th value, and seed N // len(values)
+        once the list is used up). None when done or the link asks for nothing; the refusal, said in
+        the tab, when the list is not whole numbers within the server's limits."""
+        text = params.get("class_hidden")
+        if not text:
+            return None
+        try:
+            values = [int(v) for v in text.split(".")]
+            if not values or min(values) < 0:
+                raise ValueError
+        except ValueError:
+            return self._tell(f"refused: class_hidden= is whole numbers joined by dots, got {text[:40]!r}")
+        seat = self.runs.lesson_seat(params.get("lesson", "1"), self.tab)
+        hidden, seed = values[seat % len(values)], seat // len(values)
+        try:
+            base = lab.TrainConfig.preset(robot=params.get("robot", self.robot.value),
+                                          method=params.get("method", self._method_name()))
+            population = int(params.get("population", base.population))
+            generations = int(params.get("generations", base.generations))
+        except ValueError as e:
+            return self._tell(f"refused: {e}")
+        self.robot.value, self.method.value = base.robot, methods.get(base.method).label
+        self._defaults_for = (self.robot.value, self.method.value)  # their callbacks keep the fields below
+        self.population.value, self.goals.value = float(population), float(base.targets)
+        self.generations.value, self.budget.value = float(generations), 0.0
+        self.hidden.value, self.seed.value = float(hidden), float(seed)
+        self._tell(f"Your part of the class's search: {hidden} hidden units, seed {seed}. Press **Start my run**.",
+                   error=False)
         return None
 
     # ------------------------------------------------------------------ the render loop
