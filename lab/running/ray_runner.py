@@ -61,12 +61,12 @@ def connect(address: str) -> str:
     dashboard); nothing when this process has joined one already. Returns where runs go, in words.
     RayMissing without Ray; ConnectionError (naming the address) when the cluster cannot be reached."""
     ray = _ray()
+    _answers(address)
     if not ray.is_initialized():
-        _answers(address)
         kwargs = dict(runtime_env={"env_vars": ONE_THREAD}, log_to_driver=False, logging_level=logging.WARNING)
         try:
             if address == "local":
-                ray.init(include_dashboard=False, object_store_memory=OBJECT_STORE_BYTES, **kwargs)
+                ray.init(address="local", include_dashboard=False, object_store_memory=OBJECT_STORE_BYTES, **kwargs)
             else:
                 ray.init(address=address, **kwargs)
         except Exception as e:  # noqa: BLE001 - ray raises ConnectionError, ValueError, RuntimeError, ...
