@@ -28,10 +28,11 @@ class GoalExtras:
         view = self.partner_view
         if controller is None:
             view.visible = False
-            self.partner_error = np.nan
+            self.partner_error = self.partner_angle = np.nan
             return
         q = controller(self.query[None])[0]
-        self.partner_error = float(self.errors_of(q)[0].max())  # the worst effector
+        errors, self.partner_angle = self.errors_of(q)
+        self.partner_error = float(errors.max())  # the worst effector
         with self.tab.client.atomic():
             view.set_q(q)
             if not view.visible:

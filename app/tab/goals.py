@@ -146,7 +146,7 @@ class GoalView(GoalExtras):
         self.refined = ArmView(scene, arm, f"{base}/refined", opacity=0.45, tint=REFINED) if index == 0 else None
         self.cloud = self.faint = None  # the population: end-effector points, faint arms
         self.partner_view = None  # a race partner's arm (goal 1 only), made when a race starts
-        self.partner_error = np.nan
+        self.partner_error = self.partner_angle = np.nan
         self.error, self.net_s = np.nan, np.nan  # error: the worst effector's
         self.errors = np.full(arm.n_effectors, np.nan)  # each effector's
         self.angle = np.nan  # pose mode: the network's answer's angle error [rad]
@@ -489,7 +489,8 @@ class TabSession(TabExtras):
         errors = ", ".join(f"goal {g.index + 1}: **{g.error_text(g.error, g.angle)}**" for g in self.goals)
         g0_partner = (self.goals[0] if self.goals and self.goals[0].partner_view is not None
                       and self.goals[0].partner_view.visible else None)
-        partner = f"; race partner (purple), goal 1: {fmt_len(arm, g0_partner.partner_error)}" if g0_partner else ""
+        partner = (f"; race partner (purple), goal 1: "
+                   f"{g0_partner.error_text(g0_partner.partner_error, g0_partner.partner_angle)}" if g0_partner else "")
         what = f"the worst of {arm.n_effectors} effectors" if arm.is_tree else (
             "the goal's pose (position, angle)" if self.goal_kind == "pose" else "the goal")
         self.table.content = f"Network: {shown.source}  \nDistance to {what}: {errors}{partner}"
