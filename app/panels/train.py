@@ -29,7 +29,7 @@ from lab.running.config import UNBOUNDED
 
 from app.classroom.limits import refusal as limits_refusal
 from app.panels.teaching import RaceFields, Watching
-from app.tab.posegoal import GOAL_LABELS, goal_label, pose_refusal
+from app.tab.posegoal import GOAL_LABELS, goal_label, pose_refusal, takes_poses
 from app.training.live import decimate, lead_line, sample
 from app.training.state import SPEEDS, run_label, speed_label
 
@@ -68,7 +68,7 @@ def expectation(robot: str, method: str, seconds: float | None) -> str:
 SHARED = ("population", "generations", "hidden", "seed")  # the TrainConfig fields shown
 # the convergence plot's width / height: low enough that the plot, its axis and its key stay in view
 # at 1366 x 768 during a run, below the run controls and a two-line status (tests/test_app_browser.py)
-PLOT_ASPECT = 3.4
+PLOT_ASPECT = 3.6
 # uPlot in viser 1.1 never finds its x range when a chart starts empty: start with two NaN points
 EMPTY_PLOT = (np.array([0.0, 1.0]), np.full(2, np.nan), np.full(2, np.nan))
 
@@ -93,6 +93,7 @@ class TrainingPanel:
                                      hint="Position: drag the goal; Pose (real arms): drag and turn it, the "
                                           "network answers the tool's position and orientation")
         self.goal.on_update(self._on_goal)
+        self.goal.visible = takes_poses(state.arm.name)  # a menu of one choice is only noise (and a row)
         self.method = gui.add_dropdown("Method", tuple(m.label for m in methods.all_methods()),
                                        initial_value=methods.get(d.method).label)
         self.expected = gui.add_markdown(expectation(d.robot, d.method, d.seconds))  # what it will be worth
@@ -422,6 +423,8 @@ class TrainingPanel:
         """Show the run's progress (called by the render loop, a few times a second)."""
         if self.goal.value != goal_label(self.state.goal):  # a robot without poses put it back to Position
             self.goal.value = goal_label(self.state.goal)
+        if self.goal.visible != (poses := takes_poses(self.state.arm.name)):  # shown on the arms with poses
+            self.goal.visible = poses
         p = self.state.progress()
         n = p["generation"]
         partner = self.state.partner

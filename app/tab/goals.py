@@ -50,8 +50,7 @@ from app.viser_private import set_pose
 
 MAX_GOALS = 8
 INTRO = "**Drag the arrows** to move the goal: the arm follows a neural network. **Start** trains a new one."
-INTRO_POSE = ("**Drag the arrows** to move the goal and **turn the rings** to turn it: the arm follows a neural "
-              "network to the tool's position and orientation. **Start** trains a new one.")
+INTRO_POSE = "**Drag the arrows and rings**: the tool follows a neural network. **Start** trains a new one."
 # the page shows the lab once this element, first in the tab's intro, is there (app/server.py PAGE_HEAD)
 READY_ID = "lab-ready"
 READY = f'<span id="{READY_ID}"></span>'
@@ -69,7 +68,7 @@ def about(arm: robots.Arm, config) -> str:
     unit = "mm" if robots.in_metres(arm.name) else "the paper's units"
     return (f"A tanh network ({config.hidden} hidden units) maps {maps}, never shown a right answer: its fitness "
             f"is the {'robot' if arm.is_tree else 'arm'}'s error over {config.targets:,} fixed goals (red), through "
-            f"forward kinematics. CMA-ES evolves its weights, NEAT its wiring too. Lengths in {unit}.")
+            f"forward kinematics. Lengths in {unit}.")
 
 
 MORE = (

@@ -12,6 +12,7 @@ Until one exists the arm shows `PositionSeed`, the arm's position network on the
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -26,6 +27,12 @@ GOAL_LABELS = {"Position": "position", "Pose": "pose"}  # the panel's Goal menu
 
 def goal_label(kind: str) -> str:
     return next(label for label, k in GOAL_LABELS.items() if k == kind)
+
+
+@functools.lru_cache(maxsize=None)
+def takes_poses(robot: str) -> bool:
+    """Whether `robot` takes pose goals (the Train panel shows its Goal menu only then)."""
+    return pose_refusal(robot) is None
 
 
 def pose_refusal(robot: str) -> str | None:
