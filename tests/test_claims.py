@@ -178,7 +178,7 @@ def test_ray_local_instance(tmp_path):
     """--ray: the same runs on a local Ray instance; an equal-budget run is the same, number for
     number, as in a local process (the equal-time runs depend on the machine's speed)."""
     ray = pytest.importorskip("ray", reason="ray is an optional extra: pip install -e '.[ray]'")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)  # never a running cluster
     try:
         result = C.claims(C.ClaimsConfig(out=tmp_path, runs=1, generations=5, ray="auto", progress=False))
     finally:

@@ -236,7 +236,7 @@ def test_cli_paper_preset_and_errors(tmp_path, capsys):
 
 def test_ray_local_instance(tmp_path):
     ray = pytest.importorskip("ray", reason="ray is an optional extra: pip install -e '.[ray]'")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)  # never a running cluster
     try:
         exp = reproduce(ReproduceConfig(out=tmp_path, runs=2, generations=10, population=8, test_goals=100,
                                         robots=("planar",), ray="auto", progress=False, recording=False))

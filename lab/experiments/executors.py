@@ -124,7 +124,7 @@ class RayExecutor:
         if not ray.is_initialized():
             kwargs = dict(runtime_env={"env_vars": ONE_THREAD}, log_to_driver=False)
             if self.address == "local":
-                ray.init(include_dashboard=False, **kwargs)
+                ray.init(address="local", include_dashboard=False, **kwargs)  # never a running cluster
             else:
                 ray.init(address=self.address, **kwargs)
             self._started = True

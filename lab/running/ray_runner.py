@@ -30,7 +30,7 @@ import time
 
 from lab.running import pipes
 from lab.running.config import TrainConfig
-from lab.running.runner import RunBase, RunSummary, speed_period
+from lab.running.runner import RemoteRunBase, RunSummary
 
 log = logging.getLogger(__name__)
 
@@ -208,27 +208,26 @@ def _remote_actor():
         return _actor_class
 
 
-class RayRunner(RunBase):
+class RayRunner(RemoteRunBase):
     """A runner (see lab.running.runner) that trains in a Ray actor. `backend` is None here: the
     backend lives in the actor. Needs a joined cluster (connect, or ray.init)."""
 
-    backend = None
+    SPEED_COMMAND = "set_speed"
 
     def __init__(self, config: TrainConfig, blas_threads: int | None = 1, history_limit: int | None = None,
                  spare: bool = False):
         """spare: ignored (no prestarted actor; the argument is ProcessRunner's)."""
-        super().__init__(config, history_limit=history_limit)
+        super().__init__(config, blas_threads=blas_threads, history_limit=history_limit)
         self.ray = _ray()
-        self.blas_threads, self.history_limit = blas_threads, history_limit
         self._actor = None
-        self._send_lock = threading.Lock()
-        self._stop_asked = False
-        self._speed: float | None = None
         self._started = False  # the actor has started its run
-        self._killed: str | None = None  # why we killed the actor (its summary's error)
         self.stop_grace = STOP_GRACE
         self.node_id: str | None = None  # the Ray node it trains on, once started
         self.pid: int | None = None  # the actor's process there
+
+    @property
+    def _remote(self):
+        return self._actor
 
     @property
     def preparing(self) -> str | None:
@@ -244,51 +243,13 @@ class RayRunner(RunBase):
         actor = _remote_actor().options(scheduling_strategy="SPREAD")
         self._actor = actor.remote(self.config, self.run_id, self.blas_threads, self.history_limit)
         started = self._actor.start.remote()
-        if self._speed is not None:
-            self._command("set_speed", self._speed)
-        if self._stop_asked:
-            self._command("stop")
+        self._sent_at_start()
         threading.Thread(target=self._read, args=(started,), name=f"lab-ray-{self.run_id}", daemon=True).start()
         return self
 
-    def run(self) -> RunSummary:
-        return self.start().join()
-
-    def pause(self) -> None:
-        if self._set_state("running", "paused"):
-            self._command("pause")
-
-    def resume(self) -> None:
-        if self._set_state("paused", "running"):
-            self.holding = None
-            self._command("resume")
-
-    def step(self) -> bool:
-        """While paused: exactly one more generation in the actor, then paused again (Ray runs one
-        caller's calls to an actor in order: the pause before the step). False when not paused."""
-        with self._lock:
-            if self._state != "paused":
-                return False
-            self.holding = None
-        self._command("step")
-        return True
-
-    def set_speed(self, generations_per_second: float | None) -> None:
-        speed_period(generations_per_second)  # checked here, where the caller sees the error
-        self._speed = generations_per_second
-        if self._actor is not None:
-            self._command("set_speed", generations_per_second)
-
-    def stop(self, wait: bool = True, timeout: float | None = None) -> None:
-        """Ask the run to end after the generation in flight; with wait, block until it has."""
-        self._stop_asked = True
-        if self._actor is None:
-            return
-        if not self._started and not self._done.is_set():  # still waiting for a CPU: nothing to keep
-            self.kill("stopped before its Ray worker started", quiet=True)
-        self._command("stop")
-        if wait:
-            self._done.wait(timeout)
+    def _stop_early(self) -> str | None:
+        # still waiting for a CPU: nothing to keep
+        return None if self._started or self._done.is_set() else "stopped before its Ray worker started"
 
     def stop_or_kill(self, grace: float | None = None) -> bool:
         """Stop; an actor that has not ended the run `grace` s later (default: stop_grace) is killed,
@@ -301,14 +262,7 @@ class RayRunner(RunBase):
         self._done.wait(max(grace, 5.0))
         return True
 
-    def kill(self, reason: str, quiet: bool = False) -> None:
-        """End the actor at once; the run ends "stopped" with the generations received, `reason` as
-        its summary's error (logged as a warning unless quiet)."""
-        if self._actor is None or self._done.is_set():
-            return
-        self._killed = reason
-        if not quiet:
-            log.warning("run %s: %s", self.run_id, reason)
+    def _end_now(self) -> None:
         try:
             self.ray.kill(self._actor, no_restart=True)
         except Exception:  # noqa: BLE001 - already gone

@@ -232,6 +232,98 @@ class RunBase:
         self._done.set()
 
 
+class RemoteRunBase(RunBase):
+    """A runner whose generations run elsewhere (lab.running.worker.ProcessRunner: a worker process;
+    lab.running.ray_runner.RayRunner: a Ray actor), steered by commands sent there in order. The
+    subclass says how a command travels (_command), what stands for the run there (_remote), what a
+    Stop before the first generation kills (_stop_early) and how the run there is ended (_end_now);
+    `backend` is None (the backend lives there)."""
+
+    backend = None
+    SPEED_COMMAND = "speed"  # the command that caps the generations a second there
+
+    def __init__(self, config: TrainConfig, blas_threads: int | None = 1, history_limit: int | None = None):
+        super().__init__(config, history_limit=history_limit)
+        self.blas_threads, self.history_limit = blas_threads, history_limit
+        self._send_lock = threading.Lock()
+        self._stop_asked = False
+        self._speed: float | None = None
+        self._killed: str | None = None  # why the run there was killed (its summary's error)
+
+    @property
+    def _remote(self):
+        """The process or actor that runs it (None before start)."""
+        raise NotImplementedError
+
+    def _command(self, *message) -> None:
+        raise NotImplementedError
+
+    def _stop_early(self) -> str | None:
+        """Why a Stop now kills the run there at once (it has no generation to keep yet), or None."""
+        return None
+
+    def _end_now(self) -> None:
+        raise NotImplementedError
+
+    def _sent_at_start(self) -> None:
+        """The speed and a Stop asked before start(), sent after the run's own start command."""
+        if self._speed is not None:
+            self._command(self.SPEED_COMMAND, self._speed)
+        if self._stop_asked:
+            self._command("stop")
+
+    def run(self) -> RunSummary:
+        """Run until done; returns the summary."""
+        return self.start().join()
+
+    def pause(self) -> None:
+        if self._set_state("running", "paused"):
+            self._command("pause")
+
+    def resume(self) -> None:
+        if self._set_state("paused", "running"):
+            self.holding = None
+            self._command("resume")
+
+    def step(self) -> bool:
+        """While paused: exactly one more generation there, then paused again (the pause went before
+        any step, in the same order). False when the run is not paused."""
+        with self._lock:
+            if self._state != "paused":
+                return False
+            self.holding = None
+        self._command("step")
+        return True
+
+    def set_speed(self, generations_per_second: float | None) -> None:
+        """Cap the run at this many generations a second (None: no cap); ValueError for a bad value."""
+        speed_period(generations_per_second)  # checked here, where the caller sees the error
+        self._speed = generations_per_second
+        if self._remote is not None:
+            self._command(self.SPEED_COMMAND, generations_per_second)
+
+    def stop(self, wait: bool = True, timeout: float | None = None) -> None:
+        """Ask the run to end after the generation in flight; with wait, block until it has."""
+        self._stop_asked = True
+        if self._remote is None:
+            return
+        if (why := self._stop_early()) is not None:
+            self.kill(why, quiet=True)
+        self._command("stop")
+        if wait:
+            self._done.wait(timeout)
+
+    def kill(self, reason: str, quiet: bool = False) -> None:
+        """End the run there at once; it ends "stopped" with the generations received, `reason` as
+        its summary's error (logged as a warning unless quiet)."""
+        if self._remote is None or self._done.is_set():
+            return
+        self._killed = reason
+        if not quiet:  # in the log of the subclass's module
+            logging.getLogger(type(self).__module__).warning("run %s: %s", self.run_id, reason)
+        self._end_now()
+
+
 class TimeLimit:
     """A subscriber that stops a run once its run time (event.seconds: optimizer time, pauses and
     subscribers excluded) reaches `seconds`: runner.subscribe(TimeLimit(runner, 3.0)). The run

@@ -38,7 +38,7 @@ from itertools import chain
 
 from lab.running import pipes
 from lab.running.config import TrainConfig
-from lab.running.runner import RunBase, RunSummary, speed_period
+from lab.running.runner import RemoteRunBase
 
 # s: how long stop_or_kill waits for a worker to end its run after Stop before killing it (a worker
 # that does not answer: stopped with SIGSTOP, hung in a native call, swapped out)
@@ -128,26 +128,22 @@ def _follow(fd: int, warmup: Warmup) -> None:
     _tell(warmup)
 
 
-class ProcessRunner(RunBase):
+class ProcessRunner(RemoteRunBase):
     """A Runner (see lab.running.runner) that trains in a worker process. `backend` is None here: the
     backend lives in the worker."""
-
-    backend = None
 
     def __init__(self, config: TrainConfig, blas_threads: int | None = 1, history_limit: int | None = None,
                  spare: bool = True):
         """spare: take the prestarted worker when there is one (False: always a worker of its own, so
         that runs beside the app's own, a class's students', leave the spare to the app's next Start)."""
-        super().__init__(config, history_limit=history_limit)
+        super().__init__(config, blas_threads=blas_threads, history_limit=history_limit)
         self.use_spare = spare
-        self.history_limit = history_limit
-        self.blas_threads = blas_threads
         self._proc: subprocess.Popen | None = None
-        self._send_lock = threading.Lock()
-        self._stop_asked = False
-        self._speed: float | None = None
         self.stop_grace = STOP_GRACE  # s, see stop_or_kill
-        self._killed: str | None = None  # why the worker was killed (its summary's error)
+
+    @property
+    def _remote(self):
+        return self._proc
 
     @property
     def pid(self) -> int | None:
@@ -167,54 +163,13 @@ class ProcessRunner(RunBase):
         self._claim()
         self._proc = _take_worker() if self.use_spare else _spawn(spare=False)
         self._command("run", self.config, self.run_id, self.blas_threads, self.history_limit)
-        if self._speed is not None:
-            self._command("speed", self._speed)
-        if self._stop_asked:
-            self._command("stop")
+        self._sent_at_start()
         threading.Thread(target=self._read, name=f"lab-worker-{self.run_id}", daemon=True).start()
         return self
 
-    def run(self) -> RunSummary:
-        """Run until done; returns the summary."""
-        return self.start().join()
-
-    def pause(self) -> None:
-        if self._set_state("running", "paused"):
-            self._command("pause")
-
-    def resume(self) -> None:
-        if self._set_state("paused", "running"):
-            self.holding = None
-            self._command("resume")
-
-    def step(self) -> bool:
-        """While paused: exactly one more generation in the worker, then paused again. False when
-        the run is not paused. (The worker's Runner is paused too: pause goes before any step
-        through the same ordered pipe.)"""
-        with self._lock:
-            if self._state != "paused":
-                return False
-            self.holding = None
-        self._command("step")
-        return True
-
-    def set_speed(self, generations_per_second: float | None) -> None:
-        """Cap the run at this many generations a second (None: no cap); ValueError for a bad value."""
-        speed_period(generations_per_second)  # checked here, where the caller sees the error
-        self._speed = generations_per_second
-        if self._proc is not None:
-            self._command("speed", generations_per_second)
-
-    def stop(self, wait: bool = True, timeout: float | None = None) -> None:
-        """Ask the run to end after the generation in flight; with wait, block until it has."""
-        self._stop_asked = True
-        if self._proc is None:
-            return
-        if self.preparing is not None:  # no generation yet, and none before its kernels are compiled
-            self.kill("stopped while the training kernels were being prepared", quiet=True)
-        self._command("stop")
-        if wait:
-            self._done.wait(timeout)
+    def _stop_early(self) -> str | None:
+        # no generation yet, and none before its kernels are compiled
+        return None if self.preparing is None else "stopped while the training kernels were being prepared"
 
     def stop_or_kill(self, grace: float | None = None) -> bool:
         """Stop; a worker that has not ended its run `grace` s later (default: stop_grace) is killed
@@ -247,14 +202,7 @@ class ProcessRunner(RunBase):
             return True
         return bool(readable)
 
-    def kill(self, reason: str, quiet: bool = False) -> None:
-        """End the worker at once; the run ends "stopped" with the generations received, `reason`
-        as its summary's error (logged as a warning unless quiet)."""
-        if self._proc is None or self._done.is_set():
-            return
-        self._killed = reason
-        if not quiet:
-            log.warning("run %s: %s", self.run_id, reason)
+    def _end_now(self) -> None:
         try:
             self._proc.kill()
         except OSError:  # already gone
