@@ -95,9 +95,10 @@ def open_tab(app):
 
 @pytest.fixture(scope="module")
 def app(request, tmp_path_factory):
-    """A LabApp for the test module (make_app's defaults); a module that needs other arguments
-    defines its own `app`."""
-    lab_app = make_app(tmp_path_factory.mktemp(request.module.__name__.rsplit(".", 1)[-1]))
+    """A LabApp for the test module: make_app's defaults, with the module's APP_ARGS (a dict) where it
+    has them; a module that needs more defines its own `app`."""
+    lab_app = make_app(tmp_path_factory.mktemp(request.module.__name__.rsplit(".", 1)[-1]),
+                       **getattr(request.module, "APP_ARGS", {}))
     yield lab_app
     lab_app.stop()
 

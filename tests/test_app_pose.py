@@ -18,7 +18,7 @@ import pytest
 import lab
 import robots
 from app.tab.posegoal import gizmo_pose, matrix_to_wxyz
-from conftest import make_app, open_tab, session_of, wait_until
+from conftest import make_app, session_of, wait_until
 from robots import pose
 
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
@@ -27,18 +27,7 @@ ROBOT = "ur5"
 LABEL = re.compile(r"net \d+(\.\d)? (mm|µm), \d+(\.\d+)?(e-\d+)?°")
 
 
-@pytest.fixture(scope="module")
-def app(tmp_path_factory):
-    lab_app = make_app(tmp_path_factory.mktemp("app_pose"), robot=ROBOT, goal="pose", record=True)
-    yield lab_app
-    lab_app.stop()
-
-
-@pytest.fixture
-def tab(app):
-    probe = open_tab(app)
-    yield probe
-    probe.close()
+APP_ARGS = dict(robot=ROBOT, goal="pose", record=True)  # conftest's app and tab fixtures
 
 
 class NearAnswer:

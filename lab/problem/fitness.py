@@ -193,15 +193,9 @@ class Problem:
         enc = self.encoding
         XT, goalsT = self._split(test)
         X, goals = XT.T, goalsT.T  # (n, ni), (n, k)
-        n, ni = X.shape
-        nh, no = int(hidden), enc.n_outputs
-        w = np.asarray(w, dtype=np.float64)
-        w_i = w[: (ni + 1) * nh].reshape(ni + 1, nh)
-        w_o = w[(ni + 1) * nh:].reshape(nh, no)
-        H = np.tanh(X @ w_i[:ni] + w_i[ni])
-        A = np.tanh(H @ w_o)
-        raw = enc.q_offset + (A + 1.0) * enc.q_scale
-        q = np.clip(raw, enc.clip_lo, enc.clip_hi)
+        n = X.shape[0]
+        layers = self._mlp_forward(X, w, hidden)
+        q = layers[-1]
         if enc.turns:  # the first joint turned in closed form: at the turn the error is stationary in it
             q = enc.turned(q, goals.reshape(n, -1, 3) if self.arm.is_tree else goals)
         axes = list(self.arm.task_axes)
@@ -209,13 +203,32 @@ class Problem:
         mse = float(np.mean(np.sum(err * err, axis=1)))
         J = self.arm.jacobian(q)[..., axes, :].reshape(n, err.shape[1], -1)  # (n, k, nq), a tree's stacked
         dq = (2.0 / n) * np.einsum("gk,gkj->gj", err, J)
+        return (mse if np.isfinite(mse) else np.inf), self._mlp_backward(X, layers, dq)
+
+    def _mlp_forward(self, X: np.ndarray, w: np.ndarray, hidden: int) -> tuple:
+        """The MLP w (D,) on inputs X (n, ni), as the fitness kernels compute it: (w_o, H, A, raw, q)
+        with h = tanh([x, 1] w_i), a = tanh(h w_o), raw = offset + (a + 1) scale, q = clip(raw)."""
+        enc = self.encoding
+        ni, nh, no = X.shape[1], int(hidden), enc.n_outputs
+        w = np.asarray(w, dtype=np.float64)
+        w_i = w[: (ni + 1) * nh].reshape(ni + 1, nh)
+        w_o = w[(ni + 1) * nh:].reshape(nh, no)
+        H = np.tanh(X @ w_i[:ni] + w_i[ni])
+        A = np.tanh(H @ w_o)
+        raw = enc.q_offset + (A + 1.0) * enc.q_scale
+        return w_o, H, A, raw, np.clip(raw, enc.clip_lo, enc.clip_hi)
+
+    def _mlp_backward(self, X: np.ndarray, layers: tuple, dq: np.ndarray) -> np.ndarray:
+        """d loss / d w (D,) from d loss / d q (n, nq) and _mlp_forward's layers: the turned joints'
+        outputs are unused, the clip passes the gradient only within the limits, then the two tanh layers."""
+        enc = self.encoding
+        w_o, H, A, raw, _ = layers
         if enc.turns:  # the network's outputs for the turned joints are unused
             dq[:, enc.turned_joints] = 0.0
         dA = dq * ((raw >= enc.clip_lo) & (raw <= enc.clip_hi)) * enc.q_scale
         dZo = dA * (1.0 - A * A)
         dZh = (dZo @ w_o.T) * (1.0 - H * H)
-        grad = np.concatenate([(X.T @ dZh).ravel(), dZh.sum(axis=0), (H.T @ dZo).ravel()])
-        return (mse if np.isfinite(mse) else np.inf), grad
+        return np.concatenate([(X.T @ dZh).ravel(), dZh.sum(axis=0), (H.T @ dZo).ravel()])
 
     def outputs_mse(self, A: np.ndarray, test: bool = False) -> np.ndarray:
         """MSE of network outputs A (P, n, nq) in [-1, 1] on the goals: (P,)."""

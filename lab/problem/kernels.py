@@ -250,9 +250,7 @@ def _joints_side_by_side_mse(Q, goalsT, axes, chain, turn, out):
     """Q (nq, P n): joint values of P controllers side by side -> out (P,) <- MSE of each."""
     n = goalsT.shape[1]
     P = out.shape[0]
-    tiled = np.empty((goalsT.shape[0], P * n))
-    for p in range(P):
-        tiled[:, p * n:(p + 1) * n] = goalsT
+    tiled = _tiled(goalsT, P)
     E = np.empty(P * n)
     fk_turned_sq_errors(Q, tiled, axes, chain, turn, E)
     _segment_means(E, n, out)
@@ -384,6 +382,16 @@ def joints_mse(QT, goalsT, axes, chain, turn, out):
 
 
 @numba.njit(**_JIT)
+def _tiled(G, P):
+    """G (k, n) repeated P times side by side: (k, P n)."""
+    n = G.shape[1]
+    out = np.empty((G.shape[0], P * n))
+    for p in range(P):
+        out[:, p * n:(p + 1) * n] = G
+    return out
+
+
+@numba.njit(**_JIT)
 def mlp_heads_mse(XT, goalsT, axes, W, nh, offsets, qmap, chain, out):
     """MSE of multi-hypothesis MLPs (lab.problem.controllers.MLPController with heads > 1): every
     row of W (P, D) has len(offsets) / nq output heads of nq joints (outputs h nq .. (h + 1) nq - 1
@@ -395,9 +403,7 @@ def mlp_heads_mse(XT, goalsT, axes, W, nh, offsets, qmap, chain, out):
     P = W.shape[0]
     A = np.empty((heads * nq, P * n))
     mlp_offset_outputs(XT, W, nh, offsets, A)
-    tiled = np.empty((goalsT.shape[0], P * n))
-    for p in range(P):
-        tiled[:, p * n:(p + 1) * n] = goalsT
+    tiled = _tiled(goalsT, P)
     E = np.full(P * n, np.inf)
     Eh = np.empty(P * n)
     Q = np.empty((nq, P * n))
@@ -469,9 +475,7 @@ def _tree_side_by_side_mse(Q, goalsT, axes, tree, turns, out):
     goals of the summed squared effector errors."""
     n = goalsT.shape[1]
     P = out.shape[0]
-    tiled = np.empty((goalsT.shape[0], P * n))
-    for p in range(P):
-        tiled[:, p * n:(p + 1) * n] = goalsT
+    tiled = _tiled(goalsT, P)
     E = np.empty(P * n)
     tree_sq_errors(Q, tiled, axes, tree, turns, E)
     _segment_means(E, n, out)

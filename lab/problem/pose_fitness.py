@@ -122,17 +122,10 @@ class PoseProblem(Problem):
 
         enc = self.encoding
         goals = self.test_goals if test else self.train_goals
-        XT = self._split(test)[0]
-        X = XT.T
-        n, ni = X.shape
-        nh, no = int(hidden), enc.n_outputs
-        w = np.asarray(w, dtype=np.float64)
-        w_i = w[: (ni + 1) * nh].reshape(ni + 1, nh)
-        w_o = w[(ni + 1) * nh:].reshape(nh, no)
-        H = np.tanh(X @ w_i[:ni] + w_i[ni])
-        A = np.tanh(H @ w_o)
-        raw = enc.q_offset + (A + 1.0) * enc.q_scale
-        q = np.clip(raw, enc.clip_lo, enc.clip_hi)
+        X = self._split(test)[0].T
+        n = X.shape[0]
+        layers = self._mlp_forward(X, w, hidden)
+        q = layers[-1]
         if enc.turns:
             q = enc.position.turned(q, goals[:, :3, 3])
         T, J = pose.fk_pose_and_jacobian(self.arm, q)
@@ -153,13 +146,7 @@ class PoseProblem(Problem):
         L2 = enc.weight ** 2
         loss = float(np.mean(np.sum(dp * dp, axis=1) + L2 * ang2))
         dq = (2.0 * np.einsum("gk,gkj->gj", dp, J[:, :3]) + L2 * np.einsum("gk,gkj->gj", g_ang, J[:, 3:])) / n
-        if enc.turns:
-            dq[:, enc.turned_joints] = 0.0
-        dA = dq * ((raw >= enc.clip_lo) & (raw <= enc.clip_hi)) * enc.q_scale
-        dZo = dA * (1.0 - A * A)
-        dZh = (dZo @ w_o.T) * (1.0 - H * H)
-        grad = np.concatenate([(X.T @ dZh).ravel(), dZh.sum(axis=0), (H.T @ dZo).ravel()])
-        return (loss if np.isfinite(loss) else np.inf), grad
+        return (loss if np.isfinite(loss) else np.inf), self._mlp_backward(X, layers, dq)
 
     def controller_mse(self, controller: Controller, goals: np.ndarray | None = None) -> float:
         """The pose fitness of one controller on pose goals (the fixed training goals by default)."""

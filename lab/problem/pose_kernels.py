@@ -23,8 +23,8 @@ import math
 import numba
 import numpy as np
 
-from lab.problem.kernels import (_JIT, _chain_frames, _graph_rows, _graph_scratch, _segment_means, _to_joints_row,
-                                 _turn_row, mlp_offset_outputs)
+from lab.problem.kernels import (_JIT, _chain_frames, _graph_rows, _graph_scratch, _segment_means, _tiled,
+                                 _to_joints_row, _turn_row, mlp_offset_outputs)
 
 
 @numba.njit(**_JIT)
@@ -138,15 +138,6 @@ def turn_toward(Q, GP, chain, turn):
     n = Q.shape[1]
     R, P = np.empty((3, 3, n)), np.empty((3, n))
     _turned_frames(Q, GP, chain, turn, R, P)
-
-
-@numba.njit(**_JIT)
-def _tiled(G, P):
-    n = G.shape[1]
-    out = np.empty((G.shape[0], P * n))
-    for p in range(P):
-        out[:, p * n:(p + 1) * n] = G
-    return out
 
 
 @numba.njit(**_JIT)
