@@ -75,13 +75,12 @@ class Problem:
             raise ValueError(f"threads must be >= 1, got {threads!r}")
         self.encoding = encoding
         self.goal_seed = int(goal_seed)
-        self.train_goals = arm.sample_goals(targets, seed=self.goal_seed)
+        self.train_goals = self._sample_goals(targets, self.goal_seed)
         self.reference_goals = self.train_goals  # fixed: what the best so far is kept by when resampling
         self.resample_seed = resample_seed
-        self.test_goals = arm.sample_goals(test_goals, seed=self.goal_seed + TEST_SEED_OFFSET)
-        # the kernels take goals along the last, contiguous axis
-        self._train = (_t(encoding.inputs(self.train_goals)), _goals_t(self.train_goals))
-        self._test = (_t(encoding.inputs(self.test_goals)), _goals_t(self.test_goals))
+        self.test_goals = self._sample_goals(test_goals, self.goal_seed + TEST_SEED_OFFSET)
+        self._train = self._arrays(self.train_goals)
+        self._test = self._arrays(self.test_goals)
         self._axes = np.asarray(arm.task_axes, dtype=np.int64)
         self._qmap = (encoding.q_offset, encoding.q_scale, encoding.clip_lo, encoding.clip_hi, encoding.turn_spec)
         if arm.is_tree:  # the sum of the effectors' squared errors: each effector's chain in turn
@@ -90,6 +89,13 @@ class Problem:
         else:
             self._chain = arm.chain.arrays
             self._mlp_kernel, self._graph_kernel = kernels.mlp_mse, kernels.graph_mse
+
+    def _sample_goals(self, n: int, seed: int) -> np.ndarray:
+        return self.arm.sample_goals(n, seed=seed)
+
+    def _arrays(self, goals: np.ndarray) -> tuple:
+        """What the kernels take of goals: (inputs, goals), the goals along the last, contiguous axis."""
+        return _t(self.encoding.inputs(goals)), _goals_t(goals)
 
     @property
     def resampling(self) -> bool:

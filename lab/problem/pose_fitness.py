@@ -20,7 +20,7 @@ import numpy as np
 
 import robots
 from lab.problem.controllers import Controller, compile_programs
-from lab.problem.fitness import RESAMPLE_STREAM, TEST_SEED_OFFSET, _MIN_SLICE, Problem, _pool, _t, default_threads
+from lab.problem.fitness import RESAMPLE_STREAM, _MIN_SLICE, Problem, _pool, _t
 from lab.problem import pose_kernels
 from lab.problem.pose_encoding import PoseEncoding
 
@@ -34,26 +34,17 @@ class PoseProblem(Problem):
 
     def __init__(self, arm: robots.Arm, encoding: PoseEncoding, targets: int = 300, test_goals: int = 1000,
                  goal_seed: int = 0, resample_seed: int | None = None, threads: int | None = None):
-        from robots import pose
-
         if not isinstance(encoding, PoseEncoding):
             raise ValueError(f"a pose problem needs a PoseEncoding, got {type(encoding).__name__}")
-        self.arm = arm
-        self.threads = default_threads() if threads is None else int(threads)
-        if self.threads < 1:
-            raise ValueError(f"threads must be >= 1, got {threads!r}")
-        self.encoding = encoding
-        self.goal_seed = int(goal_seed)
-        self.train_goals = pose.sample_poses(arm, targets, seed=self.goal_seed)
-        self.reference_goals = self.train_goals
-        self.resample_seed = resample_seed
-        self.test_goals = pose.sample_poses(arm, test_goals, seed=self.goal_seed + TEST_SEED_OFFSET)
-        self._train = self._arrays(self.train_goals)
-        self._test = self._arrays(self.test_goals)
-        self._axes = np.asarray(arm.task_axes, dtype=np.int64)
-        self._qmap = (encoding.q_offset, encoding.q_scale, encoding.clip_lo, encoding.clip_hi, encoding.turn_spec)
+        super().__init__(arm, encoding, targets=targets, test_goals=test_goals, goal_seed=goal_seed,
+                         resample_seed=resample_seed, threads=threads)
         self._chain = encoding.chain
         self._spec = encoding.spec()
+
+    def _sample_goals(self, n: int, seed: int) -> np.ndarray:
+        from robots import pose
+
+        return pose.sample_poses(self.arm, n, seed=seed)
 
     def _arrays(self, poses: np.ndarray) -> tuple:
         return (_t(self.encoding.inputs(poses)), *self.encoding.goal_arrays(poses))
