@@ -11,7 +11,8 @@
 - cmaes.py: CMA-ES on the paper's MLP (pycma);
 - gradient.py: Adam on the same MLP, gradient by backpropagation through the arm's Jacobian;
 - neat.py: NEAT (neat-python) with its faster genome and species code (neat_genome.py,
-  neat_species.py), bit for bit neat-python's.
+  neat_species.py), bit for bit neat-python's;
+- neat_cma.py: NEAT-CMA, NEAT with its best networks' weights tuned by CMA-ES (Lamarckian).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ def make_backend(problem, config: RunSettings) -> Backend:
     return get(config.method).backend(problem, config)
 
 
-from lab.methods import cmaes, gradient, neat  # noqa: E402,F401  (each registers itself)
+from lab.methods import cmaes, gradient, neat, neat_cma  # noqa: E402,F401  (each registers itself)
 
 # the modules of LAB_METHODS and the installed entry points are imported when the registry is first
 # asked (registry._load_environment): a module that cannot be imported is then a SettingError

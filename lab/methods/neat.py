@@ -347,6 +347,9 @@ class NEATBackend(Backend):
         mse = self.problem.program_mse(compiled)
         for g, m in zip(genomes, mse.tolist()):
             g.fitness = -m if math.isfinite(m) else BAD_FITNESS
+        if self._after_evaluation(genomes, mse):  # a subclass changed genomes (their fitness with them)
+            programs = [cache[g.key] for g in genomes]
+            compiled = compile_genomes(programs)
         i = int(np.argmin(mse))
         self._offer(mse[i], lambda: genome_to_controller(genomes[i], self.neat_config, enc))
         best = genomes[i]
@@ -369,6 +372,11 @@ class NEATBackend(Backend):
         self._fit_species()
         pop.generation += 1
         return StepResult(mse, extras)
+
+    def _after_evaluation(self, genomes: list, mse: np.ndarray) -> bool:
+        """Between a generation's evaluation and its reproduction: a subclass may change genomes (their
+        weights, their fitness, mse in place, self._compiled[key]); returns whether it did. NEAT: no."""
+        return False
 
     keeps_candidates = True
 
