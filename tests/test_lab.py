@@ -421,7 +421,7 @@ def test_genome_to_controller_equals_neat_feed_forward_network(robot):
 def test_logged_hyperparameters_are_the_ones_the_optimizer_runs_with(method):
     """Backend.settings(problem, config) builds no backend (a recording of a run in a worker
     process logs it from the app's side), so check it against the optimizer a backend builds."""
-    own = {"neat": dict(mutation_power=0.7)}.get(method, {})
+    own = {"neat": dict(mutation_power=0.7), "neat_cma": dict(mutation_power=0.7, tune_evaluations=50)}.get(method, {})
     config = lab.TrainConfig(robot="scara", method=method, population=20, hidden=4, **own, **SMALL)
     problem = build_problem(config)
     backend = lab.methods.make_backend(problem, config)
@@ -439,6 +439,8 @@ def test_logged_hyperparameters_are_the_ones_the_optimizer_runs_with(method):
         assert settings["weight_mutate_power"] == genome.weight_mutate_power == 0.7
         assert (settings["node_add_prob"], settings["conn_add_prob"]) == (genome.node_add_prob, genome.conn_add_prob)
         assert settings["initial_hidden"] == genome.num_hidden == 4
+        if method == "neat_cma":  # and the CMA-ES searches' (50 evaluations: 4 generations of 15)
+            assert (settings["tune_batches"], settings["tune_population"]) == (4, 15)
 
 
 # ---------------------------------------------------------------- 4. determinism

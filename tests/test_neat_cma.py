@@ -28,9 +28,9 @@ def test_a_tuning_never_worsens_a_genome_and_writes_back_the_network_it_scored()
     seen = []
     tune = backend._tune
 
-    def watched(genome, i, size, mse, batches):
+    def watched(genome, i, mse, batches):
         before = float(mse[i])
-        changed = tune(genome, i, size, mse, batches)
+        changed = tune(genome, i, mse, batches)
         # the genome now holds the tuned weights: its network scores what the tuning found, and its
         # fitness says so (NEAT's selection reads it)
         controller = genome_to_controller(genome, backend.neat_config, problem.encoding)

@@ -13,8 +13,8 @@ the best were tuned. The tuned weights are written back into the genome with its
 A network tuned again while unchanged (an elite) goes on with the same search; a tuning that finds
 nothing better leaves the genome as it was.
 
-Each search's seed comes from the run's seed, the generation and the network's size: same seed, same
-run. Its evaluations count in the run's (StepResult.evaluations; the extras' "tuned").
+The searches sample from the backend's own generator, seeded with the run's seed (never numpy's global
+one): same seed, same run, in a thread or not. Its evaluations count in the run's (StepResult.evaluations; the extras' "tuned").
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import numpy as np
 import robots
 from lab.methods import neat as neat_method
 from lab.methods.base import StepResult, option, real_arm_io
+from lab.methods.cmaes import CMAESBackend
 from lab.methods.neat import BAD_FITNESS, NEATBackend, NEATOptions, _enabled, _layout, program_hidden
 from lab.methods.registry import Method, register
 from lab.problem.checks import real, whole
@@ -59,6 +60,14 @@ class NEATCMABackend(NEATBackend):
         super().__init__(problem, config)
         self._tuned_evaluations = 0
         self._searches: dict[int, tuple] = {}  # genome key -> (its CMA-ES, the weights it last wrote)
+        # the searches sample with this backend's own generator, never numpy's global one (runs in threads)
+        self._rng = np.random.default_rng(config.seed)
+
+    @classmethod
+    def settings(cls, problem, config) -> dict:
+        o = config.options
+        return {**super().settings(problem, config), "tune_every": o.tune_every, "tune_networks": o.tune_networks,
+                "tune_batches": o.tuning_batches(), "tune_population": o.tune_population, "tune_sigma": o.tune_sigma}
 
     def _step(self) -> StepResult:
         self._tuned_evaluations = 0
@@ -85,18 +94,18 @@ class NEATCMABackend(NEATBackend):
             h = hidden[i]
             if h > hidden[champion] and (h not in best_of_size or mse[i] < mse[best_of_size[h]]):
                 best_of_size[h] = i
-        order = [(hidden[champion], champion)] + [(h, best_of_size[h]) for h in sorted(best_of_size)][: o.tune_networks - 1]
+        order = [champion] + [best_of_size[h] for h in sorted(best_of_size)][: o.tune_networks - 1]
         # every tuning spends tune_networks searches' evaluations: the champion's search takes those
         # of the sizes that are missing (a step's evaluations are the same in every generation)
         shares = [o.tune_networks - len(order) + 1] + [1] * (len(order) - 1)
         changed = False
-        for (size, i), share in zip(order, shares):
-            changed |= self._tune(genomes[i], i, size, mse, share * o.tuning_batches())
-        tuned = {genomes[i].key for _, i in order}
+        for i, share in zip(order, shares):
+            changed |= self._tune(genomes[i], i, mse, share * o.tuning_batches())
+        tuned = {genomes[i].key for i in order}
         self._searches = {k: v for k, v in self._searches.items() if k in tuned}
         return changed
 
-    def _tune(self, genome, i: int, size: int, mse: np.ndarray, batches: int) -> bool:
+    def _tune(self, genome, i: int, mse: np.ndarray, batches: int) -> bool:
         """`batches` CMA-ES generations on genome's weights and biases (genome i of the generation,
         mse[i] its MSE); writes the best it finds back when better. Returns whether it did."""
         import cma
@@ -113,19 +122,19 @@ class NEATCMABackend(NEATBackend):
         if search is not None and np.array_equal(search[1], x0):  # an elite left as we left it: go on
             es = search[0]
         else:
-            seed = (self.config.seed * 1_000_003 + self.population.generation * 1009 + size) % (2**31 - 1) + 1
+            rng = self._rng
             es = cma.CMAEvolutionStrategy(x0, o.tune_sigma, {
-                "popsize": o.tune_population, "seed": seed, "verbose": -9, "bounds": [-cap, cap],
-                "CMA_diagonal": len(x0) > 60, "tolfun": 0, "tolx": 0, "tolstagnation": 10**9,
-                "tolflatfitness": 10**9, "tolfunhist": 0})
+                "popsize": o.tune_population, "seed": np.nan, "randn": lambda *shape: rng.standard_normal(shape),
+                "verbose": -9, "verb_log": 0, "CMA_diagonal": len(x0) > 60, "tolfun": 0, "tolx": 0,
+                "tolstagnation": 10**9, "tolflatfitness": 10**9, "tolfunhist": 0})
         best_f, best_x = float(mse[i]) if math.isfinite(mse[i]) else math.inf, None
         for _ in range(batches):
-            X = es.ask()
+            X = np.clip(es.ask(), -cap, cap)  # NEAT's bounds on weights and biases
             parts = [(list(x[n_links:]), response, src, list(x[:n_links]), end, out) for x in X]
             f = self.problem.program_mse(join_programs(parts))
             self._tuned_evaluations += len(X)
+            CMAESBackend._tell(es, X, f)
             f = np.where(np.isfinite(f), f, np.inf)
-            es.tell(X, f.tolist())
             k = int(np.argmin(f))
             if f[k] < best_f:
                 best_f, best_x = float(f[k]), np.array(X[k])
@@ -176,6 +185,6 @@ METHOD = register(Method(
     min_population=2, min_hidden=0,
     search_title="NEAT species and best network size",
     search_series="number of species, nodes and enabled connections of the best genome",
-    cost=8.0, compile_seconds=(7.0, 4.5), step_evaluations=step_evaluations,
+    cost=8.0, compile_seconds=(7.0, 4.5), step_evaluations=step_evaluations, warms_with="neat",
     live_plots=neat_method.METHOD.live_plots,
 ))

@@ -96,6 +96,8 @@ class Method:
         on the 2-core machine (docs/log.md); lab/running/warmup.py tells a waiting Start from them.
     pose_defaults(arm, seconds) -> dict: optional, the settings that differ for pose goals
         (TrainConfig.goal "pose", a real arm; seconds None without a budget), over defaults_for's.
+    warms_with: optional, another method whose warm-up (lab/running/warmup.py) compiles every kernel
+        this one calls: its step stands for both, and this method has none of its own.
     """
 
     name: str
@@ -120,6 +122,7 @@ class Method:
     budget_defaults: Callable[..., Mapping] | None = field(default=None, compare=False)
     compile_seconds: tuple[float, float] = (10.0, 5.0)
     pose_defaults: Callable[..., Mapping] | None = field(default=None, compare=False)
+    warms_with: str | None = None
 
     def __post_init__(self):
         if not (isinstance(self.name, str) and self.name.isidentifier() and self.name.islower()):

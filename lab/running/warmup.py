@@ -46,7 +46,17 @@ class Step:
 
     def needed_by(self, method: str, kind: str) -> bool:
         """Whether a run of `method` on a robot of `kind` calls this step's kernels."""
-        return self.method in (None, method) and self.kind in ("all", kind)
+        return self.method in (None, warmed_by(method)) and self.kind in ("all", kind)
+
+
+def warmed_by(method: str) -> str:
+    """The method whose warm-up step compiles `method`'s kernels (Method.warms_with; itself if none)."""
+    from lab import methods
+
+    try:
+        return methods.get(method).warms_with or method
+    except ValueError:  # an unknown method: the run itself says so
+        return method
 
 
 def kind_of(robot: str) -> str:
@@ -64,8 +74,8 @@ def plan(first: str | None = None, first_kind: str = "arm") -> list[Step]:
     the app's page opens with) for `first_kind`, then for the other kind; then every other method's (lab.methods.names() order), a serial arm's first."""
     from lab import methods
 
-    names = methods.names()
-    first = methods.DEFAULT_METHOD if first is None else first
+    names = [m.name for m in methods.all_methods() if not m.warms_with]  # one step stands for both
+    first = warmed_by(methods.DEFAULT_METHOD if first is None else first)
     order = [first] + [m for m in names if m != first] if first in names else list(names)
     pairs = [(order[0], first_kind), (order[0], next(k for k in KINDS if k != first_kind))]
     pairs += [(m, k) for m in order[1:] for k in KINDS]
