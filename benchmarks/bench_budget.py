@@ -10,7 +10,7 @@ thread, what the app's training worker uses); --jobs runs that many side by side
 machine: one per core). The figures depend on the machine and its load: read them as ratios
 between budgets, arms and methods measured in one sitting, and note the load with them.
 
-    .venv/bin/python benchmarks/bench_budget.py                        # 8 arms x 3 methods x 4 budgets (about 80 min on 2 cores)
+    .venv/bin/python benchmarks/bench_budget.py                        # 8 arms x every method x 4 budgets (about 110 min on 2 cores)
     .venv/bin/python benchmarks/bench_budget.py --robots ur5 --methods cmaes --budgets 10,30
     .venv/bin/python benchmarks/bench_budget.py --out budgets.jsonl    # one JSON line per run, appended as it ends
     .venv/bin/python benchmarks/bench_budget.py --table budgets.jsonl  # the table of runs already made
