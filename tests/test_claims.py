@@ -71,8 +71,8 @@ def test_equal_budget_arithmetic_by_hand():
     config = C.ClaimsConfig(runs=1, generations=40, out="/tmp/unused-claims")
     assert config.budget("planar") == 40 * 50
     gens = {(s.robot, s.method, s.kind): s.generations for s in config.specs()}
-    assert gens[("planar-20", C.METHODS[2], "evaluations")] == 2000 // 21
-    assert gens[("planar-20", C.METHODS[2], "seconds")] == C.CAP * (2000 // 21)
+    assert gens[("planar-20", C.METHODS[-1], "evaluations")] == 2000 // 21
+    assert gens[("planar-20", C.METHODS[-1], "seconds")] == C.CAP * (2000 // 21)
     assert gens[("ur5", C.METHODS[1], "evaluations")] == 40 * 50 // 100  # NEAT's 100 genomes on a real arm
 
 
@@ -84,9 +84,10 @@ def test_stuck_fraction_by_hand():
 
 
 def test_judging_an_arm_and_reaching_a_target_by_hand():
-    g, a, b = C.METHODS[2], C.METHODS[0], C.METHODS[1]
-    num = {g: {"median": 1.0, "abs": 0, "rel": 0}, a: {"median": 2.0, "abs": 1, "rel": 0},
-           b: {"median": 3.0, "abs": 0, "rel": 0}}
+    g, evolved = C.METHODS[-1], C.METHODS[:-1]  # the gradient method last, the evolved ones before it
+    num = {g: {"median": 1.0, "abs": 0, "rel": 0}}
+    for k, m in enumerate(evolved):  # medians 2, 3, 4 ...; the first stuck once
+        num[m] = {"median": 2.0 + k, "abs": int(k == 0), "rel": 0}
     assert judge_arm(num) == "contradicted"
     num[g] = {"median": 4.0, "abs": 2, "rel": 1}
     assert judge_arm(num) == "supported"

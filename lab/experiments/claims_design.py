@@ -10,8 +10,8 @@ import numpy as np
 # The compared methods, each at its defaults (x, y order of the Welch tests): the one place in
 # this experiment that names methods (tests/test_methods.py allows it). The first is the
 # reference: its population sets the budget, its speed the time limit, and it is the method of
-# the fixed-vs-resampled comparison.
-METHODS = ("cmaes", "neat", "gradient")
+# the fixed-vs-resampled comparison; the last is the gradient method, the others are evolved.
+METHODS = ("cmaes", "neat", "neat_cma", "gradient")
 # the paper's arms, its "highly redundant" snakes, two real arms, and two of the robots the paper names
 # as its reason (a 12-joint biped, a 29-joint humanoid): trees of several end effectors
 ROBOTS = ("planar", "scara", "planar-10", "planar-20", "ur5", "panda", "talos-legs", "g1")

@@ -24,7 +24,7 @@ from lab.experiments.stats import welch
 from lab.experiments.tables import fmt, md_table
 from lab.running.config import TrainConfig
 
-EVOLVED, GRADIENT = C.METHODS[:2], C.METHODS[2]
+EVOLVED, GRADIENT = C.METHODS[:-1], C.METHODS[-1]
 SNAKES = tuple(r for r in C.ROBOTS if robots.kind(r) == "snake")  # "highly redundant"
 TREES = tuple(r for r in C.ROBOTS if robots.kind(r) == "tree")  # the paper's reason: bipeds, humanoids
 SETTINGS = {"evaluations": "equal budget in evaluations", "seconds": "equal wall time"}
