@@ -112,7 +112,7 @@ def test_browser_steps_one_generation_sets_the_speed_and_races_two_runs(tmp_path
             page.get_by_text("Race", exact=True).click()
             page.get_by_label("Race a second run").check()
             page.get_by_label("Partner method").click()
-            page.get_by_role("option", name="NEAT").click()
+            page.get_by_role("option", name="NEAT", exact=True).click()
             assert wait_until(lambda: app.panel.race.enabled.value and app.panel.race.method.value == "NEAT", 10)
             button("Start").click()
             assert wait_until(lambda: app.state.partner is not None and len(app.state.partner.track) >= 20

@@ -657,7 +657,8 @@ def test_subscribers_get_every_generation_in_order(method, caplog):
     for i, e in enumerate(a.events):
         assert e is b.events[i]
         # a population method counts its population per generation; the gradient method 1 + nq per step
-        per_step = 1 + r.problem.arm.nq if method == "gradient" else P
+        # (NEAT-CMA its population and its tuning's evaluations: Method.evaluations_per_step)
+        per_step = lab.methods.get(method).evaluations_per_step(r.problem.arm, cfg)
         assert e.evaluations == (e.index + 1) * per_step
         assert r.problem.controller_mse(e.controller) == pytest.approx(e.best, rel=0, abs=1e-9)
         assert e.best <= e.gen_best <= e.median <= e.worst

@@ -84,10 +84,15 @@ def test_views_and_blueprint(run):
                    "/about", "/controller"):
         assert entity in found, entity
     assert "Arrows3D:vectors" in found["/world/errors"] and "LineStrips3D:strips" in found["/world/arm"]
-    if runner.config.method == "neat":
+    if graph_method(runner):
         assert {"GraphNodes:positions", "GraphEdges:edges"} <= found["/network"]
     assert len(RrdReader(logger.path).blueprints()) == 1
     RrdReader(logger.path).store()  # a cleanly closed file has its footer
+
+
+def graph_method(runner) -> bool:
+    """The run's method evolves graphs (NEAT's kind): its recording has a /network panel."""
+    return lab.methods.get(runner.config.method).controller == "graph"
 
 
 def logged_at(path, generation: int, timeline: str = "generation") -> set:
@@ -136,18 +141,18 @@ def test_the_first_generation_shows_the_arms_and_the_network(run):
     at0 = logged_at(logger.path, 0)
     for entity in ("/world/arm", "/world/reached", "/world/errors", "/world/goals", "/controller"):
         assert entity in at0, entity
-    assert ("/network" in at0) == (runner.config.method == "neat")
+    assert ("/network" in at0) == (graph_method(runner))
     # no method's recording has a panel it never fills: a graph method's /network, else the JSON
     views = _views(RrdReader(logger.path))
     detail = [v for v in views if v["class"] in ("GraphView", "TextDocumentView") and v["origin"] != "/about"]
-    assert [v["origin"] for v in detail] == ["/network" if runner.config.method == "neat" else "/controller"]
+    assert [v["origin"] for v in detail] == ["/network" if graph_method(runner) else "/controller"]
     # every view shows the latest data at the time cursor: none has a visible time range
     assert not any("range" in c.lower() for v in views for c in v["components"]), views
     # after the first: on improvement, at most every max(pose_every, g / 5) generations, and the last
     posed = logged_generations(logger.path, "/world/arm")
     assert posed[0] == 0 and posed[-1] <= len(events) - 1 and len(posed) > 1
     assert all(b - a >= max(logger.pose_every, b // 5) for a, b in zip(posed, posed[1:-1]))
-    if runner.config.method == "neat":  # the network of every controller the file holds
+    if graph_method(runner):  # the network of every controller the file holds
         assert logged_generations(logger.path, "/network") == [g for g, _ in read_recording(logger.path).controllers]
 
 
@@ -202,6 +207,7 @@ def test_mse_series_and_search_extras(run):
         keys = sorted(k for k, v in e.extras.items() if isinstance(v, (int, float)))
         assert rows["/search", e.index] == [float(e.extras[k]) for k in keys]
     wanted = {"cmaes": {"sigma", "restarts"}, "neat": {"species", "nodes", "connections"},
+              "neat_cma": {"species", "nodes", "connections", "tuned"},
               "gradient": {"gradient_norm", "learning_rate"}}[runner.config.method]
     assert wanted <= set(events[0].extras)
 
