@@ -187,9 +187,15 @@ def stress(seconds: float, safe: bool, senders: int = 100, period: float = 0.02,
 
 def test_viser_alone_raises_when_a_thread_pushes_while_tabs_wait():
     """The fault, with viser's own buffer and event (viser 1.1.1): if this fails, viser has fixed
-    it, and install_loop_safe_wakeups can go."""
-    r = stress(20.0, safe=False, stop_at_error=True)
-    assert r["errors"] and "deque mutated during iteration" in r["errors"][0], r
+    it, and install_loop_safe_wakeups can go. A race: on a busy machine (fewer pushes, rarer thread
+    switches) 20 s may pass without it, so up to three tries of 20 s; on an idle one the first hits it."""
+    tries = []
+    for _ in range(3):
+        r = stress(20.0, safe=False, stop_at_error=True)
+        tries.append(r)
+        if r["errors"]:
+            break
+    assert r["errors"] and "deque mutated during iteration" in r["errors"][0], tries
 
 
 def test_with_loop_safe_wakeups_no_push_raises_and_every_tab_gets_the_last_message():
