@@ -16,13 +16,16 @@ def test_benchmark_starts(script):
     assert "usage:" in done.stdout
 
 
-def _bench_arms():
+def _bench(name: str):
     sys.path.insert(0, str(BENCHMARKS[0].parent))
     try:
-        import bench_arms
+        return __import__(name)
     finally:
         sys.path.pop(0)
-    return bench_arms
+
+
+def _bench_arms():
+    return _bench("bench_arms")
 
 
 def test_bench_arms_reuses_a_shipped_run_only_when_it_is_that_seeds_run():
@@ -64,3 +67,14 @@ def test_bench_arms_failure_sectors_count_every_held_out_goal_once():
     assert len(goals) == 12 and sum(goals) == n and sum(fails) == 0
     fails, goals = counts(bench.failure_sectors("so101", np.ones(n)))  # 1 m: every goal fails
     assert fails == goals
+
+
+def test_bench_tree_refine_counts_a_goal_failed_when_one_effector_is():
+    """A tree goal succeeds only when every effector does: the failed goals are at least the worst
+    effector's failures and at most their sum; each group alone succeeds at least as often."""
+    row = _bench("bench_tree_refine").measure("talos-legs", 60, 0)
+    failed = round(60 * (1 - row["refined_3"]))
+    fails = list(row["fails_by_effector"].values())
+    assert len(fails) == 2 and max(fails) <= failed <= sum(fails)
+    assert all(g["refined_3"] >= row["refined_3"] for g in row["groups"])
+    assert row["refined_3"] <= row["refined_8"] <= row["refined_20"]
