@@ -76,6 +76,18 @@ def test_about_says_the_training_goals_and_network_of_the_run_the_panel_would_st
     assert {"planar": 70, "ur5": 300, "g1": 600}.get(robot, d.targets) == d.targets  # the figures the docs quote
 
 
+@pytest.mark.parametrize("method", lab.methods.names())
+def test_about_names_where_a_growing_network_starts_and_the_runs_own_goals(method):
+    arm = robots.load("ur5")
+    d = lab.TrainConfig.preset(robot="ur5", method=method)
+    text = about(arm, d)
+    assert f"over {d.targets:,} fixed goals" in text
+    if lab.methods.get(method).controller == "mlp":
+        assert f"({d.hidden} hidden units)" in text and "grows" not in text
+    else:  # NEAT's kind: no fixed size to quote, where it starts
+        assert f"{lab.methods.get(method).label} grows (from {d.hidden} hidden units)" in text
+
+
 def test_the_tab_shows_each_robots_about_and_its_runs_goals_and_the_scene_its_map_key(app, tab):
     session = session_of(app, tab)
     for robot in ("planar", "ur5", "planar"):
@@ -85,6 +97,13 @@ def test_the_tab_shows_each_robots_about_and_its_runs_goals_and_the_scene_its_ma
         assert session.about.content == about(arm, d)
         assert len(app.training_goals()) == d.targets  # the red points: the goals that run trains on
         assert READY_ID in session.intro.content
+    # a run of another method on other goals: About says that run's goals, the red points' number
+    config = lab.TrainConfig.preset(robot=robot, method=lab.methods.names()[-1], targets=25, generations=3,
+                                    population=6, seed=0)
+    assert app.state.start(config) is None
+    assert wait_until(lambda: session.about.content == about(session.arm, config), 30)
+    assert "over 25 fixed goals" in session.about.content and len(app.training_goals()) == 25
+    assert wait_until(lambda: app.state.runner.state == "finished", 60)
     # the map's key in the scene, shown with the map: its label's text is the legend's
     arm = app.state.arm
     top = map_key(arm, lambda v: fmt_len(arm, v)).top[1]

@@ -59,14 +59,20 @@ INTRO_TREE = ("**Drag the arrows** of a foot, a hand or a fingertip: the whole r
 
 
 def about(arm: robots.Arm, config) -> str:
-    """The About text for `arm` with `config` (the panel's defaults for it: lab.TrainConfig.preset):
-    its network's size, its number of fixed training goals and the unit of its lengths."""
+    """The About text for `arm` with `config` (the current run's on this arm, else the panel's defaults
+    for it: lab.TrainConfig.preset): its network's size (a method that grows its network: where it
+    starts), its number of fixed training goals and the unit of its lengths."""
+    method = lab.methods.get(config.method)
+    if method.controller == "mlp":
+        network = f"A tanh network ({config.hidden} hidden units)"
+    else:
+        network = f"A tanh network that {method.label} grows (from {config.hidden} hidden units)"
     if arm.is_tree:
         maps = f"a goal, a point for each of its {arm.n_effectors} end effectors, to the robot's {arm.nq} joint angles"
     else:
         maps = f"a goal to the arm's {arm.nq} joint angles"
     unit = "mm" if robots.in_metres(arm.name) else "the paper's units"
-    return (f"A tanh network ({config.hidden} hidden units) maps {maps}, never shown a right answer: its fitness "
+    return (f"{network} maps {maps}, never shown a right answer: its fitness "
             f"is the {'robot' if arm.is_tree else 'arm'}'s error over {config.targets:,} fixed goals (red), through "
             f"forward kinematics. Lengths in {unit}.")
 
@@ -359,12 +365,19 @@ class TabSession(TabExtras):
             intro = READY + (INTRO_TREE if self.arm.is_tree else INTRO_POSE if self.goal_kind == "pose" else INTRO)
             if self.intro.content != intro:
                 self.intro.content = intro
-            text = about(self.arm, lab.TrainConfig.preset(robot=self.arm.name))
-            if self.about.content != text:
-                self.about.content = text
+            self.write_about()
             self.client.camera.position = self.ws["camera"]
             self.client.camera.look_at = self.ws["center"]
             self.add_goal(self._default_goal(0))
+
+    def write_about(self) -> None:
+        """The About text of the run whose goals the scene shows in red (the current run on this
+        arm, else the one the panel would start: app.server's training_goals)."""
+        r = self.state.runner
+        config = r.config if r is not None and r.problem.arm is self.arm else lab.TrainConfig.preset(robot=self.arm.name)
+        text = about(self.arm, config)
+        if self.about.content != text:
+            self.about.content = text
 
     def _default_goal(self, k: int) -> np.ndarray:
         """Goal k's starting place: the first where the runs draw the population (display_goal: on a
@@ -474,6 +487,7 @@ class TabSession(TabExtras):
             controller = shown.controller if shown.arm is self.arm and shown.goal == self.goal_kind else None
             for g in self.goals:
                 g.update(controller, moved=False)
+            self.write_about()  # a new run may train another method or on other goals
             self.version = shown.version  # after the poses: a reader that sees it sees them
             self.write_table(shown)
             self.table_dirty = False
