@@ -80,8 +80,13 @@ def test_forty_viewers_dragging_on_g1_while_the_presenter_trains(tmp_path, caplo
             session = app.sessions[int(probe.owner("/tab/goal0/marker"))]
             d = DRAGS - 1
             e = (k + d) % effectors
-            goal = session.goals[0].goal.reshape(effectors, 3)
-            assert abs(goal[e] - points[k * DRAGS + d, e]).max() < 1e-6, (k, goal[e], points[k * DRAGS + d, e])
+
+            def dragged_there():
+                return abs(session.goals[0].goal.reshape(effectors, 3)[e] - points[k * DRAGS + d, e]).max() < 1e-6
+
+            # a drag's answer may be a training redraw of the tab's arm that came first: on a loaded
+            # machine the server handles the last drag a moment after the probe saw that pose
+            assert wait_until(dragged_there, PATIENCE), (k, session.goals[0].goal, points[k * DRAGS + d, e])
         presenter.click("Stop")
         assert wait_until(lambda: not app.state.running, PATIENCE)
         text = caplog.text
