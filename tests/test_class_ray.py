@@ -117,6 +117,7 @@ def test_a_lost_ray_worker_fails_its_run_with_a_message_and_the_next_queued_run_
     assert wait_until(lambda: first.ended, 120), first.status()
     assert first.state == "failed" and "its Ray worker was lost" in first.status(), first.status()
     assert first.summary.generations == first.generation > 0  # what it streamed counts
+    assert wait_until(lambda: notebook.get(first.id) is not None, 60)  # noted just after it ended
     entry = notebook.get(first.id)
     assert entry["state"] == "failed" and entry["student"] == "Ada" and "its Ray worker was lost" in entry["error"]
     assert wait_until(lambda: second.ended, 300), second.status()
