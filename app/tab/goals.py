@@ -374,6 +374,9 @@ class TabSession(TabExtras):
         """The About text of the run whose goals the scene shows in red (the current run on this
         arm, else the one the panel would start: app.server's training_goals)."""
         r = self.state.runner
+        if self.__dict__.get("_about_of") == (r, self.arm):  # said already: a redraw of the same run
+            return
+        self._about_of = (r, self.arm)
         config = r.config if r is not None and r.problem.arm is self.arm else lab.TrainConfig.preset(robot=self.arm.name)
         text = about(self.arm, config)
         if self.about.content != text:
