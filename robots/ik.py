@@ -387,6 +387,13 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     RefineResult.choice is then k + j - 1 for the one of joint j. Goals whose first step goes well
     never try them: the answer kept has still had at most `steps` steps.
 
+    A tree with several proposals (a multi-head network's, one head per limb group): when no
+    proposal is within tolerance after its first step, each limb group (effectors that share joints,
+    robots.kinematics.limb_groups) takes the joints of the proposal that put its own effectors
+    nearest, and that mix is kept when it is nearer than the best proposal (RefineResult.choice: the
+    proposal its largest group took). Groups share no joint, so a leg solved in one proposal and an
+    arm in another make one answer that solves both.
+
     Pose goals, (n, 4, 4) homogeneous transforms of the tool frame (robots.pose): the same damped
     Gauss-Newton steps in SE(3), each goal held to tol and to angle_tol [rad] (default 0.1 degree):
     refine_pose, where the turn, the bend and the half turns do not apply."""
@@ -475,17 +482,26 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
 
     first = min(steps, 1)  # the proposals' first steps; then the nearest takes the rest
     flippable = [j for j in range(1, arm.nq) if flips and not arm.is_prismatic[j]]
+    # a tree with several proposals: each limb group (no joint shared) may keep another proposal's joints
+    limbs = [(np.concatenate([np.arange(e * m, (e + 1) * m) for e in g]),
+              np.unique(np.concatenate([arm.chain.path(e) for e in g])), len(g))
+             for g in arm.chain.limb_groups] if arm.is_tree and len(q) > 1 else []
+    if len(limbs) < 2:
+        limbs = []
     out_q, out_err = np.empty((len(goals), arm.nq)), np.zeros(len(goals))
     taken, choice = np.zeros(len(goals), np.int64), np.zeros(len(goals), np.int64)
     for i, goal in enumerate(goals):
-        best = None
+        best, states = None, []
         for j in range(len(q)):
             seed = start(q[j, i], goal)
             state = descend(*seed, goal, first)
+            states.append(state)
             if best is None or state[2] < best[2]:
                 best, choice[i], before = state, j, seed[2]
             if close(best[1], best[2]):  # done: the later proposals cannot do better than within tolerance
                 break
+        if limbs and len(states) > 1 and not close(best[1], best[2]):
+            best, choice[i] = _limbwise(states, limbs, error, goal, best, choice[i])
         if first and flippable and not close(best[1], best[2]) and best[2] > 0.1 * before:
             # the best first step took less than 90 % of the error off: the seed may sit on the wrong
             # side of a fold (a wrist turning its offset away from a goal near full reach); the best
@@ -512,6 +528,26 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
         out_q[i], out_err[i], taken[i] = qi, err if m == len(e) else worst(e), k
     several = len(q) > 1 or bool(first and flippable)
     return RefineResult(out_q, out_err, taken, time.perf_counter() - t0, choice if several else None, tol=tol)
+
+
+def _limbwise(states: list, limbs: list, error, goal, best: tuple, chosen: int) -> tuple[tuple, int]:
+    """A tree's proposals after their first steps, mixed limb group by limb group: each group keeps
+    the joints of the proposal that put its own effectors nearest their goals (groups share no joint,
+    so a group's effectors depend on its joints alone). (state, choice): the mix when it is nearer the
+    goal than `best`, its choice the proposal its largest group kept; else best and chosen unchanged."""
+    q_mix = states[0][0].copy()
+    picks = []
+    for rows, joints, _ in limbs:
+        j = int(np.argmin([st[1][rows] @ st[1][rows] for st in states]))
+        q_mix[joints] = states[j][0][joints]
+        picks.append(j)
+    if len(set(picks)) == 1:  # every group kept the same proposal: no mix
+        return best, chosen
+    e, err = error(q_mix, goal)
+    if err >= best[2]:
+        return best, chosen
+    largest = int(np.argmax([size for *_, size in limbs]))
+    return (q_mix, e, err, max(st[3] for st in states), False), picks[largest]
 
 
 # ---------------------------------------------------------------- pose goals (robots.pose)

@@ -151,6 +151,11 @@ class ChainKinematics:
         """Indices k of the joints that move effector e, root first: its serial chain within the tree."""
         return np.flatnonzero(self.on_path[e])
 
+    @property
+    def limb_groups(self) -> list[list[int]]:
+        """The effectors grouped so that no two groups share a joint (limb_groups of their paths)."""
+        return limb_groups([self.path(e) for e in range(self.n_effectors)])
+
     def effector_arrays(self, e: int) -> tuple:
         """(rot, pos, kind, identity, ee_pos) of effector e's own serial chain, the joints path(e) in
         order: what `arrays` is for a serial arm. Each joint's fixed placement is folded relative to
@@ -334,3 +339,26 @@ def _jacobian_kernel(q, rot, pos, kind, identity, parent, ee_joint, effector_pos
                     J[i, e, 2, k] = ax * dy - ay * dx
                 else:
                     J[i, e, 0, k], J[i, e, 1, k], J[i, e, 2, k] = ax, ay, az
+
+
+def limb_groups(paths) -> list[list[int]]:
+    """Effectors grouped so that no two groups share a joint (connected by shared joints), from each
+    effector's path (the joint indices that move it): each group's effectors in order, the groups by
+    their first effector. A biped's two legs are two groups, a humanoid's arms and waist one (the
+    waist moves both hands). A group's effectors depend on its joints alone."""
+    sets = [set(int(j) for j in p) for p in paths]
+    group = list(range(len(sets)))
+
+    def root(e):
+        while group[e] != e:
+            e = group[e]
+        return e
+
+    for a in range(len(sets)):
+        for b in range(a + 1, len(sets)):
+            if sets[a] & sets[b]:
+                group[root(b)] = root(a)
+    out: dict[int, list[int]] = {}
+    for e in range(len(sets)):
+        out.setdefault(root(e), []).append(e)
+    return sorted(out.values())

@@ -124,11 +124,6 @@ def test_goals_of_the_wrong_shape_are_refused_by_name():
     assert run.controller(arm.sample_goals(2, seed=0)).shape == (2, arm.nq)
 
 
-def test_heads_are_refused_on_a_tree():
-    with pytest.raises(ValueError, match="tree of 2 end effectors: multi-head"):
-        lab.TrainConfig(robot="talos-legs", method="cmaes", heads=2)
-
-
 def test_the_tree_encoding_round_trips_and_scales_each_effector_by_its_own_workspace():
     arm = robots.load("allegro")
     enc = encoding_for(arm, "cartesian")

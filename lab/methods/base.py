@@ -155,9 +155,12 @@ def mlp_shape(problem: Problem, config: RunSettings):
     s.hidden, weights, s.heads, s.anchors, s.chain))."""
     from lab.problem.controllers import MLPController, mlp_size
 
-    enc, heads = problem.encoding, config.heads
+    from lab.problem.tree_encoding import tree_arrays
+
+    enc, heads, arm = problem.encoding, config.heads, problem.arm
+    chain = None if heads == 1 else tree_arrays(arm) if arm.is_tree else arm.chain.arrays
     return MLPController(enc, config.hidden, np.zeros(mlp_size(enc.n_inputs, config.hidden, enc.n_outputs * heads)),
-                         heads, None, problem.arm.chain.arrays if heads > 1 else None)
+                         heads, None, chain)
 
 
 @dataclass(frozen=True)

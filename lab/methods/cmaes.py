@@ -85,7 +85,7 @@ class CMAESBackend(Backend):
         self.offsets = None if self.shape.heads == 1 else self.shape.offsets
         # a tree's limb-wired network (lab/problem/wiring.py): the search is over the wired weights alone,
         # one CMA-ES per limb group on that group's share of the error (the groups share no weight)
-        self.wiring = (Wiring.for_arm(problem.arm, problem.encoding.n_inputs, config.hidden)
+        self.wiring = (Wiring.for_arm(problem.arm, problem.encoding.n_inputs, config.hidden, config.heads)
                        if getattr(config, "wiring", False) else None)
         self.dim = self.shape.n_params if self.wiring is None else self.wiring.dim
         self._dims = (self.dim,) if self.wiring is None else self.wiring.sizes
@@ -124,7 +124,8 @@ class CMAESBackend(Backend):
     @classmethod
     def settings(cls, problem, config) -> dict:
         o = config.options
-        wired = ({"wiring": True, "dim": Wiring.for_arm(problem.arm, problem.encoding.n_inputs, config.hidden).dim}
+        wired = ({"wiring": True, "dim": Wiring.for_arm(problem.arm, problem.encoding.n_inputs, config.hidden,
+                                                        config.heads).dim}
                  if getattr(config, "wiring", False) else {})
         return {"dim": mlp_size(problem.encoding.n_inputs, config.hidden, problem.encoding.n_outputs * config.heads),
                 **wired, "hidden": config.hidden, **({"heads": config.heads} if config.heads > 1 else {}),
@@ -138,7 +139,7 @@ class CMAESBackend(Backend):
         if self.wiring is None:
             f = self.problem.mlp_mse(X, self.config.hidden, offsets=self.offsets)
         else:
-            f = self.problem.wired_mse(X, self.wiring).sum(axis=1)
+            f = self.problem.wired_mse(X, self.wiring, offsets=self.offsets).sum(axis=1)
         self._tell(self.es, X, f)
         i = int(np.argmin(f))
         self._offer(f[i], lambda: self.mlp(X[i].copy()))
@@ -157,7 +158,7 @@ class CMAESBackend(Backend):
         p-th sample; each search is told its group's share of the error."""
         parts = [np.asarray(es.ask()) for es in self.searches]
         X = np.concatenate(parts, axis=1)
-        F = self.problem.wired_mse(X, self.wiring)  # (P, groups)
+        F = self.problem.wired_mse(X, self.wiring, offsets=self.offsets)  # (P, groups)
         for k, es in enumerate(self.searches):
             self._tell(es, parts[k], F[:, k])
         f = F.sum(axis=1)

@@ -20,9 +20,10 @@ from typing import NamedTuple, Protocol
 import numpy as np
 
 from lab.problem import kernels
-from lab.problem.kernels import check_chain
+from lab.problem.kernels import TREE_FIELDS, check_chain, check_tree
 from lab.problem.encoding import Encoding
 from lab.problem.encodings import encoding_from_dict
+from robots.kinematics import limb_groups
 
 
 class Controller(Protocol):
@@ -122,7 +123,9 @@ class MLPController:
         if self.heads > 1:
             if self.chain is None:
                 raise ValueError("an MLP with several heads needs the arm's kinematic chain to pick a head")
-            object.__setattr__(self, "chain", check_chain(self.chain, self.encoding.n_outputs))
+            effectors = getattr(self.encoding, "effectors", None)
+            object.__setattr__(self, "chain", check_chain(self.chain, self.encoding.n_outputs) if effectors is None
+                               else check_tree(self.chain, self.encoding.n_outputs, effectors))
 
     @property
     def n_params(self) -> int:
@@ -159,11 +162,21 @@ class MLPController:
         ni = self.encoding.n_inputs
         return self.weights[(ni + 1) * self.hidden :].reshape(self.hidden, self.n_outputs)
 
+    @functools.cached_property
+    def tree_heads(self) -> "TreeHeads | None":
+        """A tree's head choice per limb group (TreeHeads); None on a serial arm or with one head."""
+        if self.heads == 1 or getattr(self.encoding, "effectors", None) is None:
+            return None
+        return TreeHeads(self.chain, self.encoding.n_outputs)
+
     def outputs(self, goals: np.ndarray) -> np.ndarray:
-        """Network outputs a_o in [-1, 1] of the answering head, (n, nq)."""
+        """Network outputs a_o in [-1, 1] of the answering head, (n, nq) (a tree's: each limb group's)."""
         if self.heads > 1:
             a = self.head_outputs(goals)
-            pick = choose_heads(self.encoding, self.chain, self.encoding.joints(a, goals), goals)
+            Q = self.encoding.joints(a, goals)
+            if self.tree_heads is not None:
+                return self.tree_heads.assemble(a, self.tree_heads.choose(Q, goals))
+            pick = choose_heads(self.encoding, self.chain, Q, goals)
             return a[pick, np.arange(len(goals))]
         XT = np.ascontiguousarray(self.encoding.inputs(goals).T)
         out = np.empty((self.encoding.n_outputs, XT.shape[1]))
@@ -175,8 +188,12 @@ class MLPController:
         return mlp_head_outputs(self.encoding, self.hidden, self.offsets, self.weights[None, :], goals)[0]
 
     def choose(self, goals: np.ndarray) -> np.ndarray:
-        """(n,) the head that answers each goal: the one whose end effector lands closest."""
-        return choose_heads(self.encoding, self.chain, self.encoding.joints(self.head_outputs(goals), goals), goals)
+        """(n,) the head that answers each goal: the one whose end effector lands closest (a tree's:
+        (groups, n), each limb group's head, TreeHeads.groups)."""
+        Q = self.encoding.joints(self.head_outputs(goals), goals)
+        if self.tree_heads is not None:
+            return self.tree_heads.choose(Q, goals)
+        return choose_heads(self.encoding, self.chain, Q, goals)
 
     def __call__(self, goals: np.ndarray) -> np.ndarray:
         if self.heads > 1:
@@ -187,10 +204,9 @@ class MLPController:
         d = {"kind": self.kind, "encoding": self.encoding.to_dict(), "hidden": self.hidden,
              "weights": self.weights.tolist()}
         if self.heads > 1:
-            rot, pos, kind, identity, ee_pos = self.chain
+            names = TREE_FIELDS[:len(self.chain)]  # a serial chain's five arrays, a tree's seven
             d.update(heads=self.heads, anchors=self.anchors.tolist(),
-                     chain={"rot": rot.tolist(), "pos": pos.tolist(), "kind": kind.tolist(),
-                            "identity": identity.tolist(), "ee_pos": ee_pos.tolist()})
+                     chain={k: np.asarray(a).tolist() for k, a in zip(names, self.chain)})
         return d
 
 
@@ -224,14 +240,71 @@ def choose_heads(encoding: Encoding, chain: tuple, Q: np.ndarray, goals) -> np.n
     return np.argmin(head_errors(encoding, chain, Q, goals), axis=-2)
 
 
+class TreeHeads:
+    """A tree's multi-head network answers with a head per limb group: the effectors fall into groups
+    that share no joint (robots.kinematics.limb_groups: a humanoid's legs, and its arms with the
+    waist), a group's effectors depend on its joints alone, so each group takes the head that puts
+    its own effectors nearest their goals, and the answer is the groups' heads side by side (a joint
+    on no effector's path: head 0's). What the fitness scores (kernels.tree_mlp_heads_mse per group).
+
+    tree: kernels.pack_tree's arrays; groups: each group's effectors; joints: each group's joints."""
+
+    def __init__(self, tree: tuple, nq: int):
+        rot, pos, kind, identity, ee_pos, joints, starts = tree
+        paths = [joints[a:b] for a, b in zip(starts[:-1], starts[1:])]
+        rows = list(zip(starts[:-1], starts[1:]))
+        self.nq = int(nq)
+        self.groups = limb_groups(paths)
+        self.joints = [np.unique(np.concatenate([paths[e] for e in g])) for g in self.groups]
+        self.trees = [kernels.pack_tree([(rot[a:b], pos[a:b], kind[a:b], identity[a:b], ee_pos[e])
+                                         for e, (a, b) in ((e, rows[e]) for e in g)], [paths[e] for e in g], nq)
+                      for g in self.groups]
+
+    def errors(self, Q: np.ndarray, goals) -> np.ndarray:
+        """(..., heads, g, groups): each group's summed squared effector errors (inf where not finite),
+        joint values Q (..., heads, g, nq) (already turned: the encoding's joints) on goals (g, E, 3)."""
+        goals = np.asarray(goals, dtype=np.float64)
+        lead, (heads, g, nq) = Q.shape[:-3], Q.shape[-3:]
+        QT = np.ascontiguousarray(np.moveaxis(Q.reshape(-1, nq), -1, 0))  # (nq, N)
+        out = np.empty((len(self.groups), QT.shape[1]))
+        axes = np.arange(3, dtype=np.int64)
+        for k, (group, tree) in enumerate(zip(self.groups, self.trees)):
+            goalsT = goals[:, group].reshape(g, -1).T
+            tiled = np.ascontiguousarray(np.tile(goalsT, (1, QT.shape[1] // g)))
+            kernels.tree_sq_errors(QT, tiled, axes, tree, np.zeros((len(group), 10)), out[k])
+        out = np.where(np.isfinite(out), out, np.inf)
+        return np.moveaxis(out, 0, -1).reshape(*lead, heads, g, len(self.groups))
+
+    def choose(self, Q: np.ndarray, goals) -> np.ndarray:
+        """(..., groups, g): each group's head of least error, Q (..., heads, g, nq)."""
+        return np.moveaxis(np.argmin(self.errors(Q, goals), axis=-3), -1, -2)
+
+    def assemble(self, X: np.ndarray, picks: np.ndarray) -> np.ndarray:
+        """(..., g, nq) from X (..., heads, g, nq) (joint values or outputs): each group's joints from
+        its head picks[..., group, :] (choose), a joint on no group's path from head 0."""
+        out = X[..., 0, :, :].copy()
+        for k, js in enumerate(self.joints):
+            taken = np.take_along_axis(X, picks[..., k, None, :, None], axis=-3)[..., 0, :, :]
+            out[..., js] = taken[..., js]
+        return out
+
+    def ranked(self, Q: np.ndarray, goals) -> np.ndarray:
+        """(heads, g, nq) from Q (heads, g, nq): proposal i has every group's i-th nearest head."""
+        order = np.argsort(self.errors(Q, goals), axis=0, kind="stable")  # (heads, g, groups)
+        return np.stack([self.assemble(Q, np.moveaxis(order[i], -1, 0)) for i in range(len(Q))])
+
+
 def proposals(controller, goals) -> np.ndarray:
     """(k, n, nq): the joint values a controller proposes for each goal, as robots.ik.refine takes
     them: every head's of a multi-head MLP, the nearest its goal first (k = heads; the first is
-    the controller's own answer), or any other controller's one answer (k = 1)."""
+    the controller's own answer; a tree's: proposal i has each limb group's i-th nearest head), or
+    any other controller's one answer (k = 1)."""
     goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
     if getattr(controller, "heads", 1) == 1:
         return np.asarray(controller(goals), dtype=np.float64)[None]
     Q = controller.encoding.joints(controller.head_outputs(goals), goals)  # (heads, n, nq)
+    if controller.tree_heads is not None:
+        return controller.tree_heads.ranked(Q, goals)
     order = np.argsort(head_errors(controller.encoding, controller.chain, Q, goals), axis=0, kind="stable")
     return np.take_along_axis(Q, order[:, :, None], axis=0)
 
@@ -249,6 +322,8 @@ def mlp_joints(encoding: Encoding, hidden: int, W: np.ndarray, goals, heads_of=N
         a = A.reshape(nq, len(W), len(goals)).transpose(1, 2, 0)
         return encoding.joints(a, goals)
     Q = encoding.joints(mlp_head_outputs(encoding, hidden, heads_of.offsets, W, goals), goals)  # (P, heads, g, nq)
+    if heads_of.tree_heads is not None:  # each limb group's head
+        return heads_of.tree_heads.assemble(Q, heads_of.tree_heads.choose(Q, goals))
     pick = choose_heads(encoding, heads_of.chain, Q, goals)  # (P, g)
     return np.take_along_axis(Q, pick[:, None, :, None], axis=1)[:, 0]
 

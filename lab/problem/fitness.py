@@ -122,8 +122,8 @@ class Problem:
         if offsets is None or len(offsets) == self.encoding.n_outputs:
             kernel, extra = self._mlp_kernel, ()
         elif self.arm.is_tree:
-            raise ValueError(f"{self.arm.name} is a tree of {self.arm.n_effectors} end effectors: multi-head MLPs "
-                             "(heads > 1) are for serial arms only")
+            raise ValueError(f"{self.arm.name} is a tree of {self.arm.n_effectors} end effectors: its multi-head MLPs "
+                             "(heads > 1) are scored per limb group, wired (Problem.wired_mse)")
         else:
             kernel, extra = kernels.mlp_heads_mse, (np.ascontiguousarray(offsets, dtype=np.float64),)
         heads = 1 if not extra else len(offsets) // self.encoding.n_outputs
@@ -138,16 +138,26 @@ class Problem:
             job.result()
         return out
 
-    def wired_mse(self, G: np.ndarray, wiring, test: bool = False) -> np.ndarray:
+    def wired_mse(self, G: np.ndarray, wiring, test: bool = False, offsets: np.ndarray | None = None) -> np.ndarray:
         """(P, groups): each limb group's share of the MSE of the wired networks G (P, wiring.dim)
         (lab.problem.wiring): the mean over goals of the summed squared errors of that group's
         effectors, by its own small MLP on its own joints. The row sums are mlp_mse of
-        wiring.expand(G) (to rounding): the other weights are zero, and no group moves another's effectors."""
+        wiring.expand(G) (to rounding): the other weights are zero, and no group moves another's effectors.
+        Several heads (wiring.heads > 1; offsets: the MLP's output offsets, heads x nq): each goal counts,
+        per group, the smallest of its heads' errors (kernels.tree_mlp_heads_mse), as the controller picks
+        a head for each group."""
         XT, goalsT = self._split(test)
         G = np.ascontiguousarray(G, dtype=np.float64)
         if G.ndim != 2 or G.shape[1] != wiring.dim:
             raise ValueError(f"wired genomes must be (P, {wiring.dim}), got shape {G.shape}")
         parts = self._wired_parts(wiring)
+        heads = wiring.heads
+        if heads > 1:
+            offsets = np.asarray(offsets, dtype=np.float64) if offsets is not None else None
+            if offsets is None or offsets.shape != (wiring.n_outputs,):
+                raise ValueError(f"a wired network of {heads} heads needs its {wiring.n_outputs} output offsets, got "
+                                 f"{None if offsets is None else offsets.shape}")
+            per_head = offsets.reshape(heads, -1)
         results = np.empty((len(parts), len(G)))
         # each group's candidates in as many slices as threads (the groups differ in cost: g1's arms
         # and waist cost more than both legs together), every slice its own job
@@ -157,13 +167,16 @@ class Problem:
         for k, ((rows, goal_rows, qmap, tree), W) in enumerate(zip(parts, wiring.split(G))):
             X_k, goals_k, W = (np.ascontiguousarray(XT[rows]), np.ascontiguousarray(goalsT[goal_rows]),
                                np.ascontiguousarray(W))
+            extra = () if heads == 1 else (np.ascontiguousarray(per_head[:, wiring.joints[k]].ravel()),)
             for a, b in zip(edges[:-1], edges[1:]):
-                jobs.append((X_k, goals_k, self._axes, W[a:b], len(wiring.units[k]), qmap, tree, results[k, a:b]))
+                jobs.append((X_k, goals_k, self._axes, W[a:b], len(wiring.units[k]), *extra, qmap, tree,
+                             results[k, a:b]))
+        kernel = kernels.tree_mlp_mse if heads == 1 else kernels.tree_mlp_heads_mse
         if self.threads <= 1:
             for args in jobs:
-                kernels.tree_mlp_mse(*args)
+                kernel(*args)
         else:
-            futures = [_pool(self.threads).submit(kernels.tree_mlp_mse, *args) for args in jobs]
+            futures = [_pool(self.threads).submit(kernel, *args) for args in jobs]
             for f in futures:
                 f.result()
         return np.where(np.isfinite(results.T), results.T, np.inf)
@@ -171,7 +184,7 @@ class Problem:
     def _wired_parts(self, wiring) -> list:
         """Per limb group: (input rows, goal rows, output mapping, tree) as the tree kernels take them."""
         cache = self.__dict__.setdefault("_wired_cache", {})
-        key = (id(wiring), wiring.n_inputs, wiring.hidden)
+        key = (id(wiring), wiring.n_inputs, wiring.hidden, wiring.heads)
         if key in cache and cache[key][0] is wiring:
             return cache[key][1]
         m = len(self.arm.task_axes)

@@ -498,6 +498,33 @@ def tree_mlp_mse(XT, goalsT, axes, W, nh, qmap, tree, out):
 
 
 @numba.njit(**_JIT)
+def tree_mlp_heads_mse(XT, goalsT, axes, W, nh, offsets, qmap, tree, out):
+    """mlp_heads_mse on a tree (goals (E m, n)): every row of W (P, D) has len(offsets) / nq heads of
+    nq joints, and a goal counts the smallest over the heads of the summed effector errors. A wired
+    network's limb group (lab/problem/wiring.py) calls it on its own effectors: the min over heads
+    is then taken per limb group, as the controller picks a head for each group."""
+    nq = qmap[0].shape[0]
+    heads = offsets.shape[0] // nq
+    n = XT.shape[1]
+    P = W.shape[0]
+    A = np.empty((heads * nq, P * n))
+    mlp_offset_outputs(XT, W, nh, offsets, A)
+    tiled = _tiled(goalsT, P)
+    E = np.full(P * n, np.inf)
+    Eh = np.empty(P * n)
+    Q = np.empty((nq, P * n))
+    for h in range(heads):
+        for o in range(nq):
+            Q[o] = A[h * nq + o]
+            _to_joints_row(Q[o], o, qmap)
+        tree_sq_errors(Q, tiled, axes, tree, qmap[4], Eh)
+        for g in range(P * n):
+            if Eh[g] < E[g]:
+                E[g] = Eh[g]
+    _segment_means(E, n, out)
+
+
+@numba.njit(**_JIT)
 def tree_graph_mse(XT, goalsT, axes, program, qmap, tree, out):
     """graph_mse on a tree (goals (E m, n))."""
     starts, n_nodes, bias, response, link_start, link_src, link_w, out_slot, no = program
@@ -536,6 +563,30 @@ def pack_tree(chains, paths, nq: int) -> tuple:
     ee_pos = np.ascontiguousarray(np.stack([p[4] for p in parts]))
     starts = np.concatenate([[0], np.cumsum([len(p) for p in paths])]).astype(np.int64)
     return rot, pos, kind, identity, ee_pos, np.ascontiguousarray(np.concatenate(paths)), starts
+
+
+TREE_FIELDS = ("rot", "pos", "kind", "identity", "ee_pos", "joints", "starts")  # pack_tree's arrays, in order
+
+
+def check_tree(tree, nq: int, effectors: int | None = None) -> tuple:
+    """A packed tree (pack_tree's tuple, or a dict of TREE_FIELDS) checked and packed again, for nq
+    joints and, when given, `effectors` end effectors; ValueError naming what is wrong."""
+    try:
+        rot, pos, kind, identity, ee_pos, joints, starts = (np.asarray(a) for a in (
+            tuple(tree[k] for k in TREE_FIELDS) if isinstance(tree, dict) else tree))
+    except (TypeError, ValueError, KeyError):
+        raise ValueError("a tree's chain must be (rot, pos, kind, identity, ee_pos, joints, starts)") from None
+    E = len(starts) - 1 if starts.ndim == 1 else -1
+    if E < 1 or (effectors is not None and E != effectors) or ee_pos.shape != (E, 3):
+        raise ValueError(f"a tree's chain must describe {effectors or 'its'} effectors, got starts of shape "
+                         f"{starts.shape} and ee_pos of shape {ee_pos.shape}")
+    starts = starts.astype(np.int64)
+    if starts[0] != 0 or np.any(np.diff(starts) < 1) or starts[-1] != len(joints):
+        raise ValueError(f"a tree's starts must rise from 0 to its {len(joints)} joint rows, got {starts.tolist()}")
+    paths = [joints[a:b] for a, b in zip(starts[:-1], starts[1:])]
+    chains = [(rot[a:b], pos[a:b], kind[a:b], identity[a:b], ee_pos[e])
+              for e, (a, b) in enumerate(zip(starts[:-1], starts[1:]))]
+    return pack_tree(chains, paths, nq)
 
 
 def check_chain(chain, nq: int) -> tuple:

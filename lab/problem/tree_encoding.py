@@ -30,8 +30,9 @@ effector's goal, as a serial arm's first joint is (lab/problem/encoding.py), on 
 chain. The network's output for such a joint only chooses among whole turns and limits; the other
 joints answer the goal's distance from that joint's axis and its height along it.
 
-Goals of any other shape than (n, E, m) are refused, naming the shape expected. No multi-head
-networks here.
+Goals of any other shape than (n, E, m) are refused, naming the shape expected. A multi-head network
+on a tree is wired (lab/problem/wiring.py) and each limb group answers with its own head
+(lab.problem.controllers.TreeHeads).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ from lab.problem import kernels
 from lab.problem.encoding import FEATURES, Encoding, _enclosing_sphere, _raw_features
 
 _LIMB_FIELDS = ("limb_origin", "limb_frame", "limb_r_max", "limb_z_c", "limb_rho_max", "limb_facing")
-_TREE_FIELDS = ("rot", "pos", "kind", "identity", "ee_pos", "joints", "starts")  # kernels.pack_tree's arrays
+_TREE_FIELDS = kernels.TREE_FIELDS
 _FEATURE_COUNT = {"cartesian": 3, "polar": 5, "cylindrical": 3, "reach": 6, "sphere": 9, "bearings": 10}
 
 
@@ -106,22 +107,15 @@ class TreeEncoding(Encoding):
             raise ValueError("a tree's turn needs a unit axis direction for every turned effector")
         if self.chain is None:
             raise ValueError("an encoding that turns a tree's limbs needs the tree's kinematic arrays (kernels.pack_tree)")
-        try:
-            rot, pos, kind, identity, ee_pos, joints, starts = (np.asarray(a) for a in (
-                self.chain.values() if isinstance(self.chain, dict) else self.chain))
-        except (TypeError, ValueError):
-            raise ValueError("a tree's chain must be (rot, pos, kind, identity, ee_pos, joints, starts)") from None
-        if starts.shape != (E + 1,) or ee_pos.shape != (E, 3):
-            raise ValueError(f"a tree's chain must describe {E} effectors, got {len(starts) - 1}")
+        chain = kernels.check_tree(self.chain, len(self.q_lo), E)
+        joints, starts = chain[5], chain[6]
         paths = [joints[starts[e]:starts[e + 1]] for e in range(E)]
         for e in np.flatnonzero(on):
             if any(paths[e][0] in paths[f] for f in range(E) if f != e):
                 raise ValueError(f"effector {e}'s first joint (joint {paths[e][0]}) moves other effectors too: "
                                  "only a limb that moves one effector alone is turned")
-        chains = [(rot[a:b], pos[a:b], kind[a:b], identity[a:b], ee_pos[e])
-                  for e, (a, b) in enumerate(zip(starts[:-1], starts[1:]))]
         object.__setattr__(self, "turn", turn)
-        object.__setattr__(self, "chain", kernels.pack_tree(chains, paths, len(self.q_lo)))
+        object.__setattr__(self, "chain", chain)
 
     @property
     def turn_spec(self) -> np.ndarray:

@@ -27,29 +27,15 @@ from lab.problem.controllers import mlp_size
 
 def limb_groups(arm) -> list[list[int]]:
     """The effectors of a tree grouped so that no two groups share a joint (connected by shared
-    joints), each group's effectors in order, the groups by their first effector."""
-    E = arm.n_effectors
-    paths = [set(int(j) for j in arm.chain.path(e)) for e in range(E)]
-    group = list(range(E))
-
-    def root(e):
-        while group[e] != e:
-            e = group[e]
-        return e
-
-    for a in range(E):
-        for b in range(a + 1, E):
-            if paths[a] & paths[b]:
-                group[root(b)] = root(a)
-    out: dict[int, list[int]] = {}
-    for e in range(E):
-        out.setdefault(root(e), []).append(e)
-    return sorted(out.values())
+    joints), each group's effectors in order, the groups by their first effector
+    (robots.kinematics.limb_groups)."""
+    return arm.chain.limb_groups
 
 
 @dataclass(frozen=True, eq=False)
 class Wiring:
-    """Which weights of an MLP (n_inputs, hidden, n_outputs) a tree's wired network uses.
+    """Which weights of an MLP (n_inputs, hidden, n_outputs) a tree's wired network uses
+    (n_outputs: heads x the arm's joints).
 
     groups: each group's effectors; joints: each group's joints (sorted); inputs: each group's input
     indices (its effectors' blocks); units: each group's hidden unit indices; index: each group's
@@ -64,15 +50,20 @@ class Wiring:
     inputs: tuple
     units: tuple
     index: tuple
+    heads: int = 1
 
     @classmethod
-    def for_arm(cls, arm, n_inputs: int, hidden: int) -> "Wiring":
-        """The wiring of a tree's network with n_inputs inputs (one equal block per effector) and
-        `hidden` hidden units; ValueError when the arm is not a tree, the inputs do not split into
-        one block per effector, or there are fewer hidden units than groups."""
+    def for_arm(cls, arm, n_inputs: int, hidden: int, heads: int = 1) -> "Wiring":
+        """The wiring of a tree's network with n_inputs inputs (one equal block per effector),
+        `hidden` hidden units and `heads` output heads (a multi-head MLP: lab/problem/controllers.py;
+        each group's hidden units feed its joints in every head, so a group's small network has
+        heads x its joints outputs, head after head); ValueError when the arm is not a tree, the
+        inputs do not split into one block per effector, or there are fewer hidden units than groups."""
         if not getattr(arm, "is_tree", False):
             raise ValueError(f"{arm.name} has one end effector: a wired network is for trees (several effectors)")
-        E, nq = arm.n_effectors, arm.nq
+        E, nq, heads = arm.n_effectors, arm.nq, int(heads)
+        if heads < 1:
+            raise ValueError(f"heads must be at least 1, got {heads}")
         if n_inputs % E:
             raise ValueError(f"a wired network needs one equal input block per effector: {n_inputs} inputs "
                              f"do not split into {E} blocks")
@@ -92,9 +83,11 @@ class Wiring:
             start += nh_g
             rows = np.concatenate([ins, [n_inputs]])  # the bias is the last input row
             w_i = (rows[:, None] * hidden + hs[None, :]).ravel()
-            w_o = ((n_inputs + 1) * hidden + hs[:, None] * nq + js[None, :]).ravel()
+            outs = (np.arange(heads)[:, None] * nq + js[None, :]).ravel()  # head after head, each its group's joints
+            w_o = ((n_inputs + 1) * hidden + hs[:, None] * (nq * heads) + outs[None, :]).ravel()
             joints.append(js), inputs.append(ins), units.append(hs), index.append(np.concatenate([w_i, w_o]))
-        return cls(int(n_inputs), hidden, nq, tuple(groups), tuple(joints), tuple(inputs), tuple(units), tuple(index))
+        return cls(int(n_inputs), hidden, nq * heads, tuple(groups), tuple(joints), tuple(inputs), tuple(units),
+                   tuple(index), heads)
 
     @property
     def size(self) -> int:

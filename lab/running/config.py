@@ -105,9 +105,9 @@ class TrainConfig:
                 object.__setattr__(self, name, defaults[name])
         object.__setattr__(self, "options", method.options_for(arm, self.options, self.seconds, goal=self.goal))
         self._check(method)  # and the defaults filled in
-        if arm.is_tree and self.heads > 1:
-            raise ValueError(f"{self.robot} is a tree of {arm.n_effectors} end effectors: "
-                             "multi-head MLPs (heads > 1) are for serial arms only")
+        if arm.is_tree and self.heads > 1 and not self.wiring:
+            raise ValueError(f"{self.robot} is a tree of {arm.n_effectors} end effectors: its multi-head MLPs "
+                             "(heads > 1) are wired per limb group (wiring=True), each group picking its own head")
         if self.wiring and not arm.is_tree:
             raise ValueError(f"wiring is for trees (several end effectors): {self.robot} has one")
         if self.wiring and method.controller != "mlp":
