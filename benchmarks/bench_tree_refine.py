@@ -5,7 +5,8 @@ For each tree, its shipped controller (app/pretrained/<tree>-cmaes.json) answers
 (lab.experiments.arms.held_out_goals) and robots.ik.refine takes it from there; success: every
 effector within 0.1 mm (refine's default tolerance). Printed per tree:
 
-- refined: the share of goals within tolerance after at most 3, 8 and 20 steps;
+- refined: the share of goals within tolerance after at most 3, 8 and 20 steps (a multi-head network:
+  every head's answer proposed, each limb group's nearest first, and refine mixes them by group);
 - fails by effector: how many goals each effector misses after 3 steps (a goal fails when one does);
 - by group: each limb group's success alone (lab.problem.wiring.limb_groups: groups share no joint);
 - limb by limb: each group refined on its own (the other effectors' goals set where they already
@@ -36,6 +37,7 @@ import numpy as np  # noqa: E402
 import robots  # noqa: E402
 from app.startup import load_pretrained  # noqa: E402
 from lab.experiments import arms  # noqa: E402
+from lab.problem.controllers import proposals  # noqa: E402
 from lab.problem.wiring import limb_groups  # noqa: E402
 from robots.ik import default_tolerance, refine  # noqa: E402
 
@@ -58,12 +60,13 @@ def measure(robot: str, n: int, goal_seed: int) -> dict:
     arm = robots.load(robot)
     controller, _ = load_pretrained(robot)
     goals = arms.held_out_goals(arm, n, goal_seed)
-    q0 = np.asarray(controller(goals), dtype=np.float64)
+    seeds = proposals(controller, goals)  # (heads, n, nq): a multi-head network's heads, each limb group's nearest first
+    q0 = seeds[0]  # the network's answer
     tol = default_tolerance(arm)
-    out = {"robot": robot, "goals": n, "goal_seed": goal_seed}
+    out = {"robot": robot, "goals": n, "goal_seed": goal_seed, "heads": len(seeds)}
     for steps in (3, 8, 20):
-        out[f"refined_{steps}"] = float(refine(arm, goals, q0[None], steps=steps).converged.mean())
-    r3 = refine(arm, goals, q0[None], steps=3)
+        out[f"refined_{steps}"] = float(refine(arm, goals, seeds, steps=steps).converged.mean())
+    r3 = refine(arm, goals, seeds, steps=3)
     miss = np.linalg.norm(arm.reach(r3.q) - goals, axis=-1) >= tol  # (n, E)
     out["fails_by_effector"] = dict(zip(arm.effectors, miss.sum(axis=0).tolist()))
     groups = limb_groups(arm)
@@ -110,7 +113,7 @@ def main() -> None:
         if args.json:
             print(json.dumps(row), flush=True)
             continue
-        print(f"{robot}: refined {100 * row['refined_3']:.2f} / {100 * row['refined_8']:.2f} / "
+        print(f"{robot} ({row['heads']} head{'s' if row['heads'] > 1 else ''}): refined {100 * row['refined_3']:.2f} / {100 * row['refined_8']:.2f} / "
               f"{100 * row['refined_20']:.2f} % (3 / 8 / 20 steps); limb by limb {100 * row['limb_by_limb_3']:.2f} %; "
               f"flips, upper bound {100 * row['flips_upper_bound']:.2f} %")
         print(f"  fails by effector (3 steps): {row['fails_by_effector']}")
