@@ -392,30 +392,45 @@ def _tiled(G, P):
 
 
 @numba.njit(**_JIT)
+def _heads_setup(XT, goalsT, W, nh, offsets, qmap):
+    """A multi-head MLP's scratch: outputs A (heads nq, P n) of every row of W, the goals tiled P
+    times, the least errors E so far (+inf), one head's errors Eh and joint values Q (nq, P n)."""
+    nq = qmap[0].shape[0]
+    N = W.shape[0] * XT.shape[1]
+    A = np.empty((offsets.shape[0], N))
+    mlp_offset_outputs(XT, W, nh, offsets, A)
+    return A, _tiled(goalsT, W.shape[0]), np.full(N, np.inf), np.empty(N), np.empty((nq, N))
+
+
+@numba.njit(**_JIT)
+def _head_joints(A, h, qmap, Q):
+    """Q <- head h's joint values from the outputs A."""
+    nq = Q.shape[0]
+    for o in range(nq):
+        Q[o] = A[h * nq + o]
+        _to_joints_row(Q[o], o, qmap)
+
+
+@numba.njit(**_JIT)
+def _keep_least(Eh, E):
+    """E <- the smaller of E and Eh (NaN never is: a goal no head reaches stays +inf)."""
+    for g in range(E.shape[0]):
+        if Eh[g] < E[g]:
+            E[g] = Eh[g]
+
+
+@numba.njit(**_JIT)
 def mlp_heads_mse(XT, goalsT, axes, W, nh, offsets, qmap, chain, out):
     """MSE of multi-hypothesis MLPs (lab.problem.controllers.MLPController with heads > 1): every
     row of W (P, D) has len(offsets) / nq output heads of nq joints (outputs h nq .. (h + 1) nq - 1
     are head h, each with its fixed pre-activation offsets); a goal counts its smallest squared
     error over the heads: out[p] = mean_g min_h || goal_g - fk(joints(head_h(x_g))) ||^2."""
-    nq = qmap[0].shape[0]
-    heads = offsets.shape[0] // nq
-    n = XT.shape[1]
-    P = W.shape[0]
-    A = np.empty((heads * nq, P * n))
-    mlp_offset_outputs(XT, W, nh, offsets, A)
-    tiled = _tiled(goalsT, P)
-    E = np.full(P * n, np.inf)
-    Eh = np.empty(P * n)
-    Q = np.empty((nq, P * n))
-    for h in range(heads):
-        for o in range(nq):
-            Q[o] = A[h * nq + o]
-            _to_joints_row(Q[o], o, qmap)
+    A, tiled, E, Eh, Q = _heads_setup(XT, goalsT, W, nh, offsets, qmap)
+    for h in range(A.shape[0] // Q.shape[0]):
+        _head_joints(A, h, qmap, Q)
         fk_turned_sq_errors(Q, tiled, axes, chain, qmap[4], Eh)
-        for g in range(P * n):
-            if Eh[g] < E[g]:  # NaN never is: a goal no head reaches stays +inf
-                E[g] = Eh[g]
-    _segment_means(E, n, out)
+        _keep_least(Eh, E)
+    _segment_means(E, XT.shape[1], out)
 
 
 # A tree of several end effectors (robots' trees) as the kernels take it: every effector's own serial
@@ -503,25 +518,12 @@ def tree_mlp_heads_mse(XT, goalsT, axes, W, nh, offsets, qmap, tree, out):
     nq joints, and a goal counts the smallest over the heads of the summed effector errors. A wired
     network's limb group (lab/problem/wiring.py) calls it on its own effectors: the min over heads
     is then taken per limb group, as the controller picks a head for each group."""
-    nq = qmap[0].shape[0]
-    heads = offsets.shape[0] // nq
-    n = XT.shape[1]
-    P = W.shape[0]
-    A = np.empty((heads * nq, P * n))
-    mlp_offset_outputs(XT, W, nh, offsets, A)
-    tiled = _tiled(goalsT, P)
-    E = np.full(P * n, np.inf)
-    Eh = np.empty(P * n)
-    Q = np.empty((nq, P * n))
-    for h in range(heads):
-        for o in range(nq):
-            Q[o] = A[h * nq + o]
-            _to_joints_row(Q[o], o, qmap)
+    A, tiled, E, Eh, Q = _heads_setup(XT, goalsT, W, nh, offsets, qmap)
+    for h in range(A.shape[0] // Q.shape[0]):
+        _head_joints(A, h, qmap, Q)
         tree_sq_errors(Q, tiled, axes, tree, qmap[4], Eh)
-        for g in range(P * n):
-            if Eh[g] < E[g]:
-                E[g] = Eh[g]
-    _segment_means(E, n, out)
+        _keep_least(Eh, E)
+    _segment_means(E, XT.shape[1], out)
 
 
 @numba.njit(**_JIT)
