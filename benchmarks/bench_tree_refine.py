@@ -60,7 +60,7 @@ def measure(robot: str, n: int, goal_seed: int) -> dict:
     arm = robots.load(robot)
     controller, _ = load_pretrained(robot)
     goals = arms.held_out_goals(arm, n, goal_seed)
-    seeds = proposals(controller, goals)  # (heads, n, nq): a multi-head network's heads, each limb group's nearest first
+    seeds = proposals(controller, goals)  # (heads, n, nq): every head's, each limb group's nearest first
     q0 = seeds[0]  # the network's answer
     tol = default_tolerance(arm)
     out = {"robot": robot, "goals": n, "goal_seed": goal_seed, "heads": len(seeds)}

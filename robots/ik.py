@@ -215,7 +215,8 @@ class RefineResult:
     error: np.ndarray
     steps: np.ndarray
     seconds: float
-    choice: np.ndarray | None = None  # (n,) the proposal kept for each goal, when refine had several (refine)
+    # (n,) the proposal kept for each goal, when refine had several (refine; a tree's mix: its largest group's)
+    choice: np.ndarray | None = None
     angle: np.ndarray | None = None  # (n,) [rad], pose goals only
     tol: float | None = None
     angle_tol: float | None = None
