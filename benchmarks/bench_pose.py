@@ -28,6 +28,11 @@ Solvers:
                             (at most 20 steps); "none shipped" where that file does not exist
     ... then DLS restarts   the same, then, while the budget lasts, the DLS baseline's starts (the
                             rest pose, then random joint vectors) in what is left of it
+    network + compiled LM   the same network's proposals as the starts of robots.pose_solve.solve_pose
+                            (compiled Levenberg-Marquardt descents, then random restarts until 5 ms):
+                            what lab.solve(..., seconds=0.005) runs, on the budget's clock
+    compiled LM, restarts   robots.pose_solve.solve_pose from arm.rest, then random restarts: the same
+                            solver without the network
     pink, rest pose         pink (Pinocchio's differential IK, a QP a step, daqp) from arm.rest: steps of
                             dt 1 with its configuration and velocity limits until 1e-5, a stall (|e| down
                             by less than 1 % in a step) or 5 ms
@@ -55,6 +60,7 @@ import platform  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+from functools import partial  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -62,8 +68,9 @@ import pinocchio as pin  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
 import lab  # noqa: E402
+from lab.problem.controllers import proposals  # noqa: E402
 import robots  # noqa: E402
-from robots import pose  # noqa: E402
+from robots import pose, pose_solve  # noqa: E402
 from robots.ik import dls_pose_ik  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -104,6 +111,21 @@ def network_solver(arm, controller, restarts: bool):
             if max(*pose.pose_errors(arm, goal[None], s.q)) < max(*pose.pose_errors(arm, goal[None], q[None])):
                 q = s.q[0]
         return q, clock() - t0
+    return solve
+
+
+def compiled_solver(arm, controller):
+    """robots.pose_solve.solve_pose from the network's proposals (controller None: from arm.rest),
+    then random restarts, within the budget on the bench's clock."""
+    def solve(goal, i):
+        t0 = clock()
+        starts = None
+        if controller is not None:  # as lab.solve takes them: every head's, the nearest first
+            own = controller.proposals if hasattr(controller, "proposals") else partial(proposals, controller)
+            starts = np.asarray(own(goal[None]))[:, 0]
+        r = pose_solve.solve_pose(arm, goal, starts, seconds=BUDGET - (clock() - t0), tol=TOL, angle_tol=TOL,
+                                  seed=i, clock=clock)
+        return r.q, clock() - t0
     return solve
 
 
@@ -279,8 +301,10 @@ def solvers_for(name: str, arm):
         rows += [("network + refine", None, f"none shipped ({path.relative_to(ROOT)})")]
     else:
         rows += [("network + refine", network_solver(arm, controller, False), ""),
-                 ("network + refine, then DLS restarts", network_solver(arm, controller, True), "")]
-    rows += [("pink, rest pose", pink_solver(arm, False), ""),
+                 ("network + refine, then DLS restarts", network_solver(arm, controller, True), ""),
+                 ("network + compiled LM, restarts", compiled_solver(arm, controller), "")]
+    rows += [("compiled LM, restarts (rest pose)", compiled_solver(arm, None), ""),
+             ("pink, rest pose", pink_solver(arm, False), ""),
              ("pink, restarts", pink_solver(arm, True), ""),
              ("DLS, restarts (dls_pose_ik)", dls_solver(arm), "")]
     if name in ANALYTIC:

@@ -11,13 +11,18 @@
     poses = pose.sample_poses(arm, 100, seed=1)  # (n, 4, 4) pose goals
     s = lab.solve(None, arm, poses, q0=q_near)  # no pose controller yet: refine from q0 (or the rest pose)
     s.error, s.angle                            # position [m] and angle [rad] errors
+    s = lab.solve(pose_controller, arm, poses, seconds=0.005)  # compiled descents, then restarts: 5 ms a pose
 
 The network proposes (every head of a multi-head MLP: lab.problem.controllers.proposals, the
 nearest its goal first), robots.ik.refine makes the answer exact: on the shipped SO-100 controller
 the proposals of all its heads bring more goals within 0.1 mm than its one chosen answer
 (docs/pose.md).
 
-A pose controller (none ships yet) declares `goal = "pose"`, takes (n, 4, 4) poses and returns
+With `seconds` (pose goals), each goal is solved by robots.pose_solve instead: compiled
+Levenberg-Marquardt descents from the proposals in order, then from random joint vectors while the
+budget lasts (TRAC-IK's terms: docs/results/pose.md).
+
+A pose controller declares `goal = "pose"`, takes (n, 4, 4) poses and returns
 (n, nq) joint angles, and may give several answers per goal through a `proposals(poses)` method
 returning (k, n, nq); a controller without the attribute answers position goals.
 """
@@ -31,7 +36,7 @@ import numpy as np
 
 import robots
 from lab.problem.controllers import proposals as _proposals
-from robots import pose
+from robots import pose, pose_solve
 from robots.ik import RefineResult, default_tolerance, pose_tolerances, refine
 
 
@@ -81,7 +86,7 @@ def _position_errors(arm: robots.Arm, goals: np.ndarray, q: np.ndarray) -> np.nd
 
 
 def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None = None,
-          angle_tol: float | None = None) -> Solution:
+          angle_tol: float | None = None, seconds: float | None = None, seed: int | None = 0) -> Solution:
     """Joint angles that put the arm on `goals`: the controller's answers (every head's, as
     proposals), then at most `steps` refinement steps (robots.ik.refine) toward each goal.
 
@@ -91,8 +96,12 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
     or controller=None). q0: (n, nq) or (k, n, nq) more proposals, tried after the controller's
     (with controller=None: the only ones; neither given: the rest pose). tol [length] and angle_tol
     [rad]: refine's (default 0.1 mm on a real arm, 0.1 degree). steps=0: the first proposal alone
-    (the network's own answer; no refinement, not even refine's turn of the first joint), measured. ValueError, naming the problem, for a controller made for other goals or
-    another arm, and for goals refine refuses."""
+    (the network's own answer; no refinement, not even refine's turn of the first joint), measured.
+    seconds (pose goals): a wall-time budget a goal for robots.pose_solve.solve_pose, which takes
+    the proposals' compiled descents (each at most pose_solve.STEPS_FROM_START steps, `steps` not
+    used) and then descents from random joint vectors (a generator of `seed`) until one is within
+    tolerance or the budget is spent; steps then counts every descent's steps. ValueError, naming
+    the problem, for a controller made for other goals or another arm, and for goals refine refuses."""
     t0 = time.perf_counter()
     if isinstance(arm, str):
         arm = robots.load(arm)
@@ -150,6 +159,9 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
         first_error, first_angle = _position_errors(arm, goals, first), None
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
         raise ValueError(f"steps must be an integer >= 0, got {steps!r}")
+    if seconds is not None:
+        return _budgeted(arm, goals, seeds, first_error, first_angle, controller is not None, tol, angle_tol,
+                         seconds, seed, is_pose, t0)
     if steps == 0:  # the first proposal alone, measured (refine would still turn the first joint)
         if is_pose:
             tol, angle_tol = pose_tolerances(arm, tol, angle_tol)
@@ -162,4 +174,25 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
     network = controller is not None
     return Solution(q=r.q, error=r.error, angle=r.angle, converged=r.converged, tol=r.tol, angle_tol=r.angle_tol,
                     steps=r.steps, choice=r.choice, network_error=first_error if network else None,
+                    network_angle=first_angle if network else None, seconds=time.perf_counter() - t0)
+
+
+def _budgeted(arm, goals, seeds, first_error, first_angle, network: bool, tol, angle_tol, seconds, seed, is_pose,
+              t0) -> Solution:
+    """solve's seconds: each pose goal by robots.pose_solve.solve_pose from its proposals, then restarts."""
+    if not is_pose:
+        raise ValueError(f"{arm.name}: seconds (the compiled solver's budget) applies to pose goals (n, 4, 4); for "
+                         f"position goals leave it None (refinement steps)")
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0:
+        raise ValueError(f"seconds must be a number > 0 (a goal's budget), got {seconds!r}")
+    tol, angle_tol = pose_tolerances(arm, tol, angle_tol)
+    n = len(goals)
+    q, error, angle = np.empty((n, arm.nq)), np.empty(n), np.empty(n)
+    converged, steps = np.zeros(n, bool), np.zeros(n, np.int64)
+    for i in range(n):
+        r = pose_solve.solve_pose(arm, goals[i], seeds[:, i], seconds=float(seconds), tol=tol, angle_tol=angle_tol,
+                                  seed=None if seed is None else seed + i)
+        q[i], error[i], angle[i], converged[i], steps[i] = r.q, r.error, r.angle, r.converged, r.iterations
+    return Solution(q=q, error=error, angle=angle, converged=converged, tol=tol, angle_tol=angle_tol, steps=steps,
+                    choice=None, network_error=first_error if network else None,
                     network_angle=first_angle if network else None, seconds=time.perf_counter() - t0)
