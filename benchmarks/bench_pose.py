@@ -31,6 +31,8 @@ Solvers:
     network + compiled LM   the same network's proposals as the starts of robots.pose_solve.solve_pose
                             (compiled Levenberg-Marquardt descents, then random restarts until 5 ms):
                             what lab.solve(..., seconds=0.005) runs, on the budget's clock
+    network (batched) ...   the same, the proposals of all poses from one forward pass, its time
+                            shared equally among them (lab.solve on many poses at once)
     compiled LM, restarts   robots.pose_solve.solve_pose from arm.rest, then random restarts: the same
                             solver without the network
     pink, rest pose         pink (Pinocchio's differential IK, a QP a step, daqp) from arm.rest: steps of
@@ -114,18 +116,30 @@ def network_solver(arm, controller, restarts: bool):
     return solve
 
 
-def compiled_solver(arm, controller):
+def compiled_solver(arm, controller, poses=None):
     """robots.pose_solve.solve_pose from the network's proposals (controller None: from arm.rest),
-    then random restarts, within the budget on the bench's clock."""
+    then random restarts, within the budget on the bench's clock. poses given: the proposals of all
+    of them in one batched forward pass first, its time shared equally among the poses (what
+    lab.solve does with many poses at once)."""
+    def starts_of(goals):  # as lab.solve takes them: every head's, the nearest first
+        own = controller.proposals if hasattr(controller, "proposals") else partial(proposals, controller)
+        return np.asarray(own(goals))
+
+    batch, share = None, 0.0
+    if controller is not None and poses is not None:
+        starts_of(poses[:2])  # warm
+        t0 = clock()
+        batch = starts_of(poses)
+        share = (clock() - t0) / len(poses)
+
     def solve(goal, i):
         t0 = clock()
         starts = None
-        if controller is not None:  # as lab.solve takes them: every head's, the nearest first
-            own = controller.proposals if hasattr(controller, "proposals") else partial(proposals, controller)
-            starts = np.asarray(own(goal[None]))[:, 0]
-        r = pose_solve.solve_pose(arm, goal, starts, seconds=BUDGET - (clock() - t0), tol=TOL, angle_tol=TOL,
-                                  seed=i, clock=clock)
-        return r.q, clock() - t0
+        if controller is not None:
+            starts = batch[:, i] if batch is not None else starts_of(goal[None])[:, 0]
+        r = pose_solve.solve_pose(arm, goal, starts, seconds=BUDGET - share - (clock() - t0), tol=TOL,
+                                  angle_tol=TOL, seed=i, clock=clock)
+        return r.q, clock() - t0 + share
     return solve
 
 
@@ -294,7 +308,7 @@ def measure(arm, poses, solve) -> dict:
             "over_budget": float(np.mean(~within)), "wall_mean_ms": 1e3 * float(wall.mean())}
 
 
-def solvers_for(name: str, arm):
+def solvers_for(name: str, arm, poses):
     controller, path = shipped_controller(name)
     rows = []
     if controller is None:
@@ -302,7 +316,8 @@ def solvers_for(name: str, arm):
     else:
         rows += [("network + refine", network_solver(arm, controller, False), ""),
                  ("network + refine, then DLS restarts", network_solver(arm, controller, True), ""),
-                 ("network + compiled LM, restarts", compiled_solver(arm, controller), "")]
+                 ("network + compiled LM, restarts", compiled_solver(arm, controller), ""),
+                 ("network (batched) + compiled LM, restarts", compiled_solver(arm, controller, poses), "")]
     rows += [("compiled LM, restarts (rest pose)", compiled_solver(arm, None), ""),
              ("pink, rest pose", pink_solver(arm, False), ""),
              ("pink, restarts", pink_solver(arm, True), ""),
@@ -349,17 +364,17 @@ def main():
             if name in ANALYTIC:
                 out["ik-geo agreement"] = ikgeo_agreement(arm)
                 print("  ik-geo against fk_pose:", json.dumps(out["ik-geo agreement"]), flush=True)
-            for label, solve, note in solvers_for(name, arm):
+            for label, solve, note in solvers_for(name, arm, poses):
                 if wanted and not any(w in label for w in wanted):
                     continue
                 if solve is None:
                     out[label] = {"note": note}
-                    print(f"  {label:<38} {note}", flush=True)
+                    print(f"  {label:<42} {note}", flush=True)
                     continue
                 r = measure(arm, poses, solve)
                 r["load"] = open("/proc/loadavg").read().split()[:3]
                 out[label] = r
-                print(f"  {label:<38} 1e-5/5ms {100 * r['trac']:6.2f} %  0.1mm/0.1deg {100 * r['fine']:6.2f} %  "
+                print(f"  {label:<42} 1e-5/5ms {100 * r['trac']:6.2f} %  0.1mm/0.1deg {100 * r['fine']:6.2f} %  "
                       f"mean {r['mean_ms']:6.3f} ms (wall {r['wall_mean_ms']:6.3f})  p99 {r['p99_ms']:6.3f} ms  over 5 ms {100 * r['over_budget']:.2f} %"
                       f"  load {' '.join(r['load'])}", flush=True)
             if args.json:

@@ -42,6 +42,7 @@ from robots.arm import Arm
 from robots.ik import IKResult, pose_tolerances, workspace_size
 from robots.kinematics import tree_points
 
+WRAP = True  # a revolute joint of a whole turn or more passes a limit by a whole turn (docs/results/pose.md)
 BATCH = 8  # random starts a compiled call takes between two looks at the clock
 STALL = 0.9  # a descent gives up when a step leaves more than this share of |e| (after its second step)
 STEPS_FROM_START = 40  # steps a descent may take (measured: benchmarks/bench_pose.py, docs/results/pose.md)
@@ -157,8 +158,21 @@ def _residual(q, gR, gp, chain, tool, axis, length, e, Je, want_j, scratch):
     return norm, err_p, err_a
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _within(x, lo, hi, wrap):
+    """x within [lo, hi]: a joint of a whole turn or more (wrap) by whole turns where that brings it
+    inside (the same rotation), else clipped."""
+    if wrap:
+        if x > hi and x - 2.0 * math.pi >= lo:
+            x -= 2.0 * math.pi
+        elif x < lo and x + 2.0 * math.pi <= hi:
+            x += 2.0 * math.pi
+    return min(hi, max(lo, x))
+
+
 @numba.njit(cache=True, nogil=True)
-def descend_many(starts, gR, gp, chain, tool, axis, length, lower, upper, bias2, tol, atol, iterations, stall, best):
+def descend_many(starts, gR, gp, chain, tool, axis, length, lower, upper, wrap, bias2, tol, atol, iterations, stall,
+                 best):
     """Descents from each row of starts (S, n) in turn, until one ends within tolerance; best (n,) <-
     the best iterate of all. Returns (|e|, position error, angle error, steps taken, descents run)
     of best."""
@@ -171,7 +185,7 @@ def descend_many(starts, gR, gp, chain, tool, axis, length, lower, upper, bias2,
     best_norm, best_p, best_a, steps = np.inf, np.inf, np.inf, 0
     for s in range(S):
         for k in range(n):
-            q[0, k] = min(upper[k], max(lower[k], starts[s, k]))
+            q[0, k] = _within(starts[s, k], lower[k], upper[k], wrap[k])
         norm, err_p, err_a = _residual(q, gR, gp, chain, tool, axis, length, e, Je, True, scratch)
         for it in range(iterations + 1):
             if norm < best_norm:
@@ -184,7 +198,7 @@ def descend_many(starts, gR, gp, chain, tool, axis, length, lower, upper, bias2,
             for k in range(n):  # a joint at a limit the gradient pushes past is held
                 g = Je[0, k] * e[0] + Je[1, k] * e[1] + Je[2, k] * e[2] + Je[3, k] * e[3] + Je[4, k] * e[4] + \
                     Je[5, k] * e[5]
-                held[k] = (q[0, k] <= lower[k] and g < 0.0) or (q[0, k] >= upper[k] and g > 0.0)
+                held[k] = not wrap[k] and ((q[0, k] <= lower[k] and g < 0.0) or (q[0, k] >= upper[k] and g > 0.0))
                 if held[k]:
                     for r in range(6):
                         Je[r, k] = 0.0
@@ -201,7 +215,7 @@ def descend_many(starts, gR, gp, chain, tool, axis, length, lower, upper, bias2,
             t, moved = 1.0, False
             for h in range(5):
                 for k in range(n):
-                    trial[0, k] = min(upper[k], max(lower[k], q[0, k] + t * dq[k]))
+                    trial[0, k] = _within(q[0, k] + t * dq[k], lower[k], upper[k], wrap[k])
                 n_try, p_try, a_try = _residual(trial, gR, gp, chain, tool, axis, length, e_try, Je, False, scratch)
                 if n_try < norm:
                     moved = True
@@ -257,7 +271,8 @@ def solve_pose(arm: Arm, goal, starts=None, *, seconds: float | None = 0.005, re
     length = tol / angle_tol
     bias2 = (damping * workspace_size(arm)) ** 2
     best = np.empty(arm.nq)
-    args = (gR, gp, chain, tool, axis, length, arm.lower, arm.upper, bias2, tol, angle_tol, int(iterations), float(stall))
+    wrap = (~np.asarray(arm.is_prismatic, bool)) & (arm.upper - arm.lower >= 2 * np.pi - 1e-9) & bool(WRAP)
+    args = (gR, gp, chain, tool, axis, length, arm.lower, arm.upper, np.asarray(wrap, np.bool_), bias2, tol, angle_tol, int(iterations), float(stall))
     norm, err_p, err_a, steps, _ = descend_many(np.ascontiguousarray(starts), *args, best)
     q = best.copy()
     rng = np.random.default_rng(seed)
