@@ -11,9 +11,9 @@ its error and time.
 
 In pose mode (app/tab/posegoal.py) each gizmo also turns: the goal is the 4 x 4 tool frame of its
 position and orientation, the arm shows a pose controller's answer for it, the label gives the
-position error in mm and the angle error in degrees, and the refined ghost is robots.ik.refine on
-the pose from the network's answers (and the ghost's last answer), at most POSE_REFINE_STEPS steps;
-the blue ghost robots.ik.dls_pose_ik.
+position error in mm and the angle error in degrees, and the refined ghost is lab.solve's compiled
+solver (robots.pose_solve) from the network's answers (and the ghost's last answer), then random
+restarts, at most POSE_SOLVE_SECONDS; the blue ghost robots.ik.dls_pose_ik.
 
 A marker update moves its arm at once, in the callback (in viser's event loop: one network
 forward pass, one forward kinematics, nq pose messages, then a flush); the IK query runs in its own thread, at
@@ -38,7 +38,7 @@ import robots
 from lab.problem.controllers import proposals
 from lab.running.decimation import DISPLAY_SEED, display_goal
 from lab.recording.population import ramp
-from robots.ik import dls_ik, dls_pose_ik, refine
+from robots.ik import RefineResult, dls_ik, dls_pose_ik, refine
 
 from app.tab import posegoal
 
@@ -91,10 +91,10 @@ POPULATION_KEY = ("<small>Each candidate of the generation at the goal, coloured
 GHOST = (120, 200, 255)  # damped least squares from the rest pose
 REFINED = (255, 170, 60)  # the network's answer refined
 REFINE_STEPS = 3
-# a pose goal's refined ghost: Gauss-Newton from the network's answers and the ghost's last answer
-# (0.05 rad off the answer: 3 steps bring 95-98 % of poses within tolerance, 10 all but 1 in 1,000,
-# docs/pose.md), about 0.1 ms a step, in the IK thread
-POSE_REFINE_STEPS = 10
+# a pose goal's refined ghost: lab.solve's compiled solver (robots.pose_solve) from the network's answers
+# and the ghost's last answer (a drag moves a little), then restarts: exact on 99.9-100 % of poses in
+# 0.1-0.2 ms on average (docs/results/pose.md), at most this long, in the IK thread
+POSE_SOLVE_SECONDS = 0.01
 POSE_DLS_SECONDS = 0.05  # s: the blue ghost's damped least squares with restarts, at most this long
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 REDRAW_PERIOD = 0.2  # s: redraws caused by training (and table updates) at most 5 times a second
@@ -441,7 +441,8 @@ class TabSession(TabExtras):
                 own = controller.proposals(target[None]) if hasattr(controller, "proposals") else \
                     np.asarray(controller(target[None]), dtype=np.float64)[None]
                 q0 = own if last is None else np.concatenate([own, np.asarray(last, float)[None, None]])
-                seeded = refine(arm, target[None], q0, steps=POSE_REFINE_STEPS)
+                s = lab.solve(None, arm, target[None], q0=q0, seconds=POSE_SOLVE_SECONDS)
+                seeded = RefineResult(s.q, s.error, s.steps, s.seconds, angle=s.angle, tol=s.tol, angle_tol=s.angle_tol)
             else:
                 seeded = refine(arm, target[None], proposals(controller, target[None]), steps=REFINE_STEPS)
             seeded = dataclasses.replace(seeded, seconds=time.perf_counter() - t0)
@@ -517,8 +518,10 @@ class TabSession(TabExtras):
             ik = g.error_text(g.ik_error, g.ik_angle) if first and g.ik is not None else ""
             seeded = g.error_text(g.seeded[0], g.seeded[3]) if first and g.seeded is not None else ""
             rows.append(f"| {g.index + 1} | {g.error_text(g.error, g.angle)} | {seeded} | {ik} |")
-        steps = POSE_REFINE_STEPS if self.goal_kind == "pose" else REFINE_STEPS
-        lines = [f"Refined: the network's answer made exact by at most {steps} Gauss-Newton steps; DLS: damped "
+        how = (f"at most {REFINE_STEPS} Gauss-Newton steps" if self.goal_kind != "pose" else
+               f"compiled Levenberg-Marquardt steps from it, then from random joint vectors (at most "
+               f"{1e3 * POSE_SOLVE_SECONDS:.0f} ms)")
+        lines = [f"Refined: the network's answer made exact by {how}; DLS: damped "
                  "least squares from the rest pose (turn on *Classical IK beside it*)."
                  + (" On this robot each is the worst of its effectors' distances." if arm.is_tree else ""),
                  "", *rows]
@@ -529,7 +532,7 @@ class TabSession(TabExtras):
         if g0 is not None and g0.ik is not None and show and np.isfinite(g0.net_s):
             line = f"Goal 1: network, one forward pass {1e6 * g0.net_s:.0f} µs"
             if g0.seeded is not None:
-                line += f"; refined, {g0.seeded[1]} Gauss-Newton steps, {1e3 * g0.seeded[2]:.2f} ms"
+                line += f"; refined, {g0.seeded[1]} steps, {1e3 * g0.seeded[2]:.2f} ms"
             line += (f"; DLS from rest, {g0.ik.iterations} iterations, {1e3 * g0.ik.seconds:.2f} ms"
                      f"{'' if g0.ik.converged else ' (not converged)'}")
             lines += ["", line]
