@@ -91,10 +91,14 @@ def plan(first: str | None = None, first_kind: str = "arm") -> list[Step]:
 def _kinematics() -> None:
     import robots
 
+    from robots import pose, pose_solve
+
     arm = robots.load("planar")
     q = arm.sample_q(2, seed=0)
     arm.fk(q)
     arm.joint_positions(q)
+    ur5 = robots.load("ur5")  # pose goals: the tool frame, its Jacobian and the compiled pose solver
+    pose_solve.solve_pose(ur5, pose.sample_poses(ur5, 1, seed=0)[0], seconds=None)
 
 
 def _method(method: str, robot: str) -> None:
