@@ -136,45 +136,62 @@ def _tool_rotation(arm: Arm) -> np.ndarray:
     return rot
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def tool_rotation_of(F, j, tool_rot, R):
+    """R (3, 3) <- the tool frame's rotation from joint j's frame F[j] (tree_points' scratch; j < 0:
+    the tool on the root) and the tool's fixed rotation in it."""
+    for r in range(3):
+        for c in range(3):
+            if j >= 0:
+                R[r, c] = F[j, 3 * r] * tool_rot[0, c] + F[j, 3 * r + 1] * tool_rot[1, c] + \
+                    F[j, 3 * r + 2] * tool_rot[2, c]
+            else:
+                R[r, c] = tool_rot[r, c]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def jacobian_columns(p, origins, axes, kind, J):
+    """J (6, n) <- the LOCAL_WORLD_ALIGNED Jacobian of the point p (3,): column k is (a_k x (p - o_k);
+    a_k) for a revolute joint, (a_k; 0) for a prismatic one (origins (n + 1, 3), axes (n, 3) as
+    tree_points writes them)."""
+    ex, ey, ez = p[0], p[1], p[2]
+    for k in range(axes.shape[0]):
+        ax, ay, az = axes[k, 0], axes[k, 1], axes[k, 2]
+        if kind[k] == 0:
+            dx, dy, dz = ex - origins[k + 1, 0], ey - origins[k + 1, 1], ez - origins[k + 1, 2]
+            J[0, k] = ay * dz - az * dy
+            J[1, k] = az * dx - ax * dz
+            J[2, k] = ax * dy - ay * dx
+            J[3, k], J[4, k], J[5, k] = ax, ay, az
+        else:
+            J[0, k], J[1, k], J[2, k] = ax, ay, az
+            J[3, k], J[4, k], J[5, k] = 0.0, 0.0, 0.0
+
+
 @numba.njit(cache=True, nogil=True)
 def _pose_kernel(q, rot, pos, kind, identity, parent, ee_joint, effector_pos, tool_rot, T, J, want_j):
     """T (N, 4, 4) <- the tool frame at every row of q (N, n); when want_j, J (N, 6, n) <- its
-    LOCAL_WORLD_ALIGNED Jacobian: column k is (a_k x (p - o_k); a_k) for a revolute joint, (a_k; 0)
-    for a prismatic one (a_k, o_k: joint k's axis and origin in the base frame)."""
+    LOCAL_WORLD_ALIGNED Jacobian (jacobian_columns)."""
     n = rot.shape[0]
     F = np.empty((n, 12))
     p = np.empty((1, 1, 3))
     origins = np.empty((1, n + 1, 3)) if want_j else np.empty((0, 0, 3))
     axes = np.empty((n, 3))
-    j = ee_joint[0]
+    R = np.empty((3, 3))
     for i in range(q.shape[0]):
         if want_j:
             tree_points(q, i, rot, pos, kind, identity, parent, ee_joint, effector_pos, F, p, 0, origins, axes)
         else:
             tree_points(q, i, rot, pos, kind, identity, parent, ee_joint, effector_pos, F, p, 0, origins)
+        tool_rotation_of(F, ee_joint[0], tool_rot, R)
         for r in range(3):
             for c in range(3):
-                if j >= 0:
-                    T[i, r, c] = F[j, 3 * r] * tool_rot[0, c] + F[j, 3 * r + 1] * tool_rot[1, c] + \
-                        F[j, 3 * r + 2] * tool_rot[2, c]
-                else:
-                    T[i, r, c] = tool_rot[r, c]
+                T[i, r, c] = R[r, c]
             T[i, r, 3] = p[0, 0, r]
             T[i, 3, r] = 0.0
         T[i, 3, 3] = 1.0
         if want_j:
-            ex, ey, ez = p[0, 0, 0], p[0, 0, 1], p[0, 0, 2]
-            for k in range(n):
-                ax, ay, az = axes[k, 0], axes[k, 1], axes[k, 2]
-                if kind[k] == 0:
-                    dx, dy, dz = ex - origins[0, k + 1, 0], ey - origins[0, k + 1, 1], ez - origins[0, k + 1, 2]
-                    J[i, 0, k] = ay * dz - az * dy
-                    J[i, 1, k] = az * dx - ax * dz
-                    J[i, 2, k] = ax * dy - ay * dx
-                    J[i, 3, k], J[i, 4, k], J[i, 5, k] = ax, ay, az
-                else:
-                    J[i, 0, k], J[i, 1, k], J[i, 2, k] = ax, ay, az
-                    J[i, 3, k], J[i, 4, k], J[i, 5, k] = 0.0, 0.0, 0.0
+            jacobian_columns(p[0, 0], origins[0], axes, kind, J[i])
 
 
 def fk_pose_and_jacobian(arm: Arm, q) -> tuple[np.ndarray, np.ndarray]:

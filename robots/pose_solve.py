@@ -41,26 +41,12 @@ from robots import pose
 from robots.arm import Arm
 from robots.ik import IKResult, pose_tolerances, workspace_size
 from robots.kinematics import tree_points
+from robots.pose import jacobian_columns, tool_rotation_of
 
 WRAP = True  # a revolute joint of a whole turn or more passes a limit by a whole turn (docs/results/pose.md)
 BATCH = 8  # random starts a compiled call takes between two looks at the clock
 STALL = 0.9  # a descent gives up when a step leaves more than this share of |e| (after its second step)
 STEPS_FROM_START = 40  # steps a descent may take (measured: benchmarks/bench_pose.py, docs/results/pose.md)
-
-
-@numba.njit(cache=True, nogil=True)
-def _frame(q, rot, pos, kind, identity, parent, ee_joint, effector_pos, tool, F, p, origins, axes, R):
-    """R (3, 3) <- the tool frame's rotation at q (1, n); returns its origin (3,); origins, axes:
-    every joint's (for the Jacobian)."""
-    tree_points(q, 0, rot, pos, kind, identity, parent, ee_joint, effector_pos, F, p, 0, origins, axes)
-    j = ee_joint[0]
-    for r in range(3):
-        for c in range(3):
-            if j >= 0:
-                R[r, c] = F[j, 3 * r] * tool[0, c] + F[j, 3 * r + 1] * tool[1, c] + F[j, 3 * r + 2] * tool[2, c]
-            else:
-                R[r, c] = tool[r, c]
-    return p[0, 0]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -110,21 +96,13 @@ def _residual(q, gR, gp, chain, tool, axis, length, e, Je, want_j, scratch):
     """e (6,) and, when want_j, Je (6, n) at q (1, n); returns (|e|, position error, angle error)."""
     rot, pos, kind, identity, parent, ee_joint, effector_pos = chain
     F, p, origins, axes, R, E, w, M = scratch
-    o = _frame(q, rot, pos, kind, identity, parent, ee_joint, effector_pos, tool, F, p, origins, axes, R)
-    ex, ey, ez = o[0], o[1], o[2]
-    e[0], e[1], e[2] = gp[0] - ex, gp[1] - ey, gp[2] - ez
+    tree_points(q, 0, rot, pos, kind, identity, parent, ee_joint, effector_pos, F, p, 0, origins, axes)
+    tool_rotation_of(F, ee_joint[0], tool, R)
+    e[0], e[1], e[2] = gp[0] - p[0, 0, 0], gp[1] - p[0, 0, 1], gp[2] - p[0, 0, 2]
     err_p = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
     n = q.shape[1]
     if want_j:
-        for k in range(n):
-            ax, ay, az = axes[k, 0], axes[k, 1], axes[k, 2]
-            if kind[k] == 0:
-                dx, dy, dz = ex - origins[0, k + 1, 0], ey - origins[0, k + 1, 1], ez - origins[0, k + 1, 2]
-                Je[0, k], Je[1, k], Je[2, k] = ay * dz - az * dy, az * dx - ax * dz, ax * dy - ay * dx
-                Je[3, k], Je[4, k], Je[5, k] = ax, ay, az
-            else:
-                Je[0, k], Je[1, k], Je[2, k] = ax, ay, az
-                Je[3, k], Je[4, k], Je[5, k] = 0.0, 0.0, 0.0
+        jacobian_columns(p[0, 0], origins[0], axes, kind, Je)
     if axis[0] == 0.0 and axis[1] == 0.0 and axis[2] == 0.0:  # full pose
         for r in range(3):
             for c in range(3):
