@@ -18,6 +18,11 @@ theta the geodesic angle between the tool's rotation and the goal's (an SO arm: 
 the approach axes), L = `weight` metres per radian (POSE_WEIGHT x the arm's reach: docs/pose.md,
 "Training").
 
+The wrist (`wrist=True`, an arm held to a full pose whose last three joints are revolute): the
+network's answers for those three joints are not used; after the turn they are solved in closed
+form for the goal's orientation on the frame the other joints leave (pose_kernels' wrist, two
+solutions, the nearer kept), so the network places the arm and the wrist turns the tool.
+
 `PoseEncoding` carries everything the compiled error needs: the arm's kinematic chain, the tool
 frame's rotation in the chain's last joint frame (robots.pose's tool rotation) and the approach
 axis. `to_dict()` stores it all, so a pose controller reloads without the arm.
@@ -35,6 +40,10 @@ from lab.problem.encoding import Encoding
 from lab.problem.kernels import check_chain
 
 POSE_WEIGHT = 0.1  # L / reach: an angle of 1 rad weighs as an error of a tenth of the arm's reach
+# the arms whose pose networks solve the last three joints in closed form: every arm held to a full
+# pose (measured on UR5 and Panda: the angle from 75-87 to 0 degrees, refined in 3 steps from 10-14 to
+# 53-70 %; docs/pose.md)
+WRIST_ARMS: frozenset[str] = frozenset({"ur5", "ur10", "panda", "xarm7", "kinova", "z1"})
 GOALS = ("position", "pose")
 
 
@@ -72,6 +81,7 @@ class PoseEncoding:
     tool: np.ndarray
     axis: np.ndarray | None
     weight: float
+    wrist: bool = False
     goal = "pose"
 
     def __post_init__(self):
@@ -91,17 +101,68 @@ class PoseEncoding:
         if not (isinstance(self.weight, (int, float)) and np.isfinite(self.weight) and self.weight > 0):
             raise ValueError(f"weight must be a positive number of metres per radian, got {self.weight!r}")
         object.__setattr__(self, "weight", float(self.weight))
+        object.__setattr__(self, "wrist", bool(self.wrist))
+        if self.wrist:
+            object.__setattr__(self, "_wrist", self.wrist_arrays())
 
     @classmethod
     def for_arm(cls, arm: robots.Arm, features: str = "sphere", margin: float = 0.0, turn: bool = False,
-                weight: float | None = None) -> "PoseEncoding":
-        """The pose encoding of a real arm; weight None: POSE_WEIGHT x the arm's reach."""
+                weight: float | None = None, wrist: bool | None = None) -> "PoseEncoding":
+        """The pose encoding of a real arm; weight None: POSE_WEIGHT x the arm's reach; wrist None: the
+        closed-form wrist on the arms of WRIST_ARMS."""
         from robots import pose
 
         axis = pose.approach_axis(arm)  # ValueError for an arm without a pose
         return cls(Encoding.for_arm(arm, features, margin, turn), arm.chain.arrays, pose._tool_rotation(arm),
                    None if axis is None else np.array(axis), POSE_WEIGHT * arm.reach_radius if weight is None
-                   else weight)
+                   else weight, arm.name in WRIST_ARMS if wrist is None else wrist)
+
+    def wrist_arrays(self) -> np.ndarray:
+        """The closed-form wrist's constants as pose_kernels' wrist takes them (a flat array): with w
+        the first of the last three joints, a2, a3 the second and third joints' axes in joint w's
+        frame (C = rot[w + 1] rot[w + 2]: Rz(t1) rot[w + 1] Rz(t2) rot[w + 2] Rz(t3) = Rz(t1) Rot(a2, t2)
+        Rot(a3, t3) C), t2 from z . Rot(a2, t2) a3 = A cos t2 + B sin t2 + Cc (phi = atan2(B, A), the
+        radius of (A, B)); xv a unit vector across a3; the three joints' limits and whether each
+        wraps. ValueError for an arm whose wrist has no such solution."""
+        rot, _pos, kind = self.chain[0], self.chain[1], self.chain[2]
+        nq = len(rot)
+        if self.axis is not None or nq < 6 or np.any(np.asarray(kind)[nq - 3:] != 0):
+            raise ValueError("a closed-form wrist needs an arm held to a full pose whose last three joints are "
+                             f"revolute (6 or more joints), got {nq} joints"
+                             + (" with an approach axis" if self.axis is not None else ""))
+        w = nq - 3
+        z = np.array([0.0, 0.0, 1.0])
+        a2 = rot[w + 1] @ z
+        C = rot[w + 1] @ rot[w + 2]
+        a3 = C @ z
+        A = z @ a3 - (z @ a2) * (a2 @ a3)
+        B = z @ np.cross(a2, a3)
+        radius = float(np.hypot(A, B))
+        if radius < 1e-6:
+            raise ValueError("a closed-form wrist needs its second joint's axis across the first's and the third's")
+        xv = np.cross(a3, [1.0, 0.0, 0.0])
+        if np.linalg.norm(xv) < 1e-6:
+            xv = np.cross(a3, [0.0, 1.0, 0.0])
+        xv /= np.linalg.norm(xv)
+        lo, hi = self.position.q_lo[w:], self.position.q_hi[w:]
+        wrap = np.asarray(self.position.wrap, bool)[w:] if getattr(self.position, "wrap", None) is not None \
+            else np.zeros(3, bool)
+        return np.ascontiguousarray(np.concatenate([[w, np.arctan2(B, A), radius, (z @ a2) * (a2 @ a3)], a2, a3,
+                                                    xv, C.ravel(), lo, hi, wrap.astype(float)]), dtype=np.float64)
+
+    @property
+    def turns(self) -> bool:
+        """Whether joints() needs the poses: a turned first joint, or the closed-form wrist."""
+        return bool(self.position.turns or self.wrist)
+
+    @property
+    def turned_joints(self) -> np.ndarray:
+        """The joints solved in closed form, whose network outputs are unused: the turned first joint,
+        the wrist's three."""
+        joints = list(self.position.turned_joints)
+        if self.wrist:
+            joints += list(range(len(self.position.q_lo) - 3, len(self.position.q_lo)))
+        return np.asarray(sorted(set(joints)), dtype=np.int64)
 
     # ------------------------------------------------------------ what the position part decides
     def __getattr__(self, name: str):
@@ -159,11 +220,27 @@ class PoseEncoding:
     def joints(self, a: np.ndarray, poses=None) -> np.ndarray:
         """Outputs (..., n, nq) -> joint values (..., n, nq), turned toward each pose's position when the
         encoding turns (then poses are needed)."""
-        if not self.position.turns:
+        if not self.turns:
             return self.position.mapped(a)
         if poses is None:
-            raise ValueError("this encoding turns the first joint toward each goal's bearing: joints() needs the poses")
-        return self.position.joints(a, np.asarray(poses, dtype=np.float64)[:, :3, 3])
+            raise ValueError("this encoding turns the first joint toward each goal's bearing or solves the wrist: "
+                             "joints() needs the poses")
+        poses = np.asarray(poses, dtype=np.float64)
+        if not self.wrist:
+            return self.position.joints(a, poses[:, :3, 3])
+        return self.finished(self.position.mapped(a), poses)
+
+    def finished(self, q: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        """Mapped joint values q (..., n, nq) as the fitness answers with them: the first joint turned
+        (when the encoding turns), then the wrist solved (when it has one)."""
+        q = np.asarray(q, dtype=np.float64)
+        n, nq = q.shape[-2], q.shape[-1]
+        QT = np.ascontiguousarray(q.reshape(-1, nq).T)
+        GP, GR = self.goal_arrays(poses)
+        reps = QT.shape[1] // max(n, 1)
+        GP, GR = np.ascontiguousarray(np.tile(GP, (1, reps))), np.ascontiguousarray(np.tile(GR, (1, reps)))
+        pose_kernels.finish_joints(QT, GP, GR, self.chain, self.position.turn_spec, self.spec())
+        return QT.T.reshape(q.shape)
 
     def mapped(self, a: np.ndarray) -> np.ndarray:
         return self.position.mapped(a)
@@ -173,7 +250,8 @@ class PoseEncoding:
         """The pose error's arrays as the pose kernels take them: (tool, axis in the last joint frame,
         mode (0 full pose, 1 approach axis), L^2)."""
         axis_j = np.zeros(3) if self.axis is None else np.ascontiguousarray(self.tool @ self.axis)
-        return (self.tool, axis_j, 0 if self.axis is None else 1, self.weight ** 2)
+        return (self.tool, axis_j, 0 if self.axis is None else 1, self.weight ** 2,
+                self.__dict__.get("_wrist", np.zeros(0)))
 
     def goal_arrays(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(positions (3, n), orientations (9, n) row-major R or (3, n) approach directions) as the
@@ -212,11 +290,11 @@ class PoseEncoding:
                 "chain": dict(zip(("rot", "pos", "kind", "identity", "ee_pos"),
                                   (np.asarray(x).tolist() for x in self.chain))),
                 "tool": self.tool.tolist(), "axis": None if self.axis is None else self.axis.tolist(),
-                "weight": self.weight}
+                "weight": self.weight, **({"wrist": True} if self.wrist else {})}
 
     @classmethod
     def from_dict(cls, d: dict) -> "PoseEncoding":
         if d.get("goal") != "pose":
             raise ValueError(f"not a pose encoding: its goal is {d.get('goal')!r}")
         return cls(Encoding.from_dict(d["position"]), d["chain"], np.asarray(d["tool"], dtype=np.float64),
-                   d.get("axis"), d["weight"])
+                   d.get("axis"), d["weight"], bool(d.get("wrist", False)))

@@ -118,7 +118,7 @@ class PoseProblem(Problem):
         layers = self._mlp_forward(X, w, hidden)
         q = layers[-1]
         if enc.turns:
-            q = enc.position.turned(q, goals[:, :3, 3])
+            q = enc.finished(q, goals)
         T, J = pose.fk_pose_and_jacobian(self.arm, q)
         dp = T[:, :3, 3] - goals[:, :3, 3]
         if enc.axis is None:

@@ -13,7 +13,11 @@ R (tool axis). spec = (tool (3, 3), axis in the joint frame (3,), mode (0 full, 
 
 The turn (qmap[4], kernels.NO_TURN's layout) turns the first joint toward the position's bearing;
 the frame turns rigidly with it about the joint's axis (Rodrigues), so no second pass of the chain.
-A controller whose output or error is NaN or infinite gets +inf.
+The wrist (spec[4], lab.problem.pose_encoding's wrist_arrays; empty: none): after the turn, the last
+three joints are solved in closed form for the goal's rotation on the frame the others leave (two
+solutions, as an Euler decomposition about the three joints' own axes; each angle taken by whole
+turns into its limits, else clipped), the one nearer the goal kept. A controller whose output or
+error is NaN or infinite gets +inf.
 """
 
 from __future__ import annotations
@@ -58,6 +62,162 @@ def _turned_frames(Q, GP, chain, turn, R, P):
         P[0, g] = cx + k00 * u0 + k01 * u1 + k02 * u2
         P[1, g] = cy + k10 * u0 + k11 * u1 + k12 * u2
         P[2, g] = cz + k20 * u0 + k21 * u1 + k22 * u2
+
+
+# the wrist's constants (pose_encoding.PoseEncoding.wrist_arrays), by index into the flat array
+_W, _PHI, _RAD, _CC = 0, 1, 2, 3
+_A2, _A3, _XV, _C, _LO, _HI, _WRAP = 4, 7, 10, 13, 22, 25, 28
+
+
+@numba.njit(**_JIT)
+def _mm(A, B, out, ta=False, tb=False):
+    """out <- op(A) op(B) of 3 x 3 matrices, op the transpose where ta / tb."""
+    for a in range(3):
+        for b in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += (A[k, a] if ta else A[a, k]) * (B[b, k] if tb else B[k, b])
+            out[a, b] = acc
+
+
+@numba.njit(**_JIT)
+def _rz_into(M, t, out):
+    """out <- M Rz(t) (3, 3)."""
+    c, s = math.cos(t), math.sin(t)
+    for a in range(3):
+        m0, m1 = M[a, 0], M[a, 1]
+        out[a, 0] = c * m0 + s * m1
+        out[a, 1] = c * m1 - s * m0
+        out[a, 2] = M[a, 2]
+
+
+@numba.njit(**_JIT)
+def _rot_about(axis, t, v, out):
+    """out <- v turned by t about the unit axis (Rodrigues)."""
+    c, s = math.cos(t), math.sin(t)
+    d = axis[0] * v[0] + axis[1] * v[1] + axis[2] * v[2]
+    cx = axis[1] * v[2] - axis[2] * v[1]
+    cy = axis[2] * v[0] - axis[0] * v[2]
+    cz = axis[0] * v[1] - axis[1] * v[0]
+    out[0] = v[0] * c + cx * s + axis[0] * d * (1.0 - c)
+    out[1] = v[1] * c + cy * s + axis[1] * d * (1.0 - c)
+    out[2] = v[2] * c + cz * s + axis[2] * d * (1.0 - c)
+
+
+@numba.njit(**_JIT)
+def _into(t, lo, hi, wrap):
+    """t by whole turns into [lo, hi] where that brings it inside, else clipped (a continuous joint:
+    into its range's turn)."""
+    for k in range(3):
+        c = t + (0.0 if k == 0 else (-2.0 * math.pi if k == 1 else 2.0 * math.pi))
+        if lo <= c <= hi:
+            return c
+    if wrap:
+        return lo + (t - lo) % (2.0 * math.pi)
+    return min(hi, max(lo, t))
+
+
+@numba.njit(**_JIT)
+def _wrist_rows(Q, GP, GR, chain, spec, R, P):
+    """The last three joints of Q (nq, N) solved for each goal's rotation on the frame the joints
+    before them leave: Q's last three rows, and R, P (the last joint's frame), rewritten for the
+    solution (of two) nearer the goal (||p - p_g||^2 + L^2 theta^2)."""
+    rot, pos, kind, identity, ee_pos = chain
+    tool, wr, w2 = spec[0], spec[4], spec[3]
+    w = int(wr[_W])
+    a2, a3, xv, Cm = np.empty(3), np.empty(3), np.empty(3), np.empty((3, 3))
+    for a in range(3):
+        a2[a], a3[a], xv[a] = wr[_A2 + a], wr[_A3 + a], wr[_XV + a]
+        for b in range(3):
+            Cm[a, b] = wr[_C + 3 * a + b]
+    nq = rot.shape[0]
+    Rp, T1, T2, Nn, G, Rb, M = (np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)),
+                                np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)))
+    v, u, y = np.empty(3), np.empty(3), np.empty(3)
+    qb = np.empty(3)
+    for g in range(Q.shape[1]):
+        # the frame before the wrist: joints 0 .. w - 1, then joint w's fixed placement
+        for a in range(3):
+            for b in range(3):
+                Rp[a, b] = 1.0 if a == b else 0.0
+        px, py, pz = 0.0, 0.0, 0.0
+        for k in range(w + 1):
+            px += Rp[0, 0] * pos[k, 0] + Rp[0, 1] * pos[k, 1] + Rp[0, 2] * pos[k, 2]
+            py += Rp[1, 0] * pos[k, 0] + Rp[1, 1] * pos[k, 1] + Rp[1, 2] * pos[k, 2]
+            pz += Rp[2, 0] * pos[k, 0] + Rp[2, 1] * pos[k, 1] + Rp[2, 2] * pos[k, 2]
+            _mm(Rp, rot[k], T1)
+            if k < w:
+                _rz_into(T1, Q[k, g], Rp)
+            else:
+                Rp[:, :] = T1
+        for a in range(3):
+            for b in range(3):
+                G[a, b] = GR[3 * a + b, g]
+        # Nn = Rp^T G tool^T C^T = Rz(t1) Rot(a2, t2) Rot(a3, t3)
+        _mm(Rp, G, T1, True, False)
+        _mm(T1, tool, T2, False, True)
+        _mm(T2, Cm, Nn, False, True)
+        d = Nn[2, 0] * a3[0] + Nn[2, 1] * a3[1] + Nn[2, 2] * a3[2]
+        c = (d - wr[_CC]) / wr[_RAD]
+        delta = math.acos(min(1.0, max(-1.0, c)))
+        for a in range(3):
+            u[a] = Nn[a, 0] * a3[0] + Nn[a, 1] * a3[1] + Nn[a, 2] * a3[2]
+        best = np.inf
+        for branch in range(2):
+            t2 = wr[_PHI] + (delta if branch == 0 else -delta)
+            _rot_about(a2, t2, a3, v)
+            t1 = math.atan2(v[0] * u[1] - v[1] * u[0], v[0] * u[0] + v[1] * u[1])
+            # M = (Rz(t1) Rot(a2, t2))^T Nn = Rot(a3, t3): t3 the turn of xv about a3
+            c1, s1 = math.cos(t1), math.sin(t1)
+            for b in range(3):  # T2 = Rz(t1)^T Nn
+                T2[0, b] = c1 * Nn[0, b] + s1 * Nn[1, b]
+                T2[1, b] = -s1 * Nn[0, b] + c1 * Nn[1, b]
+                T2[2, b] = Nn[2, b]
+            for b in range(3):  # M = Rot(a2, t2)^T T2, column by column
+                for a in range(3):
+                    v[a] = T2[a, b]
+                _rot_about(a2, -t2, v, y)
+                M[0, b], M[1, b], M[2, b] = y[0], y[1], y[2]
+            for a in range(3):
+                y[a] = M[a, 0] * xv[0] + M[a, 1] * xv[1] + M[a, 2] * xv[2]
+            cx = xv[1] * y[2] - xv[2] * y[1]
+            cy = xv[2] * y[0] - xv[0] * y[2]
+            cz = xv[0] * y[1] - xv[1] * y[0]
+            t3 = math.atan2(cx * a3[0] + cy * a3[1] + cz * a3[2], xv[0] * y[0] + xv[1] * y[1] + xv[2] * y[2])
+            ts = (t1, t2, t3)
+            # the wrist's forward kinematics from the frame before it
+            for a in range(3):
+                for b in range(3):
+                    Rb[a, b] = Rp[a, b]
+            bx, by, bz = px, py, pz
+            for j in range(3):
+                k = w + j
+                t = _into(ts[j], wr[_LO + j], wr[_HI + j], wr[_WRAP + j] != 0.0)
+                qb[j] = t
+                if j > 0:
+                    bx += Rb[0, 0] * pos[k, 0] + Rb[0, 1] * pos[k, 1] + Rb[0, 2] * pos[k, 2]
+                    by += Rb[1, 0] * pos[k, 0] + Rb[1, 1] * pos[k, 1] + Rb[1, 2] * pos[k, 2]
+                    bz += Rb[2, 0] * pos[k, 0] + Rb[2, 1] * pos[k, 1] + Rb[2, 2] * pos[k, 2]
+                    _mm(Rb, rot[k], T1)
+                else:
+                    T1[:, :] = Rb
+                _rz_into(T1, t, Rb)
+            ex = bx + Rb[0, 0] * ee_pos[0] + Rb[0, 1] * ee_pos[1] + Rb[0, 2] * ee_pos[2] - GP[0, g]
+            ey = by + Rb[1, 0] * ee_pos[0] + Rb[1, 1] * ee_pos[1] + Rb[1, 2] * ee_pos[2] - GP[1, g]
+            ez = bz + Rb[2, 0] * ee_pos[0] + Rb[2, 1] * ee_pos[1] + Rb[2, 2] * ee_pos[2] - GP[2, g]
+            _mm(G, Rb, T1, True, False)
+            _mm(T1, tool, T2)
+            sx, sy, sz = T2[2, 1] - T2[1, 2], T2[0, 2] - T2[2, 0], T2[1, 0] - T2[0, 1]
+            ang = math.atan2(0.5 * math.sqrt(sx * sx + sy * sy + sz * sz), 0.5 * (T2[0, 0] + T2[1, 1] + T2[2, 2] - 1.0))
+            e = ex * ex + ey * ey + ez * ez + w2 * ang * ang
+            if e < best:
+                best = e
+                for j in range(3):
+                    Q[w + j, g] = qb[j]
+                for a in range(3):
+                    for b in range(3):
+                        R[a, b, g] = Rb[a, b]
+                P[0, g], P[1, g], P[2, g] = bx, by, bz
 
 
 @numba.njit(**_JIT)
@@ -126,6 +286,8 @@ def pose_sq_errors(Q, GP, GR, chain, turn, spec, E):
     n = Q.shape[1]
     R, P, A = np.empty((3, 3, n)), np.empty((3, n)), np.empty(n)
     _turned_frames(Q, GP, chain, turn, R, P)
+    if spec[4].shape[0] > 0:
+        _wrist_rows(Q, GP, GR, chain, spec, R, P)
     _pose_rows(R, P, GP, GR, chain, spec, E, A)
     w2 = spec[3]
     for g in range(n):
@@ -138,6 +300,17 @@ def turn_toward(Q, GP, chain, turn):
     n = Q.shape[1]
     R, P = np.empty((3, 3, n)), np.empty((3, n))
     _turned_frames(Q, GP, chain, turn, R, P)
+
+
+@numba.njit(**_JIT)
+def finish_joints(Q, GP, GR, chain, turn, spec):
+    """Q (nq, N) <- as the fitness answers: the first joint turned (turn[0] set), then the wrist
+    solved (spec[4] not empty)."""
+    n = Q.shape[1]
+    R, P = np.empty((3, 3, n)), np.empty((3, n))
+    _turned_frames(Q, GP, chain, turn, R, P)
+    if spec[4].shape[0] > 0:
+        _wrist_rows(Q, GP, GR, chain, spec, R, P)
 
 
 @numba.njit(**_JIT)
