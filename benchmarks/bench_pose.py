@@ -375,7 +375,8 @@ def main():
                 r["load"] = open("/proc/loadavg").read().split()[:3]
                 out[label] = r
                 print(f"  {label:<42} 1e-5/5ms {100 * r['trac']:6.2f} %  0.1mm/0.1deg {100 * r['fine']:6.2f} %  "
-                      f"mean {r['mean_ms']:6.3f} ms (wall {r['wall_mean_ms']:6.3f})  p99 {r['p99_ms']:6.3f} ms  over 5 ms {100 * r['over_budget']:.2f} %"
+                      f"mean {r['mean_ms']:6.3f} ms (wall {r['wall_mean_ms']:6.3f})  p99 {r['p99_ms']:6.3f} ms  "
+                      f"over 5 ms {100 * r['over_budget']:.2f} %"
                       f"  load {' '.join(r['load'])}", flush=True)
             if args.json:
                 Path(args.json).write_text(json.dumps(results, indent=1))

@@ -250,7 +250,8 @@ def solve_pose(arm: Arm, goal, starts=None, *, seconds: float | None = 0.005, re
     bias2 = (damping * workspace_size(arm)) ** 2
     best = np.empty(arm.nq)
     wrap = (~np.asarray(arm.is_prismatic, bool)) & (arm.upper - arm.lower >= 2 * np.pi - 1e-9) & bool(WRAP)
-    args = (gR, gp, chain, tool, axis, length, arm.lower, arm.upper, np.asarray(wrap, np.bool_), bias2, tol, angle_tol, int(iterations), float(stall))
+    args = (gR, gp, chain, tool, axis, length, arm.lower, arm.upper, np.asarray(wrap, np.bool_), bias2, tol, angle_tol,
+            int(iterations), float(stall))
     norm, err_p, err_a, steps, _ = descend_many(np.ascontiguousarray(starts), *args, best)
     q = best.copy()
     rng = np.random.default_rng(seed)

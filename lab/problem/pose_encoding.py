@@ -44,6 +44,7 @@ POSE_WEIGHT = 0.1  # L / reach: an angle of 1 rad weighs as an error of a tenth 
 # pose (measured on UR5 and Panda: the angle from 75-87 to 0 degrees, refined in 3 steps from 10-14 to
 # 53-70 %; docs/pose.md)
 WRIST_ARMS: frozenset[str] = frozenset({"ur5", "ur10", "panda", "xarm7", "kinova", "z1"})
+WRIST_PASSES = 2  # the turn and the wrist twice: the second turn on the solved wrist's tool point (UR5 120 s: 72.8 mm against 89.8)
 GOALS = ("position", "pose")
 
 
@@ -82,6 +83,7 @@ class PoseEncoding:
     axis: np.ndarray | None
     weight: float
     wrist: bool = False
+    wrist_passes: int = 1
     goal = "pose"
 
     def __post_init__(self):
@@ -102,6 +104,8 @@ class PoseEncoding:
             raise ValueError(f"weight must be a positive number of metres per radian, got {self.weight!r}")
         object.__setattr__(self, "weight", float(self.weight))
         object.__setattr__(self, "wrist", bool(self.wrist))
+        if self.wrist_passes not in (1, 2):
+            raise ValueError(f"wrist_passes must be 1 or 2, got {self.wrist_passes!r}")
         if self.wrist:
             object.__setattr__(self, "_wrist", self.wrist_arrays())
 
@@ -115,7 +119,7 @@ class PoseEncoding:
         axis = pose.approach_axis(arm)  # ValueError for an arm without a pose
         return cls(Encoding.for_arm(arm, features, margin, turn), arm.chain.arrays, pose._tool_rotation(arm),
                    None if axis is None else np.array(axis), POSE_WEIGHT * arm.reach_radius if weight is None
-                   else weight, arm.name in WRIST_ARMS if wrist is None else wrist)
+                   else weight, arm.name in WRIST_ARMS if wrist is None else wrist, WRIST_PASSES)
 
     def wrist_arrays(self) -> np.ndarray:
         """The closed-form wrist's constants as pose_kernels' wrist takes them (a flat array): with w
@@ -148,7 +152,8 @@ class PoseEncoding:
         wrap = np.asarray(self.position.wrap, bool)[w:] if getattr(self.position, "wrap", None) is not None \
             else np.zeros(3, bool)
         return np.ascontiguousarray(np.concatenate([[w, np.arctan2(B, A), radius, (z @ a2) * (a2 @ a3)], a2, a3,
-                                                    xv, C.ravel(), lo, hi, wrap.astype(float)]), dtype=np.float64)
+                                                    xv, C.ravel(), lo, hi, wrap.astype(float),
+                                                    [self.wrist_passes]]), dtype=np.float64)
 
     @property
     def turns(self) -> bool:
@@ -290,11 +295,11 @@ class PoseEncoding:
                 "chain": dict(zip(("rot", "pos", "kind", "identity", "ee_pos"),
                                   (np.asarray(x).tolist() for x in self.chain))),
                 "tool": self.tool.tolist(), "axis": None if self.axis is None else self.axis.tolist(),
-                "weight": self.weight, **({"wrist": True} if self.wrist else {})}
+                "weight": self.weight, **({"wrist": True, "wrist_passes": self.wrist_passes} if self.wrist else {})}
 
     @classmethod
     def from_dict(cls, d: dict) -> "PoseEncoding":
         if d.get("goal") != "pose":
             raise ValueError(f"not a pose encoding: its goal is {d.get('goal')!r}")
         return cls(Encoding.from_dict(d["position"]), d["chain"], np.asarray(d["tool"], dtype=np.float64),
-                   d.get("axis"), d["weight"], bool(d.get("wrist", False)))
+                   d.get("axis"), d["weight"], bool(d.get("wrist", False)), int(d.get("wrist_passes", 1)))

@@ -66,7 +66,7 @@ def _turned_frames(Q, GP, chain, turn, R, P):
 
 # the wrist's constants (pose_encoding.PoseEncoding.wrist_arrays), by index into the flat array
 _W, _PHI, _RAD, _CC = 0, 1, 2, 3
-_A2, _A3, _XV, _C, _LO, _HI, _WRAP = 4, 7, 10, 13, 22, 25, 28
+_A2, _A3, _XV, _C, _LO, _HI, _WRAP, _PASSES = 4, 7, 10, 13, 22, 25, 28, 31
 
 
 @numba.njit(**_JIT)
@@ -285,9 +285,7 @@ def pose_sq_errors(Q, GP, GR, chain, turn, spec, E):
     when turn[0] is set (Q[0] then holds the turned values)."""
     n = Q.shape[1]
     R, P, A = np.empty((3, 3, n)), np.empty((3, n)), np.empty(n)
-    _turned_frames(Q, GP, chain, turn, R, P)
-    if spec[4].shape[0] > 0:
-        _wrist_rows(Q, GP, GR, chain, spec, R, P)
+    _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P)
     _pose_rows(R, P, GP, GR, chain, spec, E, A)
     w2 = spec[3]
     for g in range(n):
@@ -308,8 +306,21 @@ def finish_joints(Q, GP, GR, chain, turn, spec):
     solved (spec[4] not empty)."""
     n = Q.shape[1]
     R, P = np.empty((3, 3, n)), np.empty((3, n))
+    _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P)
+
+
+@numba.njit(**_JIT)
+def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
+    """R, P <- the last joint's frame of Q after the turn and the wrist: the first joint turned toward
+    the position's bearing (turn[0] set), then the wrist solved (spec[4] not empty); with the turn and
+    a wrist of two passes, the turn again on the solved wrist's tool point and the wrist again."""
     _turned_frames(Q, GP, chain, turn, R, P)
-    if spec[4].shape[0] > 0:
+    wr = spec[4]
+    if wr.shape[0] == 0:
+        return
+    _wrist_rows(Q, GP, GR, chain, spec, R, P)
+    if turn[0] != 0.0 and wr[_PASSES] > 1.0:
+        _turned_frames(Q, GP, chain, turn, R, P)
         _wrist_rows(Q, GP, GR, chain, spec, R, P)
 
 
