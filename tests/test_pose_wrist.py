@@ -75,5 +75,10 @@ def test_a_wrist_controller_round_trips_and_its_orientation_is_exact_where_the_l
 def test_arms_without_a_closed_form_wrist_are_refused_by_name():
     with pytest.raises(ValueError, match="full pose"):
         PoseEncoding.for_arm(robots.load("so100"), "sphere", 0.0, True, wrist=True)
-    plain = PoseEncoding.for_arm(robots.load("ur5"), "sphere")
+    plain = PoseEncoding.for_arm(robots.load("ur5"), "sphere", wrist=False)
     assert not plain.wrist and "wrist" not in plain.to_dict()
+    # the default: the wrist on the arms held to a full pose, none on the SO arms
+    assert PoseEncoding.for_arm(robots.load("ur5"), "sphere").wrist
+    assert not PoseEncoding.for_arm(robots.load("so100"), "sphere").wrist
+    with pytest.raises(ValueError, match="wrist_passes"):
+        PoseEncoding(plain.position, plain.chain, plain.tool, None, plain.weight, True, 3)

@@ -44,7 +44,9 @@ POSE_WEIGHT = 0.1  # L / reach: an angle of 1 rad weighs as an error of a tenth 
 # pose (measured on UR5 and Panda: the angle from 75-87 to 0 degrees, refined in 3 steps from 10-14 to
 # 53-70 %; docs/pose.md)
 WRIST_ARMS: frozenset[str] = frozenset({"ur5", "ur10", "panda", "xarm7", "kinova", "z1"})
-WRIST_PASSES = 2  # the turn and the wrist twice: the second turn on the solved wrist's tool point (UR5 120 s: 72.8 mm against 89.8)
+# the turn and the wrist twice: the second turn on the solved wrist's tool point (UR5 120 s: 72.8 mm
+# against 89.8 with one pass)
+WRIST_PASSES = 2
 GOALS = ("position", "pose")
 
 
