@@ -192,7 +192,8 @@ def test_start_in_pose_mode_trains_a_pose_network_drawn_recorded_and_noted(app, 
         assert np.asarray(g.cloud.points).shape[0] == 10
         assert state.recording is not None  # the Rerun recording of a pose run
         assert app.training_goals().shape == (state.runner.config.targets, 3)  # the red points: their positions
-        assert "No error map for pose goals" in app.map_legend.content
+        # the views are redrawn by the render loop once a second after the shown network changes
+        assert wait_until(lambda: "No error map for pose goals" in app.map_legend.content, timeout=15)
         run_id = state.runner.run_id
     finally:
         state.reset()
