@@ -13,7 +13,7 @@ import robots
 from lab import methods
 from lab.problem.controllers import MLPController, mlp_size
 from lab.problem.pose_encoding import PoseEncoding
-from lab.problem.pose_fitness import pose_problem
+from lab.problem.pose_fitness import PoseProblem
 from robots import pose
 
 
@@ -35,11 +35,15 @@ def _direct_fitness(arm, enc, q, goals) -> float:
     return total / len(goals)
 
 
-@pytest.mark.parametrize("name, turn, heads", [("ur5", False, 1), ("ur5", True, 2), ("panda", True, 1),
-                                              ("so100", True, 3), ("kinova", False, 1)])
-def test_pose_fitness_equals_pinocchio_frame_placement_and_log3(name, turn, heads):
+@pytest.mark.parametrize("name, turn, heads, wrist", [
+    ("ur5", False, 1, False), ("ur5", True, 2, False), ("panda", True, 1, False), ("so100", True, 3, False),
+    ("kinova", False, 1, False), ("ur5", True, 2, True), ("panda", True, 1, True), ("kinova", False, 1, True)])
+def test_pose_fitness_equals_pinocchio_frame_placement_and_log3(name, turn, heads, wrist):
+    """With and without the closed-form wrist (lab.problem.pose_encoding): the compiled fitness equals
+    the controller's answers measured through Pinocchio."""
     arm = robots.load(name)
-    problem = pose_problem(arm, "sphere", 0.3, turn, targets=40, test_goals=5, goal_seed=3)
+    problem = PoseProblem(arm, PoseEncoding.for_arm(arm, "sphere", 0.3, turn, wrist=wrist), targets=40,
+                          test_goals=5, goal_seed=3)
     enc = problem.encoding
     rng = np.random.default_rng(1)
     W = rng.normal(0.0, 0.4, (3, mlp_size(enc.n_inputs, 6, enc.n_outputs * heads)))
@@ -109,8 +113,6 @@ def test_every_method_trains_a_pose_controller(method):
 def test_pose_gradient_equals_finite_differences(name):
     """Without the closed-form wrist (with it the gradient holds the wrist's joints, so it is not the
     whole derivative: the wrist's solution moves with the joints before it)."""
-    from lab.problem.pose_fitness import PoseProblem
-
     arm = robots.load(name)
     problem = PoseProblem(arm, PoseEncoding.for_arm(arm, "sphere", 0.0, False, wrist=False), targets=15,
                           test_goals=5, goal_seed=1)
