@@ -238,8 +238,8 @@ def solve_pose(arm: Arm, goal, starts=None, *, seconds: float | None = 0.005, re
         raise ValueError(f"iterations must be an integer >= 1, got {iterations!r}")
     if starts is None:
         starts = arm.rest[None]
-    starts = np.asarray(starts, dtype=np.float64)
-    starts = starts[None] if starts.ndim == 1 else starts
+    # a writeable copy: one compiled signature for every caller (a readonly array would be another)
+    starts = np.array(starts, dtype=np.float64, order="C", ndmin=2)
     if starts.ndim != 2 or starts.shape[1] != arm.nq or not len(starts) or not np.isfinite(starts).all():
         raise ValueError(f"{arm.name}: starts must be finite joint vectors ({arm.nq},) or (k, {arm.nq}), "
                          f"got shape {np.shape(starts)}")
@@ -252,7 +252,7 @@ def solve_pose(arm: Arm, goal, starts=None, *, seconds: float | None = 0.005, re
     wrap = (~np.asarray(arm.is_prismatic, bool)) & (arm.upper - arm.lower >= 2 * np.pi - 1e-9) & bool(WRAP)
     args = (gR, gp, chain, tool, axis, length, arm.lower, arm.upper, np.asarray(wrap, np.bool_), bias2, tol, angle_tol,
             int(iterations), float(stall))
-    norm, err_p, err_a, steps, _ = descend_many(np.ascontiguousarray(starts), *args, best)
+    norm, err_p, err_a, steps, _ = descend_many(starts, *args, best)
     q = best.copy()
     rng = np.random.default_rng(seed)
     done = 0

@@ -188,13 +188,17 @@ def stress(seconds: float, safe: bool, senders: int = 100, period: float = 0.02,
 def test_viser_alone_raises_when_a_thread_pushes_while_tabs_wait():
     """The fault, with viser's own buffer and event (viser 1.1.1): if this fails, viser has fixed
     it, and install_loop_safe_wakeups can go. A race: on a busy machine (fewer pushes, rarer thread
-    switches) 20 s may pass without it, so up to three tries of 20 s; on an idle one the first hits it."""
+    switches) 20 s may pass without it, so up to three tries of 20 s; on an idle one the first hits it.
+    With viser 1.1.1 three misses are a busy machine (skipped, saying so); with another version they
+    fail: that version may have fixed it."""
     tries = []
     for _ in range(3):
         r = stress(20.0, safe=False, stop_at_error=True)
         tries.append(r)
         if r["errors"]:
             break
+    if not r["errors"] and viser.__version__ == "1.1.1":  # the version the fault was seen in, on an idle machine
+        pytest.skip(f"the race did not show in three tries of 20 s on this busy machine: {tries}")
     assert r["errors"] and "deque mutated during iteration" in r["errors"][0], tries
 
 
