@@ -83,10 +83,13 @@ def gizmo_pose(position, wxyz) -> np.ndarray:
 
 
 def fmt_angle(angle: float) -> str:
-    """An angle [rad] in degrees (below 0.1 degree with two digits, so a refined answer does not read as 0)."""
+    """An angle [rad] in degrees (below 0.1 degree with two digits, so a refined answer does not read as 0;
+    below 1e-6 degree, rounding's noise: 0, as a closed-form wrist's answer reads)."""
     if not np.isfinite(angle):
         return "∞"
     d = math.degrees(angle)
+    if d < 1e-6:
+        return "0°"
     return f"{d:.1f}°" if d >= 0.1 else f"{d:.2g}°"
 
 
