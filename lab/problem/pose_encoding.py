@@ -41,8 +41,8 @@ from lab.problem.kernels import check_chain
 
 POSE_WEIGHT = 0.1  # L / reach: an angle of 1 rad weighs as an error of a tenth of the arm's reach
 # the arms whose pose networks solve the last three joints in closed form: every arm held to a full
-# pose (measured on UR5 and Panda: the angle from 75-87 to 0 degrees, refined in 3 steps from 10-14 to
-# 53-70 %; docs/pose.md)
+# pose (240 s of CMA-ES: the median angle from 57-91 to 0 degrees, refined in 3 steps from 10-21 to
+# 58-81 %; docs/pose.md)
 WRIST_ARMS: frozenset[str] = frozenset({"ur5", "ur10", "panda", "xarm7", "kinova", "z1"})
 # the turn and the wrist twice: the second turn on the solved wrist's tool point (UR5 120 s: 72.8 mm
 # against 89.8 with one pass)
@@ -151,8 +151,7 @@ class PoseEncoding:
             xv = np.cross(a3, [0.0, 1.0, 0.0])
         xv /= np.linalg.norm(xv)
         lo, hi = self.position.q_lo[w:], self.position.q_hi[w:]
-        wrap = np.asarray(self.position.wrap, bool)[w:] if getattr(self.position, "wrap", None) is not None \
-            else np.zeros(3, bool)
+        wrap = np.asarray(self.position.wrap, bool)[w:]
         return np.ascontiguousarray(np.concatenate([[w, np.arctan2(B, A), radius, (z @ a2) * (a2 @ a3)], a2, a3,
                                                     xv, C.ravel(), lo, hi, wrap.astype(float),
                                                     [self.wrist_passes]]), dtype=np.float64)
@@ -241,13 +240,18 @@ class PoseEncoding:
         """Mapped joint values q (..., n, nq) as the fitness answers with them: the first joint turned
         (when the encoding turns), then the wrist solved (when it has one)."""
         q = np.asarray(q, dtype=np.float64)
+        QT, GP, GR = self._side_by_side(q, poses)
+        pose_kernels.finish_joints(QT, GP, GR, self.chain, self.position.turn_spec, self.spec())
+        return QT.T.reshape(q.shape)
+
+    def _side_by_side(self, q: np.ndarray, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Joint values q (..., n, nq) as the kernels take them, (nq, N), with the goals' arrays tiled to
+        match (N = every leading row's n goals side by side)."""
         n, nq = q.shape[-2], q.shape[-1]
         QT = np.ascontiguousarray(q.reshape(-1, nq).T)
         GP, GR = self.goal_arrays(poses)
         reps = QT.shape[1] // max(n, 1)
-        GP, GR = np.ascontiguousarray(np.tile(GP, (1, reps))), np.ascontiguousarray(np.tile(GR, (1, reps)))
-        pose_kernels.finish_joints(QT, GP, GR, self.chain, self.position.turn_spec, self.spec())
-        return QT.T.reshape(q.shape)
+        return QT, np.ascontiguousarray(np.tile(GP, (1, reps))), np.ascontiguousarray(np.tile(GR, (1, reps)))
 
     def mapped(self, a: np.ndarray) -> np.ndarray:
         return self.position.mapped(a)
@@ -276,11 +280,8 @@ class PoseEncoding:
         (..., n), by the compiled kinematics the fitness uses (no turn: q as given)."""
         poses = self.check(poses)
         q = np.asarray(q, dtype=np.float64)
-        lead, n, nq = q.shape[:-2], q.shape[-2], q.shape[-1]
-        QT = np.ascontiguousarray(q.reshape(-1, nq).T)
-        GP, GR = self.goal_arrays(poses)
-        reps = QT.shape[1] // max(n, 1)
-        GP, GR = np.ascontiguousarray(np.tile(GP, (1, reps))), np.ascontiguousarray(np.tile(GR, (1, reps)))
+        lead, n = q.shape[:-2], q.shape[-2]
+        QT, GP, GR = self._side_by_side(q, poses)
         D, A = np.empty(QT.shape[1]), np.empty(QT.shape[1])
         pose_kernels.pose_parts(QT, GP, GR, self.chain, self.spec(), D, A)
         return np.sqrt(D).reshape(*lead, n), A.reshape(*lead, n)

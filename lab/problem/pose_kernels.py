@@ -130,7 +130,6 @@ def _wrist_rows(Q, GP, GR, chain, spec, R, P):
         a2[a], a3[a], xv[a] = wr[_A2 + a], wr[_A3 + a], wr[_XV + a]
         for b in range(3):
             Cm[a, b] = wr[_C + 3 * a + b]
-    nq = rot.shape[0]
     Rp, T1, T2, Nn, G, Rb, M = (np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)),
                                 np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)))
     v, u, y = np.empty(3), np.empty(3), np.empty(3)
@@ -290,14 +289,6 @@ def pose_sq_errors(Q, GP, GR, chain, turn, spec, E):
     w2 = spec[3]
     for g in range(n):
         E[g] += w2 * A[g] * A[g]
-
-
-@numba.njit(**_JIT)
-def turn_toward(Q, GP, chain, turn):
-    """Q[0] <- the first joint turned toward each goal position's bearing (as the fitness turns it)."""
-    n = Q.shape[1]
-    R, P = np.empty((3, 3, n)), np.empty((3, n))
-    _turned_frames(Q, GP, chain, turn, R, P)
 
 
 @numba.njit(**_JIT)
