@@ -35,14 +35,15 @@ def _direct_fitness(arm, enc, q, goals) -> float:
     return total / len(goals)
 
 
-@pytest.mark.parametrize("name, turn, heads, wrist", [
-    ("ur5", False, 1, False), ("ur5", True, 2, False), ("panda", True, 1, False), ("so100", True, 3, False),
-    ("kinova", False, 1, False), ("ur5", True, 2, True), ("panda", True, 1, True), ("kinova", False, 1, True)])
-def test_pose_fitness_equals_pinocchio_frame_placement_and_log3(name, turn, heads, wrist):
-    """With and without the closed-form wrist (lab.problem.pose_encoding): the compiled fitness equals
-    the controller's answers measured through Pinocchio."""
+@pytest.mark.parametrize("name, turn, heads, wrist, reach", [
+    ("ur5", False, 1, False, 0), ("ur5", True, 2, False, 0), ("panda", True, 1, False, 0), ("so100", True, 3, False, 0),
+    ("kinova", False, 1, False, 0), ("ur5", True, 2, True, 0), ("panda", True, 1, True, 0), ("kinova", False, 1, True, 0),
+    ("ur5", True, 2, True, 3), ("panda", True, 1, True, 2), ("kinova", True, 1, True, 2)])
+def test_pose_fitness_equals_pinocchio_frame_placement_and_log3(name, turn, heads, wrist, reach):
+    """With and without the closed-form wrist and reach (lab.problem.pose_encoding): the compiled
+    fitness equals the controller's answers measured through Pinocchio."""
     arm = robots.load(name)
-    problem = PoseProblem(arm, PoseEncoding.for_arm(arm, "sphere", 0.3, turn, wrist=wrist), targets=40,
+    problem = PoseProblem(arm, PoseEncoding.for_arm(arm, "sphere", 0.3, turn, wrist=wrist, reach=reach), targets=40,
                           test_goals=5, goal_seed=3)
     enc = problem.encoding
     rng = np.random.default_rng(1)

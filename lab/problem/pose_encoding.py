@@ -47,6 +47,9 @@ WRIST_ARMS: frozenset[str] = frozenset({"ur5", "ur10", "panda", "xarm7", "kinova
 # the turn and the wrist twice: the second turn on the solved wrist's tool point (UR5 120 s: 72.8 mm
 # against 89.8 with one pass)
 WRIST_PASSES = 2
+# passes of the closed-form reach (the shoulder and the elbow solved for the goal's position after the
+# wrist, then the turn and the wrist again) on the arms held to a full pose
+REACH_PASSES: dict[str, int] = {}
 GOALS = ("position", "pose")
 
 
@@ -86,6 +89,7 @@ class PoseEncoding:
     weight: float
     wrist: bool = False
     wrist_passes: int = 1
+    reach: int = 0
     goal = "pose"
 
     def __post_init__(self):
@@ -108,20 +112,29 @@ class PoseEncoding:
         object.__setattr__(self, "wrist", bool(self.wrist))
         if self.wrist_passes not in (1, 2):
             raise ValueError(f"wrist_passes must be 1 or 2, got {self.wrist_passes!r}")
+        if isinstance(self.reach, bool) or not isinstance(self.reach, (int, np.integer)) or not 0 <= self.reach <= 8:
+            raise ValueError(f"reach must be a number of passes from 0 to 8, got {self.reach!r}")
+        if self.reach and not (self.wrist and self.position.turns):
+            raise ValueError("the closed-form reach (shoulder and elbow) needs the closed-form wrist and the turn of "
+                             "the first joint: wrist=True, turn=True")
+        object.__setattr__(self, "reach", int(self.reach))
         if self.wrist:
             object.__setattr__(self, "_wrist", self.wrist_arrays())
 
     @classmethod
     def for_arm(cls, arm: robots.Arm, features: str = "sphere", margin: float = 0.0, turn: bool = False,
-                weight: float | None = None, wrist: bool | None = None) -> "PoseEncoding":
+                weight: float | None = None, wrist: bool | None = None, reach: int | None = None) -> "PoseEncoding":
         """The pose encoding of a real arm; weight None: POSE_WEIGHT x the arm's reach; wrist None: the
-        closed-form wrist on the arms of WRIST_ARMS."""
+        closed-form wrist on the arms of WRIST_ARMS; reach None: REACH_PASSES's passes of the closed-form
+        shoulder and elbow (0 without the wrist or the turn)."""
         from robots import pose
 
         axis = pose.approach_axis(arm)  # ValueError for an arm without a pose
+        wrist = arm.name in WRIST_ARMS if wrist is None else wrist
+        reach = (REACH_PASSES.get(arm.name, 0) if wrist and turn else 0) if reach is None else reach
         return cls(Encoding.for_arm(arm, features, margin, turn), arm.chain.arrays, pose._tool_rotation(arm),
                    None if axis is None else np.array(axis), POSE_WEIGHT * arm.reach_radius if weight is None
-                   else weight, arm.name in WRIST_ARMS if wrist is None else wrist, WRIST_PASSES)
+                   else weight, wrist, WRIST_PASSES, reach)
 
     def wrist_arrays(self) -> np.ndarray:
         """The closed-form wrist's constants as pose_kernels' wrist takes them (a flat array): with w
@@ -152,9 +165,31 @@ class PoseEncoding:
         xv /= np.linalg.norm(xv)
         lo, hi = self.position.q_lo[w:], self.position.q_hi[w:]
         wrap = np.asarray(self.position.wrap, bool)[w:]
+        S, E = self.reach_joints() if self.reach else (0, 0)
+        both = [S, E]
         return np.ascontiguousarray(np.concatenate([[w, np.arctan2(B, A), radius, (z @ a2) * (a2 @ a3)], a2, a3,
                                                     xv, C.ravel(), lo, hi, wrap.astype(float),
-                                                    [self.wrist_passes]]), dtype=np.float64)
+                                                    [self.wrist_passes, S, E, self.reach],
+                                                    self.position.q_lo[both], self.position.q_hi[both],
+                                                    np.asarray(self.position.wrap, bool)[both].astype(float)]),
+                                    dtype=np.float64)
+
+    def reach_joints(self) -> tuple[int, int]:
+        """(S, E) of the closed-form reach: the shoulder S, the second joint, and the elbow E, the first
+        joint after it and before the wrist whose axis is parallel to S's at the zero pose (its turn
+        changes the tool's distance from S's axis). ValueError when the arm has no such pair."""
+        rot, kind, identity = self.chain[0], np.asarray(self.chain[2]), np.asarray(self.chain[3])
+        w = len(rot) - 3
+        frame, axes = np.eye(3), []
+        for k in range(w):
+            frame = frame if identity[k] else frame @ rot[k]
+            axes.append(frame[:, 2])
+        if w >= 3 and kind[1] == 0 and abs(axes[1] @ axes[0]) < 0.99:
+            for e in range(2, w):
+                if kind[e] == 0 and abs(axes[e] @ axes[1]) > 0.99:
+                    return 1, e
+        raise ValueError("a closed-form reach needs a revolute shoulder (the second joint, across the first) and a "
+                         "revolute elbow parallel to it before the wrist")
 
     @property
     def turns(self) -> bool:
@@ -168,6 +203,8 @@ class PoseEncoding:
         joints = list(self.position.turned_joints)
         if self.wrist:
             joints += list(range(len(self.position.q_lo) - 3, len(self.position.q_lo)))
+        if self.reach:
+            joints += list(self.reach_joints())
         return np.asarray(sorted(set(joints)), dtype=np.int64)
 
     # ------------------------------------------------------------ what the position part decides
@@ -298,11 +335,13 @@ class PoseEncoding:
                 "chain": dict(zip(("rot", "pos", "kind", "identity", "ee_pos"),
                                   (np.asarray(x).tolist() for x in self.chain))),
                 "tool": self.tool.tolist(), "axis": None if self.axis is None else self.axis.tolist(),
-                "weight": self.weight, **({"wrist": True, "wrist_passes": self.wrist_passes} if self.wrist else {})}
+                "weight": self.weight, **({"wrist": True, "wrist_passes": self.wrist_passes} if self.wrist else {}),
+                **({"reach": self.reach} if self.reach else {})}
 
     @classmethod
     def from_dict(cls, d: dict) -> "PoseEncoding":
         if d.get("goal") != "pose":
             raise ValueError(f"not a pose encoding: its goal is {d.get('goal')!r}")
         return cls(Encoding.from_dict(d["position"]), d["chain"], np.asarray(d["tool"], dtype=np.float64),
-                   d.get("axis"), d["weight"], bool(d.get("wrist", False)), int(d.get("wrist_passes", 1)))
+                   d.get("axis"), d["weight"], bool(d.get("wrist", False)), int(d.get("wrist_passes", 1)),
+                   int(d.get("reach", 0)))

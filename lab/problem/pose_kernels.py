@@ -67,6 +67,9 @@ def _turned_frames(Q, GP, chain, turn, R, P):
 # the wrist's constants (pose_encoding.PoseEncoding.wrist_arrays), by index into the flat array
 _W, _PHI, _RAD, _CC = 0, 1, 2, 3
 _A2, _A3, _XV, _C, _LO, _HI, _WRAP, _PASSES = 4, 7, 10, 13, 22, 25, 28, 31
+# the reach's (the shoulder joint S and the elbow joint E solved in closed form): S, E, passes, then
+# S's and E's limits (lo, hi) and whether each wraps
+_S, _E, _REACH, _RLO, _RHI, _RWRAP = 32, 33, 34, 35, 37, 39
 
 
 @numba.njit(**_JIT)
@@ -220,6 +223,111 @@ def _wrist_rows(Q, GP, GR, chain, spec, R, P):
 
 
 @numba.njit(**_JIT)
+def _reach_rows(Q, GP, chain, wr, R, P, elbow):
+    """One joint of Q (nq, N) solved in closed form for each goal's position, the others held, and R, P
+    (the last joint's frame) turned rigidly with it. elbow: joint E, turned so that the tool point's
+    distance from s (the point of joint S's axis nearest joint 0's axis, which S's and joint 0's turns
+    keep) is the goal's: with u = p - c the tool point about E's axis (c, w), u = u_par + v,
+    |p(t) - s|^2 = |a|^2 + |v|^2 + A cos t + B sin t (a = c + u_par - s, A = 2 a.v, B = 2 a.(w x v)),
+    two solutions, the one nearer the joint's value kept (or the one nearer that distance once each is
+    taken into the joint's limits). Else joint S, turned so that the tool point's bearing about its axis
+    is the goal's."""
+    rot, pos, identity, ee_pos = chain[0], chain[1], chain[3], chain[4]
+    S, E = int(wr[_S]), int(wr[_E])
+    j, side = (E, 1) if elbow else (S, 0)
+    lo, hi, wrap = wr[_RLO + side], wr[_RHI + side], wr[_RWRAP + side] != 0.0
+    Rp, T1 = np.empty((3, 3)), np.empty((3, 3))
+    c0, w0, cs, ws, c, w = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    for g in range(Q.shape[1]):
+        for a in range(3):
+            for b in range(3):
+                Rp[a, b] = 1.0 if a == b else 0.0
+        px, py, pz = 0.0, 0.0, 0.0
+        for k in range(j + 1):  # joint k's axis: T1's z through (px, py, pz)
+            px += Rp[0, 0] * pos[k, 0] + Rp[0, 1] * pos[k, 1] + Rp[0, 2] * pos[k, 2]
+            py += Rp[1, 0] * pos[k, 0] + Rp[1, 1] * pos[k, 1] + Rp[1, 2] * pos[k, 2]
+            pz += Rp[2, 0] * pos[k, 0] + Rp[2, 1] * pos[k, 1] + Rp[2, 2] * pos[k, 2]
+            if identity[k]:
+                T1[:, :] = Rp
+            else:
+                _mm(Rp, rot[k], T1)
+            if k == 0 or k == S or k == j:
+                for a in range(3):
+                    pa, wa = (px, py, pz)[a], T1[a, 2]
+                    if k == 0:
+                        c0[a], w0[a] = pa, wa
+                    if k == S:
+                        cs[a], ws[a] = pa, wa
+                    if k == j:
+                        c[a], w[a] = pa, wa
+            _rz_into(T1, Q[k, g], Rp)
+        tx = P[0, g] + R[0, 0, g] * ee_pos[0] + R[0, 1, g] * ee_pos[1] + R[0, 2, g] * ee_pos[2]
+        ty = P[1, g] + R[1, 0, g] * ee_pos[0] + R[1, 1, g] * ee_pos[1] + R[1, 2, g] * ee_pos[2]
+        tz = P[2, g] + R[2, 0, g] * ee_pos[0] + R[2, 1, g] * ee_pos[1] + R[2, 2, g] * ee_pos[2]
+        ux, uy, uz = tx - c[0], ty - c[1], tz - c[2]
+        du = ux * w[0] + uy * w[1] + uz * w[2]
+        vx, vy, vz = ux - du * w[0], uy - du * w[1], uz - du * w[2]  # the tool point across the axis
+        qx, qy, qz = w[1] * vz - w[2] * vy, w[2] * vx - w[0] * vz, w[0] * vy - w[1] * vx  # w x v
+        q_now = Q[j, g]
+        if elbow:
+            # s: the point of S's axis nearest joint 0's axis (S's own origin when the two are parallel)
+            b = ws[0] * w0[0] + ws[1] * w0[1] + ws[2] * w0[2]
+            dx, dy, dz = cs[0] - c0[0], cs[1] - c0[1], cs[2] - c0[2]
+            den = 1.0 - b * b
+            ts = 0.0
+            if den > 1e-9:
+                ts = (b * (dx * w0[0] + dy * w0[1] + dz * w0[2]) - (dx * ws[0] + dy * ws[1] + dz * ws[2])) / den
+            sx, sy, sz = cs[0] + ts * ws[0], cs[1] + ts * ws[1], cs[2] + ts * ws[2]
+            ax, ay, az = c[0] + du * w[0] - sx, c[1] + du * w[1] - sy, c[2] + du * w[2] - sz
+            A = 2.0 * (ax * vx + ay * vy + az * vz)
+            B = 2.0 * (ax * qx + ay * qy + az * qz)
+            gx, gy, gz = GP[0, g] - sx, GP[1, g] - sy, GP[2, g] - sz
+            base = ax * ax + ay * ay + az * az + vx * vx + vy * vy + vz * vz
+            want = gx * gx + gy * gy + gz * gz
+            r = math.sqrt(A * A + B * B)
+            if r < 1e-12:
+                continue
+            mid = math.atan2(B, A)
+            half = math.acos(min(1.0, max(-1.0, (want - base) / r)))
+            best, fit_best, move_best = q_now, np.inf, np.inf
+            for sign in (1.0, -1.0):
+                t = mid + sign * half
+                t = (t + math.pi) % (2.0 * math.pi) - math.pi
+                cand = _into(q_now + t, lo, hi, wrap)
+                d = cand - q_now
+                fit = abs(base + A * math.cos(d) + B * math.sin(d) - want)
+                move = abs((d + math.pi) % (2.0 * math.pi) - math.pi)
+                if fit < fit_best - 1e-9 * want or (fit <= fit_best + 1e-9 * want and move < move_best):
+                    best, fit_best, move_best = cand, fit, move
+        else:
+            gx, gy, gz = GP[0, g] - c[0], GP[1, g] - c[1], GP[2, g] - c[2]
+            dg = gx * w[0] + gy * w[1] + gz * w[2]
+            gx, gy, gz = gx - dg * w[0], gy - dg * w[1], gz - dg * w[2]
+            cross = (vy * gz - vz * gy) * w[0] + (vz * gx - vx * gz) * w[1] + (vx * gy - vy * gx) * w[2]
+            best = _into(q_now + math.atan2(cross, vx * gx + vy * gy + vz * gz), lo, hi, wrap)
+        d = best - q_now
+        if d == 0.0:
+            continue
+        Q[j, g] = best
+        # R, P turned rigidly by d about (c, w) (Rodrigues: K = cos I + sin [w]x + (1 - cos) w w^T)
+        sn, cn = math.sin(d), math.cos(d)
+        v1 = 1.0 - cn
+        wx, wy, wz = w[0], w[1], w[2]
+        k00, k01, k02 = cn + v1 * wx * wx, v1 * wx * wy - sn * wz, v1 * wx * wz + sn * wy
+        k10, k11, k12 = v1 * wy * wx + sn * wz, cn + v1 * wy * wy, v1 * wy * wz - sn * wx
+        k20, k21, k22 = v1 * wz * wx - sn * wy, v1 * wz * wy + sn * wx, cn + v1 * wz * wz
+        for b in range(3):
+            r0, r1, r2 = R[0, b, g], R[1, b, g], R[2, b, g]
+            R[0, b, g] = k00 * r0 + k01 * r1 + k02 * r2
+            R[1, b, g] = k10 * r0 + k11 * r1 + k12 * r2
+            R[2, b, g] = k20 * r0 + k21 * r1 + k22 * r2
+        u0, u1, u2 = P[0, g] - c[0], P[1, g] - c[1], P[2, g] - c[2]
+        P[0, g] = c[0] + k00 * u0 + k01 * u1 + k02 * u2
+        P[1, g] = c[1] + k10 * u0 + k11 * u1 + k12 * u2
+        P[2, g] = c[2] + k20 * u0 + k21 * u1 + k22 * u2
+
+
+@numba.njit(**_JIT)
 def _pose_rows(R, P, GP, GR, chain, spec, D, A):
     """D (N,) <- squared position errors, A (N,) <- angles, of the frames R, P against the goals."""
     tool, axis_j, mode = spec[0], spec[1], spec[2]
@@ -311,6 +419,11 @@ def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
         return
     _wrist_rows(Q, GP, GR, chain, spec, R, P)
     if turn[0] != 0.0 and wr[_PASSES] > 1.0:
+        _turned_frames(Q, GP, chain, turn, R, P)
+        _wrist_rows(Q, GP, GR, chain, spec, R, P)
+    for _ in range(int(wr[_REACH])):
+        _reach_rows(Q, GP, chain, wr, R, P, True)
+        _reach_rows(Q, GP, chain, wr, R, P, False)
         _turned_frames(Q, GP, chain, turn, R, P)
         _wrist_rows(Q, GP, GR, chain, spec, R, P)
 
