@@ -1,7 +1,7 @@
 """Pose controllers: train them, measure them, and write the shipped ones.
 
     python benchmarks/bench_pose_train.py --robots ur5,panda --seconds 270 --write-pretrained
-    python benchmarks/bench_pose_train.py --robots ur5 --seconds 60 --set heads=2 --set turn=false
+    python benchmarks/bench_pose_train.py --robots ur5 --seconds 60 --set heads=2 --set reach=3
     python benchmarks/bench_pose_train.py --from-pretrained                       # measure the shipped files
 
 Each arm is trained by lab.evolve(arm, method, goal="pose", seconds=S, seed=0, ...) (the method's
@@ -29,7 +29,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import lab  # noqa: E402
 import robots  # noqa: E402
 from lab import methods  # noqa: E402
-from lab.problem import pose_encoding  # noqa: E402
 from robots import pose  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,14 +86,10 @@ def main(argv=None) -> int:
     p.add_argument("--n", type=int, default=2000, help="held-out pose goals")
     p.add_argument("--eval-seed", type=int, default=EVAL_SEED)
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a setting over the defaults")
-    p.add_argument("--reach", type=int, default=None,
-                   help="passes of the closed-form shoulder and elbow on these arms (default: REACH_PASSES's)")
     p.add_argument("--write-pretrained", action="store_true")
     p.add_argument("--from-pretrained", action="store_true", help="measure the shipped pose files, train nothing")
     args = p.parse_args(argv)
     overrides = {k: parse_value(v) for k, v in (s.split("=", 1) for s in args.set)}
-    if args.reach is not None:  # a per-arm default of the pose encoding, not a training setting
-        pose_encoding.REACH_PASSES.update({name: args.reach for name in args.robots.split(",")})
     print(f"# load {open('/proc/loadavg').read().split()[:3]}  LAB_THREADS={os.environ.get('LAB_THREADS')}  "
           f"eval seed {args.eval_seed}, {args.n} poses")
     print("| arm | method | settings | training | network alone: median (p90) position | angle | "
@@ -115,11 +110,10 @@ def main(argv=None) -> int:
         m = measure(controller, arm, args.n, args.eval_seed)
         if args.write_pretrained and not args.from_pretrained:
             write_pretrained(run, {**m, "goals": args.n, "seed": args.eval_seed}, args.method)
-        reach = getattr(controller.encoding, "reach", 0)
         settings = f"heads {config.heads}, turn {config.turn}, {config.features}, margin {config.margin:g}, " \
-                   f"hidden {config.hidden}" + (f", reach {reach}" if reach else "")
+                   f"hidden {config.hidden}" + (f", reach {config.reach}" if config.reach else "")
         settings += "".join(f", {k}={v}" for k, v in overrides.items()
-                            if k not in ("heads", "turn", "features", "margin", "hidden"))
+                            if k not in ("heads", "turn", "features", "margin", "hidden", "reach"))
         print(f"| {name} | {args.method} | {settings} | {train} | {m['median_mm']:.1f} mm ({m['p90_mm']:.1f}) | "
               f"{m['median_deg']:.2f} deg ({m['p90_deg']:.2f}) | {100 * m['refined']:.1f} % | "
               f"{m['refine_us']:.0f} us |", flush=True)

@@ -114,6 +114,26 @@ def test_bad_reach_settings_are_refused_by_name():
     for wrist, turn in ((False, True), (True, False)):
         with pytest.raises(ValueError, match="needs the closed-form wrist and the turn"):
             PoseEncoding.for_arm(arm, "sphere", turn=turn, wrist=wrist, reach=2)
-    for bad in (-1, 9, 1.5, True):
+    for bad in (-1, 17, 1.5, True):
         with pytest.raises(ValueError, match="reach must be a number of passes"):
             PoseEncoding(plain.position, plain.chain, plain.tool, None, plain.weight, True, 2, bad)
+
+
+def test_training_settings_carry_the_reach_by_method_and_arm():
+    """The evolutionary methods' pose runs get the arm's passes (REACH_PASSES), the gradient method
+    none (it would hold every joint of a 6-joint arm); position runs, the SO arms and runs without
+    the turn none; a reach where it cannot apply is refused by name."""
+    assert lab.TrainConfig(robot="panda", goal="pose").reach == 8
+    assert lab.TrainConfig(robot="panda", goal="pose").to_dict()["reach"] == 8
+    assert lab.TrainConfig(robot="ur5", goal="pose", method="gradient").reach == 0
+    assert lab.TrainConfig(robot="ur5", goal="pose", turn=False).reach == 0
+    assert lab.TrainConfig(robot="so100", goal="pose").reach == 0
+    assert "reach" not in lab.TrainConfig(robot="ur5").to_dict()
+    with pytest.raises(ValueError, match="reach .* is for pose goals"):
+        lab.TrainConfig(robot="ur5", reach=3)
+    with pytest.raises(ValueError, match="so100 has no such wrist"):
+        lab.TrainConfig(robot="so100", goal="pose", reach=2)
+    with pytest.raises(ValueError, match="ur5 runs with turn=False"):
+        lab.TrainConfig(robot="ur5", goal="pose", turn=False, reach=2)
+    run = lab.evolve("ur5", goal="pose", generations=2, population=6, targets=10, test_goals=5, reach=2)
+    assert run.controller.encoding.reach == 2 and run.config.reach == 2

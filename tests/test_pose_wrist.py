@@ -44,7 +44,7 @@ def test_the_gradient_method_holds_the_wrist_and_its_loss_is_the_fitness(name):
     """The wrist's joints are solved, not learnt: the gradient method holds them (as the turned joint),
     and its loss is the compiled fitness (which tests/test_pose_training.py holds to Pinocchio)."""
     arm = robots.load(name)
-    enc = PoseEncoding.for_arm(arm, "sphere", 0.3, True, wrist=True)
+    enc = PoseEncoding.for_arm(arm, "sphere", 0.3, True, wrist=True, reach=0)
     problem = PoseProblem(arm, enc, targets=30, test_goals=5, goal_seed=3)
     assert list(enc.turned_joints) == [0, arm.nq - 3, arm.nq - 2, arm.nq - 1]
     w = np.random.default_rng(1).normal(0.0, 0.4, mlp_size(enc.n_inputs, 6, enc.n_outputs))

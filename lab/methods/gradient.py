@@ -152,8 +152,10 @@ POSE_TURN = True  # pose goals: the first joint turned toward the position's bea
 def pose_defaults(arm, seconds: float | None) -> dict:
     """Pose goals (TrainConfig.goal "pose", a real arm), over defaults_for's: the real-arm network and
     inputs, the first joint turned when POSE_TURN (its gradient is then taken with that joint held:
-    lab.problem.pose_fitness.PoseProblem.mlp_gradient), chosen by short runs (docs/log.md)."""
-    return dict(real_arm_io(arm), margin=0.0, turn=POSE_TURN)
+    lab.problem.pose_fitness.PoseProblem.mlp_gradient), chosen by short runs (docs/log.md); no closed-
+    form reach (the elbow and shoulder it solves would be held too: on a 6-joint arm no joint is left
+    to learn)."""
+    return dict(real_arm_io(arm), margin=0.0, turn=POSE_TURN, reach=0)
 
 
 METHOD = register(Method(

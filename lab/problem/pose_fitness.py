@@ -165,8 +165,8 @@ def _log3(R: np.ndarray) -> np.ndarray:
 
 
 def pose_problem(arm: robots.Arm, features: str, margin: float, turn: bool, targets: int, test_goals: int,
-                 goal_seed: int, resample_seed: int | None = None) -> PoseProblem:
-    """A run's pose problem: its encoding (PoseEncoding.for_arm) and goals."""
-    enc = PoseEncoding.for_arm(arm, features, margin, turn)
+                 goal_seed: int, resample_seed: int | None = None, reach: int | None = None) -> PoseProblem:
+    """A run's pose problem: its encoding (PoseEncoding.for_arm; reach None: the arm's default) and goals."""
+    enc = PoseEncoding.for_arm(arm, features, margin, turn, reach=reach)
     return PoseProblem(arm, enc, targets=targets, test_goals=test_goals, goal_seed=goal_seed,
                        resample_seed=resample_seed)

@@ -30,7 +30,7 @@ from lab.methods import Options
 from lab.problem.checks import flag, real, shown, whole
 from lab.problem.controllers import MAX_HEADS
 from lab.problem.encoding import FEATURES
-from lab.problem.pose_encoding import check_goal, check_pose_robot
+from lab.problem.pose_encoding import check_goal, check_pose_robot, default_reach
 
 # upper bounds that keep a run within this machine's memory and time (a population of 10^9 would
 # hang in pycma's or neat's setup; hidden 256 is a CMA-ES search space of about 2,300 weights)
@@ -70,13 +70,15 @@ class TrainConfig:
     turn: bool | None = None  # the first joint (a tree: each lone limb's) turned toward the goal in closed form (None: the default)
     wiring: bool | None = None  # a tree's MLP wired per limb group (lab/problem/wiring.py; None: the method's default)
     goal: str = "position"  # "pose": the network answers tool frames (n, 4, 4) (lab/problem/pose_encoding.py; a real arm)
+    reach: int | None = None  # pose goals: passes of the closed-form elbow and shoulder (None: the method's and arm's default)
 
     def __init__(self, robot: str = "planar", method: str = methods.DEFAULT_METHOD, generations: int | None = None,
                  population: int | None = None, targets: int | None = None, seed: int = 0, test_goals: int = 1000,
                  goal_seed: int = 0, features: str | None = None, margin: float | None = None,
                  hidden: int | None = None, options: Options | dict | None = None, paper: bool = False,
                  resample: bool = False, heads: int | None = None, seconds: float | None = None,
-                 turn: bool | None = None, wiring: bool | None = None, goal: str = "position", **option_values):
+                 turn: bool | None = None, wiring: bool | None = None, goal: str = "position", reach: int | None = None,
+                 **option_values):
         if option_values:
             base = options.to_dict() if isinstance(options, Options) else dict(options or {})
             options = {**base, **option_values}
@@ -85,7 +87,7 @@ class TrainConfig:
                             ("test_goals", test_goals), ("goal_seed", goal_seed), ("features", features),
                             ("margin", margin), ("hidden", hidden), ("options", options), ("paper", paper),
                             ("resample", resample), ("heads", heads), ("seconds", seconds), ("turn", turn),
-                            ("wiring", wiring), ("goal", goal)):
+                            ("wiring", wiring), ("goal", goal), ("reach", reach)):
             object.__setattr__(self, name, value)
         self.__post_init__()
 
@@ -104,7 +106,16 @@ class TrainConfig:
             if getattr(self, name) is None:
                 object.__setattr__(self, name, defaults[name])
         object.__setattr__(self, "options", method.options_for(arm, self.options, self.seconds, goal=self.goal))
+        if self.reach is None:  # the method's (the gradient method: none), else the arm's where it turns
+            object.__setattr__(self, "reach", defaults.get("reach", default_reach(arm) if self.goal == "pose"
+                                                           and self.turn else 0))
         self._check(method)  # and the defaults filled in
+        if self.reach and self.goal != "pose":
+            raise ValueError(f"reach (the closed-form elbow and shoulder) is for pose goals (goal='pose'), got "
+                             f"reach={self.reach} with goal={self.goal!r}")
+        if self.reach and not (default_reach(arm) and self.turn):
+            raise ValueError(f"reach needs the closed-form wrist and the turn: {self.robot} "
+                             + ("has no such wrist" if not default_reach(arm) else "runs with turn=False"))
         if arm.is_tree and self.heads > 1 and not self.wiring:
             raise ValueError(f"{self.robot} is a tree of {arm.n_effectors} end effectors: its multi-head MLPs "
                              "(heads > 1) are wired per limb group (wiring=True), each group picking its own head")
@@ -148,6 +159,8 @@ class TrainConfig:
             flag(self, "turn")
         if self.wiring is not None:
             flag(self, "wiring")
+        if self.reach is not None:
+            whole(self, "reach", 0, 16)
         if self.seconds is not None:
             real(self, "seconds", 0, LIMITS["seconds"], "a positive finite number of seconds (optimizer time) up to "
                  f"{LIMITS['seconds']:,}, or None", closed_below=False)
@@ -214,4 +227,6 @@ class TrainConfig:
             del d["wiring"]
         if d["goal"] == "position":  # position goals: likewise, as before pose goals existed
             del d["goal"]
+        if not d["reach"]:  # no reach: likewise, as before it existed
+            del d["reach"]
         return {**d, **self.options.to_dict()}

@@ -110,7 +110,7 @@ def build_problem(config: TrainConfig) -> Problem:
         from lab.problem.pose_fitness import pose_problem
 
         return pose_problem(arm, config.features, config.margin, config.turn, config.targets, config.test_goals,
-                            config.goal_seed, config.seed if config.resample else None)
+                            config.goal_seed, config.seed if config.resample else None, reach=config.reach)
     enc = encoding_for(arm, config.features, config.margin, config.turn)
     return Problem(arm, enc, targets=config.targets, test_goals=config.test_goals, goal_seed=config.goal_seed,
                    resample_seed=config.seed if config.resample else None)
