@@ -42,26 +42,30 @@ def _turned_frames(Q, GP, chain, turn, R, P):
     before = Q[0].copy()
     E = np.empty(n)
     _turn_row(P, R, chain[4], Q, GP, turn, E, True)
-    cx, cy, cz, wx, wy, wz = turn[1], turn[2], turn[3], turn[4], turn[5], turn[6]
     for g in range(n):
         d = Q[0, g] - before[g]
-        if d == 0.0:
-            continue
-        s, c = math.sin(d), math.cos(d)
-        v = 1.0 - c
-        # Rodrigues: K = c I + s [w]x + (1 - c) w w^T
-        k00, k01, k02 = c + v * wx * wx, v * wx * wy - s * wz, v * wx * wz + s * wy
-        k10, k11, k12 = v * wy * wx + s * wz, c + v * wy * wy, v * wy * wz - s * wx
-        k20, k21, k22 = v * wz * wx - s * wy, v * wz * wy + s * wx, c + v * wz * wz
-        for b in range(3):
-            r0, r1, r2 = R[0, b, g], R[1, b, g], R[2, b, g]
-            R[0, b, g] = k00 * r0 + k01 * r1 + k02 * r2
-            R[1, b, g] = k10 * r0 + k11 * r1 + k12 * r2
-            R[2, b, g] = k20 * r0 + k21 * r1 + k22 * r2
-        u0, u1, u2 = P[0, g] - cx, P[1, g] - cy, P[2, g] - cz
-        P[0, g] = cx + k00 * u0 + k01 * u1 + k02 * u2
-        P[1, g] = cy + k10 * u0 + k11 * u1 + k12 * u2
-        P[2, g] = cz + k20 * u0 + k21 * u1 + k22 * u2
+        if d != 0.0:
+            _turn_column(R, P, g, turn[1], turn[2], turn[3], turn[4], turn[5], turn[6], d)
+
+
+@numba.njit(**_JIT)
+def _turn_column(R, P, g, cx, cy, cz, wx, wy, wz, d):
+    """Goal g's frame R[:, :, g], P[:, g] turned rigidly by d about the axis through (cx, cy, cz) along
+    the unit (wx, wy, wz) (Rodrigues: K = cos I + sin [w]x + (1 - cos) w w^T)."""
+    s, c = math.sin(d), math.cos(d)
+    v = 1.0 - c
+    k00, k01, k02 = c + v * wx * wx, v * wx * wy - s * wz, v * wx * wz + s * wy
+    k10, k11, k12 = v * wy * wx + s * wz, c + v * wy * wy, v * wy * wz - s * wx
+    k20, k21, k22 = v * wz * wx - s * wy, v * wz * wy + s * wx, c + v * wz * wz
+    for b in range(3):
+        r0, r1, r2 = R[0, b, g], R[1, b, g], R[2, b, g]
+        R[0, b, g] = k00 * r0 + k01 * r1 + k02 * r2
+        R[1, b, g] = k10 * r0 + k11 * r1 + k12 * r2
+        R[2, b, g] = k20 * r0 + k21 * r1 + k22 * r2
+    u0, u1, u2 = P[0, g] - cx, P[1, g] - cy, P[2, g] - cz
+    P[0, g] = cx + k00 * u0 + k01 * u1 + k02 * u2
+    P[1, g] = cy + k10 * u0 + k11 * u1 + k12 * u2
+    P[2, g] = cz + k20 * u0 + k21 * u1 + k22 * u2
 
 
 # the wrist's constants (pose_encoding.PoseEncoding.wrist_arrays), by index into the flat array
@@ -309,22 +313,7 @@ def _reach_rows(Q, GP, chain, wr, R, P, elbow):
         if d == 0.0:
             continue
         Q[j, g] = best
-        # R, P turned rigidly by d about (c, w) (Rodrigues: K = cos I + sin [w]x + (1 - cos) w w^T)
-        sn, cn = math.sin(d), math.cos(d)
-        v1 = 1.0 - cn
-        wx, wy, wz = w[0], w[1], w[2]
-        k00, k01, k02 = cn + v1 * wx * wx, v1 * wx * wy - sn * wz, v1 * wx * wz + sn * wy
-        k10, k11, k12 = v1 * wy * wx + sn * wz, cn + v1 * wy * wy, v1 * wy * wz - sn * wx
-        k20, k21, k22 = v1 * wz * wx - sn * wy, v1 * wz * wy + sn * wx, cn + v1 * wz * wz
-        for b in range(3):
-            r0, r1, r2 = R[0, b, g], R[1, b, g], R[2, b, g]
-            R[0, b, g] = k00 * r0 + k01 * r1 + k02 * r2
-            R[1, b, g] = k10 * r0 + k11 * r1 + k12 * r2
-            R[2, b, g] = k20 * r0 + k21 * r1 + k22 * r2
-        u0, u1, u2 = P[0, g] - c[0], P[1, g] - c[1], P[2, g] - c[2]
-        P[0, g] = c[0] + k00 * u0 + k01 * u1 + k02 * u2
-        P[1, g] = c[1] + k10 * u0 + k11 * u1 + k12 * u2
-        P[2, g] = c[2] + k20 * u0 + k21 * u1 + k22 * u2
+        _turn_column(R, P, g, c[0], c[1], c[2], w[0], w[1], w[2], d)  # the frame turns with the joint
 
 
 @numba.njit(**_JIT)
