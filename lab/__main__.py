@@ -67,6 +67,9 @@ def _train_parser(sub) -> None:
                         "(default: the method's for the arm, else 1)")
     p.add_argument("--goal", default="position", choices=("position", "pose"),
                    help="what the network answers: positions, or tool frames (pose: a real arm; docs/pose.md)")
+    p.add_argument("--reach", type=int, default=None, metavar="PASSES",
+                   help="pose goals: passes of the closed-form elbow and shoulder (default: the method's and arm's; "
+                        "0: the network places the arm itself; docs/pose.md)")
     p.add_argument("--features", default=None, choices=FEATURES, help="network inputs")
     p.add_argument("--margin", type=float, default=None, help="output range widening before clipping to the limits")
     p.add_argument("--test-goals", type=int, default=None, help="held-out goals (default 1000)")
@@ -134,7 +137,7 @@ def train(args) -> int:
             paper=args.paper, robot=args.robot, method=args.method, generations=args.generations,
             population=args.population, targets=args.targets, seed=args.seed, hidden=args.hidden,
             heads=args.heads, features=args.features, margin=args.margin, test_goals=args.test_goals, resample=args.resample,
-            seconds=args.seconds, goal=args.goal, **given_options(args))
+            seconds=args.seconds, goal=args.goal, reach=args.reach, **given_options(args))
     except (ValueError, TypeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

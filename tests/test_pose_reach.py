@@ -137,3 +137,13 @@ def test_training_settings_carry_the_reach_by_method_and_arm():
         lab.TrainConfig(robot="ur5", goal="pose", turn=False, reach=2)
     run = lab.evolve("ur5", goal="pose", generations=2, population=6, targets=10, test_goals=5, reach=2)
     assert run.controller.encoding.reach == 2 and run.config.reach == 2
+
+
+def test_the_command_line_takes_the_reach_and_refuses_it_by_name(capsys):
+    from lab.__main__ import main as lab_main
+
+    assert lab_main(["train", "--robot", "ur5", "--reach", "2", "--generations", "2", "--no-recording",
+                     "--quiet"]) == 2
+    assert "reach (the closed-form elbow and shoulder) is for pose goals" in capsys.readouterr().err
+    assert lab_main(["train", "--robot", "ur5", "--goal", "pose", "--reach", "0", "--generations", "1",
+                     "--population", "6", "--targets", "10", "--test-goals", "5", "--no-recording", "--quiet"]) == 0
