@@ -1,7 +1,8 @@
 """The closed-form reach of a pose network (PoseEncoding(reach=k), pose_kernels' reach): after the
 wrist, the elbow turned so that the tool's distance from the shoulder is the goal's, the shoulder
 turned so that the tool's bearing about its axis is the goal's, then the turn and the wrist again,
-k times. Checked through Pinocchio: each step does what it says and leaves the frame it reports; the
+k times (on the SO arms, held to an approach axis, the wrist's flex first turns that axis toward the
+goal's, and there is no wrist). Checked through Pinocchio: each step does what it says and leaves the frame it reports; the
 passes bring the network's answer nearer; a controller round-trips; bad settings are refused by name.
 (The fitness with the reach equals Pinocchio's figures: tests/test_pose_training.py.)"""
 
@@ -22,6 +23,7 @@ from lab.problem.pose_encoding import PoseEncoding
 from robots import pose
 
 FULL_POSE = ["ur5", "ur10", "panda", "xarm7", "kinova", "z1"]
+REACHING = FULL_POSE + ["so100", "so101"]
 
 
 def _axis(arm, q, j):
@@ -40,38 +42,47 @@ def _shoulder_point(arm, q, S):
     return cs + ws * (b * (d @ w0) - d @ ws) / (1.0 - b * b)
 
 
-def _step(enc, q, goals, elbow):
-    """One reach step of the kernel on joint vectors q (n, nq): (q after, tool points the frame says)."""
+def _step(enc, q, T, step):
+    """One reach step of the kernel on joint vectors q (n, nq) toward poses T: (q after, the tool frames
+    the kernel reports)."""
     Q = np.ascontiguousarray(q.T.copy())
     R, P = np.empty((3, 3, len(q))), np.empty((3, len(q)))
     _chain_frames(Q, enc.chain, R, P)
-    pose_kernels._reach_rows(Q, np.ascontiguousarray(goals.T), enc.chain, enc.spec()[4], R, P, elbow)
-    return Q.T.copy(), P.T + np.einsum("nab,b->na", R.transpose(2, 0, 1), enc.chain[4])
+    GP, GR = enc.goal_arrays(T)
+    pose_kernels._reach_rows(Q, GP, GR, enc.chain, enc.spec(), R, P, step)
+    return Q.T.copy(), P.T + np.einsum("nab,b->na", R.transpose(2, 0, 1), enc.chain[4]), R.transpose(2, 0, 1)
 
 
-@pytest.mark.parametrize("name", FULL_POSE)
-def test_the_elbow_sets_the_goal_distance_and_the_shoulder_its_bearing(name):
-    """A goal the elbow alone can reach (another elbow angle within the limits, the rest kept): after
-    the elbow's step the tool's distance from the shoulder point is the goal's. A goal the shoulder
-    alone can reach: after its step the tool is on it. Both through Pinocchio, and the frame the
-    kernel reports is the one Pinocchio computes for the new joints."""
+@pytest.mark.parametrize("name", REACHING)
+def test_each_closed_form_joint_does_what_it_says(name):
+    """Through Pinocchio, for goals that one joint alone can reach (another value of it within the
+    limits, the rest kept): after the elbow's step the tool's distance from the shoulder point is the
+    goal's; after the shoulder's the tool is on the goal; after the flex's (the SO arms) the approach
+    axis is the goal's. Only that joint moves, and the frame the kernel reports is Pinocchio's."""
     arm = robots.load(name)
-    enc = PoseEncoding.for_arm(arm, "sphere", 0.0, True, wrist=True, reach=1)
-    S, E = enc.reach_joints()
+    enc = PoseEncoding.for_arm(arm, "sphere", 0.0, True, reach=1)
+    S, E, F = enc.reach_joints()
+    assert (F >= 0) == (name.startswith("so"))
     q = arm.sample_q(40, seed=1)
-    for j, elbow in ((E, True), (S, False)):
+    for j, step in ((E, pose_kernels._ELBOW), (S, pose_kernels._SHOULDER), (F, pose_kernels._FLEX)):
+        if j < 0:
+            continue
         other = q.copy()
         other[:, j] = arm.sample_q(40, seed=2)[:, j]
-        goals = pose.fk_pose(arm, other)[:, :3, 3]
-        after, told = _step(enc, q, goals, elbow)
-        tool = pose.fk_pose(arm, after)[:, :3, 3]
-        assert np.abs(told - tool).max() < 1e-9
+        T = pose.fk_pose(arm, other)
+        after, told, R = _step(enc, q, T, step)
+        M = pose.fk_pose(arm, after)
+        assert np.abs(told - M[:, :3, 3]).max() < 1e-9
+        assert np.abs(R @ enc.tool - M[:, :3, :3]).max() < 1e-9
         assert np.array_equal(np.delete(after, j, axis=1), np.delete(q, j, axis=1))
-        if elbow:
+        if step == pose_kernels._ELBOW:
             s = np.array([_shoulder_point(arm, qi, S) for qi in q])
+            tool, goals = M[:, :3, 3], T[:, :3, 3]
             assert np.abs(np.linalg.norm(tool - s, axis=1) - np.linalg.norm(goals - s, axis=1)).max() < 1e-9
+        elif step == pose_kernels._SHOULDER:
+            assert np.abs(M[:, :3, 3] - T[:, :3, 3]).max() < 1e-9
         else:
-            assert np.abs(tool - goals).max() < 1e-9
+            assert np.abs(M[:, :3, :3] @ enc.axis - T[:, :3, :3] @ enc.axis).max() < 1e-9
 
 
 @pytest.mark.parametrize("name", ["ur5", "z1"])
@@ -94,7 +105,7 @@ def test_more_passes_bring_an_answer_near_its_pose(name):
 def test_a_reach_controller_round_trips_and_the_gradient_method_holds_its_joints():
     arm = robots.load("panda")
     enc = PoseEncoding.for_arm(arm, "sphere", 0.0, True, wrist=True, reach=2)
-    assert enc.reach_joints() == (1, 3) and list(enc.turned_joints) == [0, 1, 3, 4, 5, 6]
+    assert enc.reach_joints() == (1, 3, -1) and list(enc.turned_joints) == [0, 1, 3, 4, 5, 6]
     w = np.random.default_rng(4).normal(0.0, 0.3, mlp_size(enc.n_inputs, 8, enc.n_outputs))
     c = MLPController(enc, 8, w)
     back = lab.controller_from_dict(json.loads(json.dumps(c.to_dict())))
@@ -112,7 +123,7 @@ def test_bad_reach_settings_are_refused_by_name():
     plain = PoseEncoding.for_arm(arm, "sphere", turn=True, wrist=False)
     assert plain.reach == 0 and "reach" not in plain.to_dict()
     for wrist, turn in ((False, True), (True, False)):
-        with pytest.raises(ValueError, match="needs the closed-form wrist and the turn"):
+        with pytest.raises(ValueError, match="needs the turn of the first joint and, on an arm held to a full pose"):
             PoseEncoding.for_arm(arm, "sphere", turn=turn, wrist=wrist, reach=2)
     for bad in (-1, 17, 1.5, True):
         with pytest.raises(ValueError, match="reach must be a number of passes"):
@@ -121,22 +132,25 @@ def test_bad_reach_settings_are_refused_by_name():
 
 def test_training_settings_carry_the_reach_by_method_and_arm():
     """The evolutionary methods' pose runs get the arm's passes (REACH_PASSES), the gradient method
-    none (it would hold every joint of a 6-joint arm); position runs, the SO arms and runs without
-    the turn none; a reach where it cannot apply is refused by name."""
+    none (it would hold every joint of a 6-joint arm); position runs and runs without the turn none;
+    a reach where it cannot apply is refused by name."""
     assert lab.TrainConfig(robot="panda", goal="pose").reach == 8
     assert lab.TrainConfig(robot="panda", goal="pose").to_dict()["reach"] == 8
     assert lab.TrainConfig(robot="ur5", goal="pose", method="gradient").reach == 0
     assert lab.TrainConfig(robot="ur5", goal="pose", turn=False).reach == 0
-    assert lab.TrainConfig(robot="so100", goal="pose").reach == 0
+    assert lab.TrainConfig(robot="so100", goal="pose").reach == 8
     assert "reach" not in lab.TrainConfig(robot="ur5").to_dict()
     with pytest.raises(ValueError, match="reach .* is for pose goals"):
         lab.TrainConfig(robot="ur5", reach=3)
-    with pytest.raises(ValueError, match="so100 has no such wrist"):
-        lab.TrainConfig(robot="so100", goal="pose", reach=2)
+    assert lab.TrainConfig(robot="so100", goal="pose", reach=2).reach == 2  # the SO arms: no wrist, a flex
     with pytest.raises(ValueError, match="ur5 runs with turn=False"):
         lab.TrainConfig(robot="ur5", goal="pose", turn=False, reach=2)
     run = lab.evolve("ur5", goal="pose", generations=2, population=6, targets=10, test_goals=5, reach=2)
     assert run.controller.encoding.reach == 2 and run.config.reach == 2
+    again = lab.evolve("ur5", goal="pose", generations=2, population=6, targets=10, test_goals=5, reach=2)
+    assert np.allclose(run.history, again.history, rtol=1e-9, atol=0)  # the same seed, the same run
+    T = pose.sample_poses(robots.load("ur5"), 20, seed=1)
+    assert np.allclose(run.controller(T), again.controller(T), rtol=0, atol=1e-9)
 
 
 def test_the_command_line_takes_the_reach_and_refuses_it_by_name(capsys):

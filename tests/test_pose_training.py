@@ -38,7 +38,7 @@ def _direct_fitness(arm, enc, q, goals) -> float:
 @pytest.mark.parametrize("name, turn, heads, wrist, reach", [
     ("ur5", False, 1, False, 0), ("ur5", True, 2, False, 0), ("panda", True, 1, False, 0), ("so100", True, 3, False, 0),
     ("kinova", False, 1, False, 0), ("ur5", True, 2, True, 0), ("panda", True, 1, True, 0), ("kinova", False, 1, True, 0),
-    ("ur5", True, 2, True, 3), ("panda", True, 1, True, 2), ("kinova", True, 1, True, 2)])
+    ("ur5", True, 2, True, 3), ("panda", True, 1, True, 2), ("kinova", True, 1, True, 2), ("so101", True, 2, False, 3)])
 def test_pose_fitness_equals_pinocchio_frame_placement_and_log3(name, turn, heads, wrist, reach):
     """With and without the closed-form wrist and reach (lab.problem.pose_encoding): the compiled
     fitness equals the controller's answers measured through Pinocchio."""
@@ -92,7 +92,8 @@ def test_goal_is_left_out_of_to_dict_for_positions_and_kept_for_poses():
 
 
 def test_a_short_cmaes_pose_run_improves_and_the_same_seed_gives_the_same_run():
-    kw = dict(goal="pose", generations=40, population=10, targets=30, test_goals=20, hidden=8, seed=4)
+    # without the closed-form reach, whose first generation is already near its best (docs/pose.md)
+    kw = dict(goal="pose", generations=40, population=10, targets=30, test_goals=20, hidden=8, seed=4, reach=0)
     a = lab.evolve("so100", **kw)
     b = lab.evolve("so100", **kw)
     assert a.history[-1] < 0.8 * a.history[0]

@@ -23,6 +23,12 @@ network's answers for those three joints are not used; after the turn they are s
 form for the goal's orientation on the frame the other joints leave (pose_kernels' wrist, two
 solutions, the nearer kept), so the network places the arm and the wrist turns the tool.
 
+The reach (`reach=k` passes, with the turn; on a full-pose arm with the wrist): after the wrist, the
+elbow is solved for the goal's distance from the shoulder, the shoulder for the goal's bearing about
+its axis, then the turn and the wrist again; on an arm held to an approach axis (the SO arms, no
+wrist) the wrist's flex first turns that axis toward the goal's. The network's outputs for those
+joints only pick the branch (pose_kernels' reach).
+
 `PoseEncoding` carries everything the compiled error needs: the arm's kinematic chain, the tool
 frame's rotation in the chain's last joint frame (robots.pose's tool rotation) and the approach
 axis. `to_dict()` stores it all, so a pose controller reloads without the arm.
@@ -48,16 +54,25 @@ WRIST_ARMS: frozenset[str] = frozenset({"ur5", "ur10", "panda", "xarm7", "kinova
 # against 89.8 with one pass)
 WRIST_PASSES = 2
 # passes of the closed-form reach (the elbow and the shoulder solved for the goal's position after the
-# wrist, then the turn and the wrist again) on the arms held to a full pose (240 s of CMA-ES, 2,000
-# held-out poses, passes 3 / 5 / 8: UR5 1.2 / 0.1 / 0.0 mm median, Panda 7.6 / 2.1 / 0.3 mm; docs/pose.md)
-REACH_PASSES: dict[str, int] = {name: 8 for name in WRIST_ARMS}
+# wrist, then the turn and the wrist again; the SO arms' flex first) on every real arm (240 s of CMA-ES,
+# 2,000 held-out poses, passes 3 / 5 / 8: UR5 1.2 / 0.1 / 0.0 mm median, Panda 7.6 / 2.1 / 0.3 mm; SO-100
+# with 8: 12.2 mm and 16 degrees -> 0.0 mm and 0.01 degrees; docs/pose.md)
+REACH_PASSES: dict[str, int] = {name: 8 for name in (*WRIST_ARMS, "so100", "so101")}
 GOALS = ("position", "pose")
+
+
+def can_reach(arm: robots.Arm) -> bool:
+    """Whether a pose network of this arm may have the closed-form reach: an arm held to a full pose with
+    the closed-form wrist (WRIST_ARMS), or one held to an approach axis (the SO arms)."""
+    from robots import pose
+
+    return arm.name in WRIST_ARMS or pose.approach_axis(arm) is not None
 
 
 def default_reach(arm: robots.Arm) -> int:
     """The passes of the closed-form reach a pose network of this arm has by default (REACH_PASSES; 0
-    on an arm without the closed-form wrist)."""
-    return REACH_PASSES.get(arm.name, 0) if arm.name in WRIST_ARMS else 0
+    where none was measured)."""
+    return REACH_PASSES.get(arm.name, 0)
 
 
 def check_goal(goal) -> str:
@@ -121,12 +136,12 @@ class PoseEncoding:
             raise ValueError(f"wrist_passes must be 1 or 2, got {self.wrist_passes!r}")
         if isinstance(self.reach, bool) or not isinstance(self.reach, (int, np.integer)) or not 0 <= self.reach <= 16:
             raise ValueError(f"reach must be a number of passes from 0 to 16, got {self.reach!r}")
-        if self.reach and not (self.wrist and self.position.turns):
-            raise ValueError("the closed-form reach (shoulder and elbow) needs the closed-form wrist and the turn of "
-                             "the first joint: wrist=True, turn=True")
+        if self.reach and not ((self.wrist or self.axis is not None) and self.position.turns):
+            raise ValueError("the closed-form reach (shoulder and elbow) needs the turn of the first joint and, on an "
+                             "arm held to a full pose, the closed-form wrist: turn=True, wrist=True")
         object.__setattr__(self, "reach", int(self.reach))
-        if self.wrist:
-            object.__setattr__(self, "_wrist", self.wrist_arrays())
+        if self.wrist or self.reach:
+            object.__setattr__(self, "_closed", self.closed_form_arrays())
 
     @classmethod
     def for_arm(cls, arm: robots.Arm, features: str = "sphere", margin: float = 0.0, turn: bool = False,
@@ -138,7 +153,7 @@ class PoseEncoding:
 
         axis = pose.approach_axis(arm)  # ValueError for an arm without a pose
         wrist = arm.name in WRIST_ARMS if wrist is None else wrist
-        reach = (default_reach(arm) if wrist and turn else 0) if reach is None else reach
+        reach = (default_reach(arm) if (wrist or axis is not None) and turn else 0) if reach is None else reach
         return cls(Encoding.for_arm(arm, features, margin, turn), arm.chain.arrays, pose._tool_rotation(arm),
                    None if axis is None else np.array(axis), POSE_WEIGHT * arm.reach_radius if weight is None
                    else weight, wrist, WRIST_PASSES, reach)
@@ -172,36 +187,47 @@ class PoseEncoding:
         xv /= np.linalg.norm(xv)
         lo, hi = self.position.q_lo[w:], self.position.q_hi[w:]
         wrap = np.asarray(self.position.wrap, bool)[w:]
-        S, E = self.reach_joints() if self.reach else (0, 0)
-        both = [S, E]
-        return np.ascontiguousarray(np.concatenate([[w, np.arctan2(B, A), radius, (z @ a2) * (a2 @ a3)], a2, a3,
-                                                    xv, C.ravel(), lo, hi, wrap.astype(float),
-                                                    [self.wrist_passes, S, E, self.reach],
-                                                    self.position.q_lo[both], self.position.q_hi[both],
-                                                    np.asarray(self.position.wrap, bool)[both].astype(float)]),
+        return np.concatenate([[w, np.arctan2(B, A), radius, (z @ a2) * (a2 @ a3)], a2, a3, xv, C.ravel(), lo, hi,
+                               wrap.astype(float), [self.wrist_passes]])
+
+    def closed_form_arrays(self) -> np.ndarray:
+        """The closed-form joints' constants as pose_kernels take them (spec[4], a flat array): the wrist's
+        (wrist_arrays; without the wrist, its first entry -1 and zeros), then the reach's: S, E, F (-1:
+        none), the passes, and the three joints' limits and whether each wraps."""
+        head = self.wrist_arrays() if self.wrist else np.concatenate([[-1.0], np.zeros(31)])
+        S, E, F = self.reach_joints() if self.reach else (0, 0, -1)
+        three = [S, E, max(F, 0)]
+        return np.ascontiguousarray(np.concatenate([head, [S, E, F, self.reach], self.position.q_lo[three],
+                                                    self.position.q_hi[three],
+                                                    np.asarray(self.position.wrap, bool)[three].astype(float)]),
                                     dtype=np.float64)
 
-    def reach_joints(self) -> tuple[int, int]:
-        """(S, E) of the closed-form reach: the shoulder S, the second joint, and the elbow E, the first
-        joint after it and before the wrist whose axis is parallel to S's at the zero pose (its turn
-        changes the tool's distance from S's axis). ValueError when the arm has no such pair."""
+    def reach_joints(self) -> tuple[int, int, int]:
+        """(S, E, F) of the closed-form reach: the shoulder S, the second joint; the elbow E, the first
+        joint after it whose axis is parallel to S's at the zero pose (its turn changes the tool's
+        distance from S's axis), before the wrist (a full pose: the last three joints) or the roll (an
+        approach axis: the last joint); on an approach-axis arm the flex F, the next such joint (it
+        turns the approach axis), else -1. ValueError when the arm has none."""
         rot, kind, identity = self.chain[0], np.asarray(self.chain[2]), np.asarray(self.chain[3])
-        w = len(rot) - 3
+        end = len(rot) - (3 if self.axis is None else 1)
         frame, axes = np.eye(3), []
-        for k in range(w):
+        for k in range(end):
             frame = frame if identity[k] else frame @ rot[k]
             axes.append(frame[:, 2])
-        if w >= 3 and kind[1] == 0 and abs(axes[1] @ axes[0]) < 0.99:
-            for e in range(2, w):
-                if kind[e] == 0 and abs(axes[e] @ axes[1]) > 0.99:
-                    return 1, e
+        parallel = [e for e in range(2, end) if kind[e] == 0 and abs(axes[e] @ axes[1]) > 0.99]
+        if end >= 3 and kind[1] == 0 and abs(axes[1] @ axes[0]) < 0.99 and parallel:
+            if self.axis is None:
+                return 1, parallel[0], -1
+            if len(parallel) > 1:
+                return 1, parallel[0], parallel[1]
         raise ValueError("a closed-form reach needs a revolute shoulder (the second joint, across the first) and a "
-                         "revolute elbow parallel to it before the wrist")
+                         "revolute elbow parallel to it before the wrist"
+                         + ("" if self.axis is None else ", then a wrist flex parallel to them before the roll"))
 
     @property
     def turns(self) -> bool:
         """Whether joints() needs the poses: a turned first joint, or the closed-form wrist."""
-        return bool(self.position.turns or self.wrist)
+        return bool(self.position.turns or self.wrist or self.reach)
 
     @property
     def turned_joints(self) -> np.ndarray:
@@ -211,7 +237,7 @@ class PoseEncoding:
         if self.wrist:
             joints += list(range(len(self.position.q_lo) - 3, len(self.position.q_lo)))
         if self.reach:
-            joints += list(self.reach_joints())
+            joints += [j for j in self.reach_joints() if j >= 0]
         return np.asarray(sorted(set(joints)), dtype=np.int64)
 
     # ------------------------------------------------------------ what the position part decides
@@ -276,7 +302,7 @@ class PoseEncoding:
             raise ValueError("this encoding turns the first joint toward each goal's bearing or solves the wrist: "
                              "joints() needs the poses")
         poses = np.asarray(poses, dtype=np.float64)
-        if not self.wrist:
+        if not (self.wrist or self.reach):
             return self.position.joints(a, poses[:, :3, 3])
         return self.finished(self.position.mapped(a), poses)
 
@@ -306,7 +332,7 @@ class PoseEncoding:
         mode (0 full pose, 1 approach axis), L^2)."""
         axis_j = np.zeros(3) if self.axis is None else np.ascontiguousarray(self.tool @ self.axis)
         return (self.tool, axis_j, 0 if self.axis is None else 1, self.weight ** 2,
-                self.__dict__.get("_wrist", np.zeros(0)))
+                self.__dict__.get("_closed", np.zeros(0)))
 
     def goal_arrays(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(positions (3, n), orientations (9, n) row-major R or (3, n) approach directions) as the

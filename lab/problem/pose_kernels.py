@@ -13,10 +13,13 @@ R (tool axis). spec = (tool (3, 3), axis in the joint frame (3,), mode (0 full, 
 
 The turn (qmap[4], kernels.NO_TURN's layout) turns the first joint toward the position's bearing;
 the frame turns rigidly with it about the joint's axis (Rodrigues), so no second pass of the chain.
-The wrist (spec[4], lab.problem.pose_encoding's wrist_arrays; empty: none): after the turn, the last
-three joints are solved in closed form for the goal's rotation on the frame the others leave (two
+The wrist (spec[4], lab.problem.pose_encoding's closed_form_arrays; empty: none): after the turn, the
+last three joints are solved in closed form for the goal's rotation on the frame the others leave (two
 solutions, as an Euler decomposition about the three joints' own axes; each angle taken by whole
-turns into its limits, else clipped), the one nearer the goal kept. A controller whose output or
+turns into its limits, else clipped), the one nearer the goal kept. The reach (the same array): then,
+pass after pass, the wrist's flex on an approach-axis arm (the axis turned toward the goal's), the
+elbow (the goal's distance from the shoulder), the shoulder (the goal's bearing about its axis), the
+turn and the wrist again (_reach_rows). A controller whose output or
 error is NaN or infinite gets +inf.
 """
 
@@ -71,9 +74,11 @@ def _turn_column(R, P, g, cx, cy, cz, wx, wy, wz, d):
 # the wrist's constants (pose_encoding.PoseEncoding.wrist_arrays), by index into the flat array
 _W, _PHI, _RAD, _CC = 0, 1, 2, 3
 _A2, _A3, _XV, _C, _LO, _HI, _WRAP, _PASSES = 4, 7, 10, 13, 22, 25, 28, 31
-# the reach's (the shoulder joint S and the elbow joint E solved in closed form): S, E, passes, then
-# S's and E's limits (lo, hi) and whether each wraps
-_S, _E, _REACH, _RLO, _RHI, _RWRAP = 32, 33, 34, 35, 37, 39
+# the reach's (the shoulder S, the elbow E and, on an approach-axis arm, the wrist's flex F solved in
+# closed form): S, E, F (-1: none), passes, then S's, E's and F's limits (lo, hi) and whether each
+# wraps; _W < 0: no wrist (an approach-axis arm's reach alone)
+_S, _E, _F, _REACH, _RLO, _RHI, _RWRAP = 32, 33, 34, 35, 36, 39, 42
+_SHOULDER, _ELBOW, _FLEX = 0, 1, 2
 
 
 @numba.njit(**_JIT)
@@ -227,9 +232,10 @@ def _wrist_rows(Q, GP, GR, chain, spec, R, P):
 
 
 @numba.njit(**_JIT)
-def _reach_rows(Q, GP, chain, wr, R, P, elbow):
-    """One joint of Q (nq, N) solved in closed form for each goal's position, the others held, and R, P
-    (the last joint's frame) turned rigidly with it. elbow: joint E, turned so that the tool point's
+def _reach_rows(Q, GP, GR, chain, spec, R, P, step):
+    """One joint of Q (nq, N) solved in closed form for each goal, the others held, and R, P (the last
+    joint's frame) turned rigidly with it. step _FLEX: joint F, turned so that the tool's approach axis
+    (R axis_j) has the goal's bearing about F's axis (GR: the goals' approach directions). _ELBOW: joint E, turned so that the tool point's
     distance from s (the point of joint S's axis nearest joint 0's axis, which S's and joint 0's turns
     keep) is the goal's: with u = p - c the tool point about E's axis (c, w), u = u_par + v,
     |p(t) - s|^2 = |a|^2 + |v|^2 + A cos t + B sin t (a = c + u_par - s, A = 2 a.v, B = 2 a.(w x v)),
@@ -237,9 +243,10 @@ def _reach_rows(Q, GP, chain, wr, R, P, elbow):
     taken into the joint's limits). Else joint S, turned so that the tool point's bearing about its axis
     is the goal's."""
     rot, pos, identity, ee_pos = chain[0], chain[1], chain[3], chain[4]
-    S, E = int(wr[_S]), int(wr[_E])
-    j, side = (E, 1) if elbow else (S, 0)
-    lo, hi, wrap = wr[_RLO + side], wr[_RHI + side], wr[_RWRAP + side] != 0.0
+    wr, axis_j = spec[4], spec[1]
+    S = int(wr[_S])
+    j = int(wr[_S + step])
+    lo, hi, wrap = wr[_RLO + step], wr[_RHI + step], wr[_RWRAP + step] != 0.0
     Rp, T1 = np.empty((3, 3)), np.empty((3, 3))
     c0, w0, cs, ws, c, w = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for g in range(Q.shape[1]):
@@ -273,7 +280,18 @@ def _reach_rows(Q, GP, chain, wr, R, P, elbow):
         vx, vy, vz = ux - du * w[0], uy - du * w[1], uz - du * w[2]  # the tool point across the axis
         qx, qy, qz = w[1] * vz - w[2] * vy, w[2] * vx - w[0] * vz, w[0] * vy - w[1] * vx  # w x v
         q_now = Q[j, g]
-        if elbow:
+        if step == _FLEX:  # the approach axis a = R axis_j turned toward the goal's about F's axis
+            ax = R[0, 0, g] * axis_j[0] + R[0, 1, g] * axis_j[1] + R[0, 2, g] * axis_j[2]
+            ay = R[1, 0, g] * axis_j[0] + R[1, 1, g] * axis_j[1] + R[1, 2, g] * axis_j[2]
+            az = R[2, 0, g] * axis_j[0] + R[2, 1, g] * axis_j[1] + R[2, 2, g] * axis_j[2]
+            da = ax * w[0] + ay * w[1] + az * w[2]
+            vx, vy, vz = ax - da * w[0], ay - da * w[1], az - da * w[2]
+            gx, gy, gz = GR[0, g], GR[1, g], GR[2, g]
+            dg = gx * w[0] + gy * w[1] + gz * w[2]
+            gx, gy, gz = gx - dg * w[0], gy - dg * w[1], gz - dg * w[2]
+            cross = (vy * gz - vz * gy) * w[0] + (vz * gx - vx * gz) * w[1] + (vx * gy - vy * gx) * w[2]
+            best = _into(q_now + math.atan2(cross, vx * gx + vy * gy + vz * gz), lo, hi, wrap)
+        elif step == _ELBOW:
             # s: the point of S's axis nearest joint 0's axis (S's own origin when the two are parallel)
             b = ws[0] * w0[0] + ws[1] * w0[1] + ws[2] * w0[2]
             dx, dy, dz = cs[0] - c0[0], cs[1] - c0[1], cs[2] - c0[2]
@@ -406,15 +424,20 @@ def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
     wr = spec[4]
     if wr.shape[0] == 0:
         return
-    _wrist_rows(Q, GP, GR, chain, spec, R, P)
-    if turn[0] != 0.0 and wr[_PASSES] > 1.0:
-        _turned_frames(Q, GP, chain, turn, R, P)
+    wrist = wr[_W] >= 0.0
+    if wrist:
         _wrist_rows(Q, GP, GR, chain, spec, R, P)
+        if turn[0] != 0.0 and wr[_PASSES] > 1.0:
+            _turned_frames(Q, GP, chain, turn, R, P)
+            _wrist_rows(Q, GP, GR, chain, spec, R, P)
     for _ in range(int(wr[_REACH])):
-        _reach_rows(Q, GP, chain, wr, R, P, True)
-        _reach_rows(Q, GP, chain, wr, R, P, False)
+        if wr[_F] >= 0.0:
+            _reach_rows(Q, GP, GR, chain, spec, R, P, _FLEX)
+        _reach_rows(Q, GP, GR, chain, spec, R, P, _ELBOW)
+        _reach_rows(Q, GP, GR, chain, spec, R, P, _SHOULDER)
         _turned_frames(Q, GP, chain, turn, R, P)
-        _wrist_rows(Q, GP, GR, chain, spec, R, P)
+        if wrist:
+            _wrist_rows(Q, GP, GR, chain, spec, R, P)
 
 
 @numba.njit(**_JIT)

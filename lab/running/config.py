@@ -30,7 +30,7 @@ from lab.methods import Options
 from lab.problem.checks import flag, real, shown, whole
 from lab.problem.controllers import MAX_HEADS
 from lab.problem.encoding import FEATURES
-from lab.problem.pose_encoding import check_goal, check_pose_robot, default_reach
+from lab.problem.pose_encoding import can_reach, check_goal, check_pose_robot, default_reach
 
 # upper bounds that keep a run within this machine's memory and time (a population of 10^9 would
 # hang in pycma's or neat's setup; hidden 256 is a CMA-ES search space of about 2,300 weights)
@@ -113,9 +113,9 @@ class TrainConfig:
         if self.reach and self.goal != "pose":
             raise ValueError(f"reach (the closed-form elbow and shoulder) is for pose goals (goal='pose'), got "
                              f"reach={self.reach} with goal={self.goal!r}")
-        if self.reach and not (default_reach(arm) and self.turn):
-            raise ValueError(f"reach needs the closed-form wrist and the turn: {self.robot} "
-                             + ("has no such wrist" if not default_reach(arm) else "runs with turn=False"))
+        if self.reach and not (can_reach(arm) and self.turn):
+            raise ValueError(f"reach needs the closed-form wrist (or an approach axis) and the turn: {self.robot} "
+                             + ("has neither" if not can_reach(arm) else "runs with turn=False"))
         if arm.is_tree and self.heads > 1 and not self.wiring:
             raise ValueError(f"{self.robot} is a tree of {arm.n_effectors} end effectors: its multi-head MLPs "
                              "(heads > 1) are wired per limb group (wiring=True), each group picking its own head")
