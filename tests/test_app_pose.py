@@ -237,3 +237,19 @@ def test_the_pose_lesson_link_opens_pose_mode_and_position_lessons_go_back(app):
         assert app.state.goal == "position" and panel.goal.value == "Position"
     finally:
         assert panel.set_goal("pose") is None
+
+
+def test_the_panel_quotes_the_pose_networks_figures_in_pose_mode():
+    """In pose mode the panel quotes the shipped pose network's held-out figures (mm and degrees), not
+    the position runs' budget figures; nothing where the method shipped no pose network."""
+    import json
+
+    from app.panels.train import expectation
+    from app.startup import pretrained_path
+
+    held = json.loads(open(pretrained_path("panda", "cmaes", goal="pose"), encoding="utf-8").read())["held_out"]
+    said = expectation("panda", "cmaes", 30.0, "pose")
+    assert f"{held['median_mm']:.1f} mm, {held['median_deg']:.1f}° median on held-out poses" in said
+    assert "closed form" in said and "of its reach" not in said
+    assert expectation("panda", "neat", 30.0, "pose") == ""
+    assert "of its reach" in expectation("panda", "cmaes", 30.0)  # position goals: the budgets' figure

@@ -15,6 +15,7 @@ menu (the budget is its pace). Buttons only call LabState; the render loop calls
 
 from __future__ import annotations
 
+import json
 import threading
 
 import numpy as np
@@ -29,6 +30,7 @@ from lab.running.config import UNBOUNDED
 
 from app.classroom.limits import refusal as limits_refusal
 from app.panels.teaching import RaceFields, Watching
+from app.startup import pretrained_path
 from app.tab.posegoal import GOAL_LABELS, goal_label, pose_refusal, takes_poses
 from app.training.live import decimate, lead_line, sample
 from app.training.state import SPEEDS, run_label, speed_label
@@ -44,10 +46,13 @@ def budget_for(robot: str) -> float:
     (a real robot of several end effectors), else 0 (none)."""
     return REAL_ARM_BUDGET if robots.kind(robot) in ("real", "tree") else 0.0
 
-def expectation(robot: str, method: str, seconds: float | None) -> str:
+def expectation(robot: str, method: str, seconds: float | None, goal: str = "position") -> str:
     """What `method` is measured to reach on `robot` in `seconds` (lab.experiments.budgets), in words,
     said plainly when that is too coarse to be an IK answer (median beyond POOR_PCT % of the reach),
-    with the method that does best in the same time; "" where nothing was measured."""
+    with the method that does best in the same time; "" where nothing was measured. Pose goals:
+    pose_expectation."""
+    if goal == "pose":
+        return pose_expectation(robot, method)
     e = budgets.expected(robot, method, seconds)
     if e is None:
         return ""
@@ -63,6 +68,24 @@ def expectation(robot: str, method: str, seconds: float | None) -> str:
                if best is not None and best[0]["median_pct"] < e["median_pct"] else "")
     return (f"**{label}'s network will miss most goals on this arm by about {e['median_mm']:.0f} mm "
             f"({e['median_pct']:.0f} % of its reach): a rough first guess, not an IK answer.{instead}** {said}")
+
+
+def pose_expectation(robot: str, method: str) -> str:
+    """What the shipped pose network of `method` on `robot` measured on held-out poses (its file's
+    held_out, written by benchmarks/bench_pose_train.py), in words; "" where the method shipped none
+    (no pose run was measured at the panel's budgets: docs/pose.md has the figures)."""
+    try:
+        with open(pretrained_path(robot, method, goal="pose"), encoding="utf-8") as f:
+            doc = json.load(f)
+        h = doc["held_out"]
+        mm, deg, seconds = float(h["median_mm"]), float(h["median_deg"]), float(doc["seconds"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return ""
+    enc = doc.get("controller", {}).get("encoding", {})
+    closed = (f"; {'wrist' if enc.get('wrist') else 'wrist flex'}, elbow and shoulder solved in closed form"
+              if enc.get("reach") else "")
+    return (f"Shipped {methods.get(method).label} pose network ({seconds:.0f} s): {mm:.1f} mm, {deg:.1f}° "
+            f"median on held-out poses{closed}.")
 
 
 SHARED = ("population", "generations", "hidden", "seed")  # the TrainConfig fields shown
@@ -96,7 +119,7 @@ class TrainingPanel:
         self.goal.visible = takes_poses(state.arm.name)  # a menu of one choice is only noise (and a row)
         self.method = gui.add_dropdown("Method", tuple(m.label for m in methods.all_methods()),
                                        initial_value=methods.get(d.method).label)
-        self.expected = gui.add_markdown(expectation(d.robot, d.method, d.seconds))  # what it will be worth
+        self.expected = gui.add_markdown(expectation(d.robot, d.method, d.seconds, state.goal))  # what it will be worth
         actions = {"Start": self.start, "Pause": self.pause, "Resume": self.resume, "Step": self.step,
                    "Stop": self.stop, "Reset": self.reset, "Trained network": self.trained}
         icons = {"Start": viser.Icon.PLAYER_PLAY, "Pause": viser.Icon.PLAYER_PAUSE, "Step": viser.Icon.PLAYER_TRACK_NEXT,
@@ -185,7 +208,7 @@ class TrainingPanel:
                 seconds = None
             d = lab.TrainConfig.preset(robot=self.robot.value, method=self._method_name(), seed=int(self.seed.value),
                                        seconds=seconds)
-            self.expected.content = expectation(d.robot, d.method, d.seconds)
+            self.expected.content = expectation(d.robot, d.method, d.seconds, self.state.goal)
             self._reverting = True
             try:
                 for name in SHARED:
@@ -299,6 +322,12 @@ class TrainingPanel:
         msg = self.state.set_goal(kind)
         if msg is None and self.goal.value != goal_label(kind):
             self.goal.value = goal_label(kind)
+        if msg is None:  # what a run is worth changes with the goal
+            try:
+                seconds = self.seconds()
+            except ValueError:
+                seconds = None
+            self.expected.content = expectation(self.robot.value, self._method_name(), seconds, kind)
         return msg
 
     def _revert(self, handle) -> None:
