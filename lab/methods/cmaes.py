@@ -314,8 +314,9 @@ POSE_GENERATIONS = 20_000  # pose goals without a budget, one head: about 5 minu
 # a real arm's heads for pose goals (the others: one): a pose has up to 8 IK branches (shoulder, elbow,
 # wrist), and with the bearing solved by the turn, heads serve the elbow and wrist branches; UR5, 120 s:
 # 4 heads 80 degrees median angle and 13.7 % refined, against 1 head's 106 degrees and 8.9 % in 240 s
-# (docs/log.md). The SO arms (5 joints, an approach axis) keep one: not measured
-POSE_HEADS = {name: 4 for name in ("ur5", "ur10", "panda", "xarm7", "kinova", "z1")}
+# (docs/log.md). With the reach, 240 s, refined in 3 steps: SO-100 two (98.6 % against one head's 85.4
+# %), SO-101 four (60.1 % against two heads' 47.8 % and one's 36.6 %)
+POSE_HEADS = {**{name: 4 for name in ("ur5", "ur10", "panda", "xarm7", "kinova", "z1", "so101")}, "so100": 2}
 
 
 def pose_defaults(arm, seconds: float | None) -> dict:
