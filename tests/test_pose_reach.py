@@ -140,6 +140,7 @@ def test_training_settings_carry_the_reach_by_method_and_arm():
     assert lab.TrainConfig(robot="ur5", goal="pose", turn=False).reach == 0
     assert lab.TrainConfig(robot="so100", goal="pose").reach == 8
     assert "reach" not in lab.TrainConfig(robot="ur5").to_dict()
+    assert lab.TrainConfig(robot="ur5", goal="pose").replace(method="gradient", heads=1).reach == 0  # its own
     with pytest.raises(ValueError, match="reach .* is for pose goals"):
         lab.TrainConfig(robot="ur5", reach=3)
     assert lab.TrainConfig(robot="so100", goal="pose", reach=2).reach == 2  # the SO arms: no wrist, a flex

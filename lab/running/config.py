@@ -211,6 +211,7 @@ class TrainConfig:
             d = {k: v for k, v in d.items() if k not in self.options.names()}
             if methods.get(changes["method"]).controller != "mlp":  # a wired network is an MLP's
                 d.pop("wiring", None)
+            d.pop("reach", None)  # the closed-form reach is a method's default too (the gradient method: none)
         return TrainConfig.from_dict({**d, **changes})
 
     def to_dict(self) -> dict:
