@@ -194,7 +194,7 @@ class PoseEncoding:
         """The closed-form joints' constants as pose_kernels take them (spec[4], a flat array): the wrist's
         (wrist_arrays; without the wrist, its first entry -1 and zeros), then the reach's: S, E, F (-1:
         none), the passes, and the three joints' limits and whether each wraps."""
-        head = self.wrist_arrays() if self.wrist else np.concatenate([[-1.0], np.zeros(31)])
+        head = self.wrist_arrays() if self.wrist else np.concatenate([[-1.0], np.zeros(pose_kernels._S - 1)])
         S, E, F = self.reach_joints() if self.reach else (0, 0, -1)
         three = [S, E, max(F, 0)]
         return np.ascontiguousarray(np.concatenate([head, [S, E, F, self.reach], self.position.q_lo[three],
@@ -227,7 +227,7 @@ class PoseEncoding:
     @property
     def turns(self) -> bool:
         """Whether joints() needs the poses: a turned first joint, or the closed-form wrist."""
-        return bool(self.position.turns or self.wrist or self.reach)
+        return bool(self.position.turns or self.wrist)  # the reach needs the turn
 
     @property
     def turned_joints(self) -> np.ndarray:

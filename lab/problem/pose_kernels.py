@@ -232,6 +232,18 @@ def _wrist_rows(Q, GP, GR, chain, spec, R, P):
 
 
 @numba.njit(**_JIT)
+def _bearing(vx, vy, vz, gx, gy, gz, w):
+    """The turn about the unit axis w that takes v's direction across w to g's (both projected on the
+    plane across w): atan2 of their cross product along w and their dot product."""
+    dv = vx * w[0] + vy * w[1] + vz * w[2]
+    vx, vy, vz = vx - dv * w[0], vy - dv * w[1], vz - dv * w[2]
+    dg = gx * w[0] + gy * w[1] + gz * w[2]
+    gx, gy, gz = gx - dg * w[0], gy - dg * w[1], gz - dg * w[2]
+    cross = (vy * gz - vz * gy) * w[0] + (vz * gx - vx * gz) * w[1] + (vx * gy - vy * gx) * w[2]
+    return math.atan2(cross, vx * gx + vy * gy + vz * gz)
+
+
+@numba.njit(**_JIT)
 def _reach_rows(Q, GP, GR, chain, spec, R, P, step):
     """One joint of Q (nq, N) solved in closed form for each goal, the others held, and R, P (the last
     joint's frame) turned rigidly with it. step _FLEX: joint F, turned so that the tool's approach axis
@@ -284,13 +296,7 @@ def _reach_rows(Q, GP, GR, chain, spec, R, P, step):
             ax = R[0, 0, g] * axis_j[0] + R[0, 1, g] * axis_j[1] + R[0, 2, g] * axis_j[2]
             ay = R[1, 0, g] * axis_j[0] + R[1, 1, g] * axis_j[1] + R[1, 2, g] * axis_j[2]
             az = R[2, 0, g] * axis_j[0] + R[2, 1, g] * axis_j[1] + R[2, 2, g] * axis_j[2]
-            da = ax * w[0] + ay * w[1] + az * w[2]
-            vx, vy, vz = ax - da * w[0], ay - da * w[1], az - da * w[2]
-            gx, gy, gz = GR[0, g], GR[1, g], GR[2, g]
-            dg = gx * w[0] + gy * w[1] + gz * w[2]
-            gx, gy, gz = gx - dg * w[0], gy - dg * w[1], gz - dg * w[2]
-            cross = (vy * gz - vz * gy) * w[0] + (vz * gx - vx * gz) * w[1] + (vx * gy - vy * gx) * w[2]
-            best = _into(q_now + math.atan2(cross, vx * gx + vy * gy + vz * gz), lo, hi, wrap)
+            best = _into(q_now + _bearing(ax, ay, az, GR[0, g], GR[1, g], GR[2, g], w), lo, hi, wrap)
         elif step == _ELBOW:
             # s: the point of S's axis nearest joint 0's axis (S's own origin when the two are parallel)
             b = ws[0] * w0[0] + ws[1] * w0[1] + ws[2] * w0[2]
@@ -322,11 +328,8 @@ def _reach_rows(Q, GP, GR, chain, spec, R, P, step):
                 if fit < fit_best - 1e-9 * want or (fit <= fit_best + 1e-9 * want and move < move_best):
                     best, fit_best, move_best = cand, fit, move
         else:
-            gx, gy, gz = GP[0, g] - c[0], GP[1, g] - c[1], GP[2, g] - c[2]
-            dg = gx * w[0] + gy * w[1] + gz * w[2]
-            gx, gy, gz = gx - dg * w[0], gy - dg * w[1], gz - dg * w[2]
-            cross = (vy * gz - vz * gy) * w[0] + (vz * gx - vx * gz) * w[1] + (vx * gy - vy * gx) * w[2]
-            best = _into(q_now + math.atan2(cross, vx * gx + vy * gy + vz * gz), lo, hi, wrap)
+            best = _into(q_now + _bearing(vx, vy, vz, GP[0, g] - c[0], GP[1, g] - c[1], GP[2, g] - c[2], w),
+                         lo, hi, wrap)
         d = best - q_now
         if d == 0.0:
             continue
