@@ -8,8 +8,9 @@ Each arm is trained by lab.evolve(arm, method, goal="pose", seconds=S, seed=0, .
 pose defaults, overridden by --set), then measured on --n pose goals of --eval-seed (robots.pose.
 sample_poses; no training or tuning used that seed): the network alone's median position error [mm]
 and angle [degrees] (on the SO arms the approach axis's), the share within 0.1 mm and 0.1 degree
-after at most 3 refinement steps (lab.solve, every head's answer proposed), and the time a goal
-takes there. --write-pretrained writes app/pretrained/<arm>-pose-<method>.json in the position
+after at most 3 refinement steps (lab.solve, every head's answer proposed; without and with its
+sweep of one joint, lab.solver.SWEEP), and the time a goal takes there. --write-pretrained writes
+app/pretrained/<arm>-pose-<method>.json in the position
 controllers' format (benchmarks/bench_arms.py). Run it with LAB_THREADS=1 beside other work.
 """
 
@@ -54,12 +55,16 @@ def measure(controller, arm, n: int, seed: int) -> dict:
     T = pose.sample_poses(arm, n, seed=seed)
     alone = lab.solve(controller, arm, T, steps=0)
     t = time.perf_counter()
+    plain = lab.solve(controller, arm, T, steps=3, sweep=0)
+    t_plain = time.perf_counter() - t
+    t = time.perf_counter()
     s = lab.solve(controller, arm, T, steps=3)
     per_goal = (time.perf_counter() - t) / n
     return {"median_mm": 1000 * float(np.median(alone.error)), "p90_mm": 1000 * float(np.quantile(alone.error, 0.9)),
             "median_deg": float(np.degrees(np.median(alone.angle))),
             "p90_deg": float(np.degrees(np.quantile(alone.angle, 0.9))),
-            "refined": float(s.success), "refine_us": 1e6 * per_goal}
+            "refined": float(s.success), "refine_us": 1e6 * per_goal,
+            "refined_no_sweep": float(plain.success), "refine_no_sweep_us": 1e6 * t_plain / n}
 
 
 def write_pretrained(run, held_out: dict, method: str) -> Path:
@@ -93,13 +98,13 @@ def main(argv=None) -> int:
     print(f"# load {open('/proc/loadavg').read().split()[:3]}  LAB_THREADS={os.environ.get('LAB_THREADS')}  "
           f"eval seed {args.eval_seed}, {args.n} poses")
     print("| arm | method | settings | training | network alone: median (p90) position | angle | "
-          "refined <= 3 steps: within 0.1 mm and 0.1 deg | time/goal |")
-    print("|---|---|---|---|---|---|---|---|")
+          "refined <= 3 steps: within 0.1 mm and 0.1 deg, no sweep (time/goal) | with the sweep | time/goal |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for name in args.robots.split(","):
         arm = robots.load(name)
         if args.from_pretrained:
             doc = json.loads((PRETRAINED / f"{name}-pose-{args.method}.json").read_text())
-            controller, config = lab.controller_from_dict(doc["controller"]), lab.TrainConfig.from_dict(doc["config"])
+            controller, config = lab.controller_from_dict(doc["controller"]), lab.TrainConfig.from_dict(doc["settings"])
             train = f"{doc['seconds']:.0f} s"
         else:
             budget = {} if args.generations else {"seconds": args.seconds}
@@ -115,7 +120,8 @@ def main(argv=None) -> int:
         settings += "".join(f", {k}={v}" for k, v in overrides.items()
                             if k not in ("heads", "turn", "features", "margin", "hidden", "reach"))
         print(f"| {name} | {args.method} | {settings} | {train} | {m['median_mm']:.1f} mm ({m['p90_mm']:.1f}) | "
-              f"{m['median_deg']:.2f} deg ({m['p90_deg']:.2f}) | {100 * m['refined']:.1f} % | "
+              f"{m['median_deg']:.2f} deg ({m['p90_deg']:.2f}) | {100 * m['refined_no_sweep']:.1f} % "
+              f"({m['refine_no_sweep_us']:.0f} us) | {100 * m['refined']:.1f} % | "
               f"{m['refine_us']:.0f} us |", flush=True)
     print(f"# load {open('/proc/loadavg').read().split()[:3]}")
     return 0

@@ -36,6 +36,7 @@ import numpy as np
 
 import robots
 from lab.problem.controllers import proposals as _proposals
+from lab.problem.controllers import swept_proposals
 from robots import pose, pose_solve
 from robots.ik import RefineResult, default_tolerance, pose_tolerances, refine
 
@@ -85,8 +86,13 @@ def _position_errors(arm: robots.Arm, goals: np.ndarray, q: np.ndarray) -> np.nd
     return d.max(axis=-1) if arm.is_tree else d
 
 
+SWEEP = 16  # values of the swept joint tried on pose goals (docs/pose.md)
+SWEEP_KEEP = 4  # of which the nearest each goal are proposed
+
+
 def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None = None,
-          angle_tol: float | None = None, seconds: float | None = None, seed: int | None = 0) -> Solution:
+          angle_tol: float | None = None, seconds: float | None = None, seed: int | None = 0,
+          sweep: int = SWEEP) -> Solution:
     """Joint angles that put the arm on `goals`: the controller's answers (every head's, as
     proposals), then at most `steps` refinement steps (robots.ik.refine) toward each goal.
 
@@ -100,9 +106,17 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
     seconds (pose goals): a wall-time budget a goal for robots.pose_solve.solve_pose, which takes
     the proposals' compiled descents (each at most pose_solve.STEPS_FROM_START steps, `steps` not
     used) and then descents from random joint vectors (a generator of `seed`) until one is within
-    tolerance or the budget is spent; steps then counts every descent's steps. ValueError, naming
-    the problem, for a controller made for other goals or another arm, and for goals refine refuses."""
+    tolerance or the budget is spent; steps then counts every descent's steps. sweep (pose goals
+    refined by steps, a pose controller with the closed-form reach): where no answer of the
+    controller's is within tolerance, its answers with one joint set to `sweep` values over its range
+    and the closed form solving the rest are proposed too, the SWEEP_KEEP nearest each goal after the
+    controller's own (lab.problem.controllers.swept_proposals; 0: none). ValueError, naming the problem, for a
+    controller made for other goals or another arm, and for goals refine refuses."""
     t0 = time.perf_counter()
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+        raise ValueError(f"steps must be an integer >= 0, got {steps!r}")
+    if isinstance(sweep, bool) or not isinstance(sweep, (int, np.integer)) or sweep < 0:
+        raise ValueError(f"sweep must be an integer >= 0 (values of the swept joint), got {sweep!r}")
     if isinstance(arm, str):
         arm = robots.load(arm)
     if not isinstance(arm, robots.Arm):
@@ -142,6 +156,8 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
         if own.shape[1:] != (len(goals), arm.nq):
             raise ValueError(f"{arm.name}: the controller proposed shape {own.shape}, not (k, {len(goals)}, {arm.nq})")
         seeds.append(own)
+        if is_pose and steps and seconds is None and sweep:
+            seeds.append(_swept(controller, arm, goals, own, sweep, tol, angle_tol))
     if q0 is not None:
         q0 = np.asarray(q0, dtype=np.float64)
         extra = q0 if q0.ndim == 3 else np.atleast_2d(q0)[None]
@@ -157,8 +173,6 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
         first_error, first_angle = pose.pose_errors(arm, goals, first)
     else:
         first_error, first_angle = _position_errors(arm, goals, first), None
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
-        raise ValueError(f"steps must be an integer >= 0, got {steps!r}")
     if seconds is not None:
         return _budgeted(arm, goals, seeds, first_error, first_angle, controller is not None, tol, angle_tol,
                          seconds, seed, is_pose, t0)
@@ -175,6 +189,21 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
     return Solution(q=r.q, error=r.error, angle=r.angle, converged=r.converged, tol=r.tol, angle_tol=r.angle_tol,
                     steps=r.steps, choice=r.choice, network_error=first_error if network else None,
                     network_angle=first_angle if network else None, seconds=time.perf_counter() - t0)
+
+
+def _swept(controller, arm, goals, own, sweep, tol, angle_tol) -> np.ndarray:
+    """(SWEEP_KEEP, n, nq) swept_proposals of the goals that no answer of the controller's own meets
+    within tolerance (for the others, copies of their first answer, which refine does not step)."""
+    tol, angle_tol = pose_tolerances(arm, tol, angle_tol)
+    k, n = own.shape[:2]
+    p, a = pose.pose_errors(arm, np.tile(goals, (k, 1, 1)), arm.within_limits(own).reshape(k * n, arm.nq))
+    met = ((p < tol) & (a < angle_tol)).reshape(k, n).any(axis=0)
+    out = np.repeat(own[:1], SWEEP_KEEP, axis=0)
+    if not met.all():
+        more = swept_proposals(controller, goals[~met], own[:, ~met], int(sweep), SWEEP_KEEP, tol / angle_tol)
+        out = out[: len(more)]
+        out[:, ~met] = more
+    return out
 
 
 def _budgeted(arm, goals, seeds, first_error, first_angle, network: bool, tol, angle_tol, seconds, seed, is_pose,

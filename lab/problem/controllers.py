@@ -309,6 +309,24 @@ def proposals(controller, goals) -> np.ndarray:
     return np.take_along_axis(Q, order[:, :, None], axis=0)
 
 
+def swept_proposals(controller, goals, Q: np.ndarray, count: int, keep: int, weight: float) -> np.ndarray:
+    """(keep, n, nq): more proposals for pose goals (n, 4, 4), from the answers Q (k, n, nq) of a pose
+    controller with the closed-form reach: each with one joint set to count values over its range and
+    the closed form solving the rest (PoseEncoding.swept: a 7-joint arm's redundant joint, which the
+    network picks from the goal alone and may pick where another joint meets its limit; else the
+    shoulder, whose start picks the solution the reach settles on), the keep nearest each goal first
+    (least ||p - p_g||^2 + (weight angle)^2; weight [m/rad]: refine's tol / angle_tol). (0, n, nq) for
+    any other controller."""
+    encoding = getattr(controller, "encoding", None)
+    if getattr(encoding, "swept_joint", None) is None:
+        return np.empty((0, *np.shape(Q)[-2:]))
+    A = encoding.swept(Q, goals, count)
+    d, a = encoding.errors(A, goals)
+    e = d * d + (weight * a) ** 2
+    order = np.argsort(np.where(np.isfinite(e), e, np.inf), axis=0, kind="stable")[:keep]
+    return np.take_along_axis(A, order[:, :, None], axis=0)
+
+
 def mlp_joints(encoding: Encoding, hidden: int, W: np.ndarray, goals, heads_of=None) -> np.ndarray:
     """(P, g, nq) joint values of the MLPs of weight rows W (P, N) on goals (g, task dims); heads_of:
     an MLPController whose heads, anchors and chain they share (None: one head, the paper's MLP)."""

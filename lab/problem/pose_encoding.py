@@ -240,6 +240,35 @@ class PoseEncoding:
             joints += [j for j in self.reach_joints() if j >= 0]
         return np.asarray(sorted(set(joints)), dtype=np.int64)
 
+    @property
+    def swept_joint(self) -> int | None:
+        """The joint whose value swept() spreads over its range: a 7-joint arm's redundant joint (the one
+        joint the turn, the reach and the wrist leave to the network: the third on the Panda and
+        xArm7), else the shoulder (the reach's S), whose value at the start picks the solution the
+        reach's passes settle on. None without the reach."""
+        if not self.reach:
+            return None
+        free = sorted(set(range(len(self.position.q_lo))) - set(self.turned_joints.tolist()))
+        if self.axis is None and self.wrist and len(free) == 1:
+            return free[0]
+        return self.reach_joints()[0]
+
+    def swept(self, q: np.ndarray, poses: np.ndarray, count: int) -> np.ndarray:
+        """(count k, n, nq): answers q (k, n, nq) with the swept joint set in turn to count values spread
+        evenly over its range (the middles of count equal parts; at most one turn), the
+        closed form then solving the others for each pose (finished). (0, n, nq) without one."""
+        q = np.asarray(q, dtype=np.float64)
+        j = self.swept_joint
+        if j is None or count < 1:
+            return np.empty((0, *q.shape[-2:]))
+        lo, hi = self.position.q_lo[j], self.position.q_hi[j]
+        if self.position.wrap[j] or hi - lo >= 2 * np.pi:  # a turn holds every direction once
+            lo, hi = -np.pi, np.pi
+        values = lo + (hi - lo) * (np.arange(count) + 0.5) / count
+        out = np.repeat(q[None], count, axis=0)  # (count, k, n, nq)
+        out[..., j] = values[:, None, None]
+        return self.finished(out.reshape(-1, *q.shape[-2:]), poses)
+
     # ------------------------------------------------------------ what the position part decides
     def __getattr__(self, name: str):
         """The output mapping's arrays and the turn (q_lo, q_offset, clip_lo, turns, ...) are the
