@@ -1,7 +1,8 @@
 """The sweep of lab.solve on pose goals (PoseEncoding.swept, lab.problem.controllers.swept_proposals):
 where no answer of a pose controller's is within tolerance, its answers with one joint set to values
-over that joint's range, the closed form solving the rest, are proposed too. The joint is a 7-joint
-arm's redundant one (kept as set: the closed form does not solve it) or else the shoulder; the
+over that joint's range, the closed form solving the rest, are proposed too. The joint is the one
+the closed form leaves to the network where its turn moves the tool (a 7-joint arm's redundant
+joint, kept as set; the SO-101's roll), or else the shoulder; the
 proposals are what the closed form makes of them; the shipped Panda network meets more goals with
 them; goals the network meets are not touched; bad values are refused by name."""
 
@@ -27,9 +28,10 @@ def shipped_pose(name):
         return lab.controller_from_dict(json.load(f)["controller"])
 
 
-def test_the_swept_joint_is_the_redundant_one_on_a_7_joint_arm_else_the_shoulder():
+def test_the_swept_joint_is_the_one_the_closed_form_leaves_where_it_moves_the_tool_else_the_shoulder():
     assert shipped_pose("panda").encoding.swept_joint == 2
     assert shipped_pose("xarm7").encoding.swept_joint == 2
+    assert shipped_pose("so101").encoding.swept_joint == 4  # its roll moves the tool point
     for name in ("ur5", "kinova", "so100"):
         enc = shipped_pose(name).encoding
         assert enc.swept_joint == enc.reach_joints()[0] == 1

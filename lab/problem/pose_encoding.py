@@ -26,8 +26,8 @@ solutions, the nearer kept), so the network places the arm and the wrist turns t
 The reach (`reach=k` passes, with the turn; on a full-pose arm with the wrist): after the wrist, the
 elbow is solved for the goal's distance from the shoulder, the shoulder for the goal's bearing about
 its axis, then the turn and the wrist again; on an arm held to an approach axis (the SO arms, no
-wrist) the wrist's flex first turns that axis toward the goal's. The network's outputs for those
-joints only pick the branch (pose_kernels' reach).
+wrist) the wrist's flex first turns that axis toward the goal's. Each goal keeps the joint values of
+its best pass. The network's outputs for those joints only pick the branch (pose_kernels' reach).
 
 `PoseEncoding` carries everything the compiled error needs: the arm's kinematic chain, the tool
 frame's rotation in the chain's last joint frame (robots.pose's tool rotation) and the approach
@@ -242,16 +242,29 @@ class PoseEncoding:
 
     @property
     def swept_joint(self) -> int | None:
-        """The joint whose value swept() spreads over its range: a 7-joint arm's redundant joint (the one
-        joint the turn, the reach and the wrist leave to the network: the third on the Panda and
-        xArm7), else the shoulder (the reach's S), whose value at the start picks the solution the
+        """The joint whose value swept() spreads over its range: the one joint the turn, the reach and the
+        wrist leave to the network, where its turn moves the tool point (a 7-joint arm's redundant
+        joint, the third on the Panda and xArm7; the SO-101's roll, its tool point 7.9 mm off the roll's
+        axis), else the shoulder (the reach's S), whose value at the start picks the solution the
         reach's passes settle on. None without the reach."""
         if not self.reach:
             return None
         free = sorted(set(range(len(self.position.q_lo))) - set(self.turned_joints.tolist()))
-        if self.axis is None and self.wrist and len(free) == 1:
+        if len(free) == 1 and self._tool_offset(free[0]) > 1e-6:
             return free[0]
         return self.reach_joints()[0]
+
+    def _tool_offset(self, j: int) -> float:
+        """The tool point's distance from joint j's axis at the zero pose [m]."""
+        rot, pos, identity, ee_pos = self.chain[0], self.chain[1], self.chain[3], self.chain[4]
+        frame, point, axis = np.eye(3), np.zeros(3), None
+        for k in range(len(rot)):
+            point = point + frame @ np.asarray(pos[k])
+            frame = frame if identity[k] else frame @ np.asarray(rot[k])
+            if k == j:
+                centre, axis = point.copy(), frame[:, 2].copy()
+        d = point + frame @ np.asarray(ee_pos) - centre
+        return float(np.linalg.norm(d - (d @ axis) * axis))
 
     def swept(self, q: np.ndarray, poses: np.ndarray, count: int) -> np.ndarray:
         """(count k, n, nq): answers q (k, n, nq) with the swept joint set in turn to count values spread

@@ -19,7 +19,7 @@ solutions, as an Euler decomposition about the three joints' own axes; each angl
 turns into its limits, else clipped), the one nearer the goal kept. The reach (the same array): then,
 pass after pass, the wrist's flex on an approach-axis arm (the axis turned toward the goal's), the
 elbow (the goal's distance from the shoulder), the shoulder (the goal's bearing about its axis), the
-turn and the wrist again (_reach_rows). A controller whose output or
+turn and the wrist again (_reach_rows), each goal keeping its best pass. A controller whose output or
 error is NaN or infinite gets +inf.
 """
 
@@ -422,7 +422,10 @@ def finish_joints(Q, GP, GR, chain, turn, spec):
 def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
     """R, P <- the last joint's frame of Q after the turn and the wrist: the first joint turned toward
     the position's bearing (turn[0] set), then the wrist solved (spec[4] not empty); with the turn and
-    a wrist of two passes, the turn again on the solved wrist's tool point and the wrist again."""
+    a wrist of two passes, the turn again on the solved wrist's tool point and the wrist again. Then
+    the reach's passes, each goal keeping the joint values of its least error (||p - p_g||^2 + L^2
+    theta^2) before and after each pass: a pass is exact for each of its joints in turn, not for the
+    pose, and where the limits clip a joint or an offset couples them the passes can drift away."""
     _turned_frames(Q, GP, chain, turn, R, P)
     wr = spec[4]
     if wr.shape[0] == 0:
@@ -433,7 +436,16 @@ def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
         if turn[0] != 0.0 and wr[_PASSES] > 1.0:
             _turned_frames(Q, GP, chain, turn, R, P)
             _wrist_rows(Q, GP, GR, chain, spec, R, P)
-    for _ in range(int(wr[_REACH])):
+    passes = int(wr[_REACH])
+    if passes == 0:
+        return
+    n = Q.shape[1]
+    D, A = np.empty(n), np.empty(n)
+    _pose_rows(R, P, GP, GR, chain, spec, D, A)
+    w2 = spec[3]
+    best = D + w2 * A * A
+    Qb, Rb, Pb = Q.copy(), R.copy(), P.copy()
+    for _ in range(passes):
         if wr[_F] >= 0.0:
             _reach_rows(Q, GP, GR, chain, spec, R, P, _FLEX)
         _reach_rows(Q, GP, GR, chain, spec, R, P, _ELBOW)
@@ -441,6 +453,17 @@ def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
         _turned_frames(Q, GP, chain, turn, R, P)
         if wrist:
             _wrist_rows(Q, GP, GR, chain, spec, R, P)
+        _pose_rows(R, P, GP, GR, chain, spec, D, A)
+        for g in range(n):
+            e = D[g] + w2 * A[g] * A[g]
+            if e < best[g]:
+                best[g] = e
+                Qb[:, g] = Q[:, g]
+                Rb[:, :, g] = R[:, :, g]
+                Pb[:, g] = P[:, g]
+    Q[:, :] = Qb
+    R[:, :, :] = Rb
+    P[:, :] = Pb
 
 
 @numba.njit(**_JIT)
