@@ -86,7 +86,7 @@ def _position_errors(arm: robots.Arm, goals: np.ndarray, q: np.ndarray) -> np.nd
     return d.max(axis=-1) if arm.is_tree else d
 
 
-SWEEP = 16  # values of the swept joint tried on pose goals (docs/pose.md)
+SWEEP = 16  # values of each swept joint tried on pose goals (docs/pose.md)
 SWEEP_KEEP = 4  # of which the nearest each goal are proposed
 
 
@@ -108,8 +108,8 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
     used) and then descents from random joint vectors (a generator of `seed`) until one is within
     tolerance or the budget is spent; steps then counts every descent's steps. sweep (pose goals
     refined by steps, a pose controller with the closed-form reach): where no answer of the
-    controller's is within tolerance, its answers with one joint set to `sweep` values over its range
-    and the closed form solving the rest are proposed too, the SWEEP_KEEP nearest each goal after the
+    controller's is within tolerance, its answers with one joint at a time set to `sweep` values over
+    its range and the closed form solving the rest are proposed too, the SWEEP_KEEP nearest each goal after the
     controller's own (lab.problem.controllers.swept_proposals; 0: none). ValueError, naming the problem, for a
     controller made for other goals or another arm, and for goals refine refuses."""
     t0 = time.perf_counter()

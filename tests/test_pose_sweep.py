@@ -1,8 +1,8 @@
 """The sweep of lab.solve on pose goals (PoseEncoding.swept, lab.problem.controllers.swept_proposals):
 where no answer of a pose controller's is within tolerance, its answers with one joint set to values
-over that joint's range, the closed form solving the rest, are proposed too. The joint is the one
+over that joint's range, the closed form solving the rest, are proposed too. The joints are the one
 the closed form leaves to the network where its turn moves the tool (a 7-joint arm's redundant
-joint, kept as set; the SO-101's roll), or else the shoulder; the
+joint, kept as set; the SO-101's roll), then the shoulder; the
 proposals are what the closed form makes of them; the shipped Panda network meets more goals with
 them; goals the network meets are not touched; bad values are refused by name."""
 
@@ -28,15 +28,15 @@ def shipped_pose(name):
         return lab.controller_from_dict(json.load(f)["controller"])
 
 
-def test_the_swept_joint_is_the_one_the_closed_form_leaves_where_it_moves_the_tool_else_the_shoulder():
-    assert shipped_pose("panda").encoding.swept_joint == 2
-    assert shipped_pose("xarm7").encoding.swept_joint == 2
-    assert shipped_pose("so101").encoding.swept_joint == 4  # its roll moves the tool point
-    for name in ("ur5", "kinova", "so100"):
+def test_the_swept_joints_are_the_one_the_closed_form_leaves_where_it_moves_the_tool_then_the_shoulder():
+    assert shipped_pose("panda").encoding.swept_joints == (2, 1)
+    assert shipped_pose("xarm7").encoding.swept_joints == (2, 1)
+    assert shipped_pose("so101").encoding.swept_joints == (4, 1)  # its roll moves the tool point
+    for name in ("ur5", "kinova", "so100"):  # no such joint, or (the SO-100's roll) one that moves nothing
         enc = shipped_pose(name).encoding
-        assert enc.swept_joint == enc.reach_joints()[0] == 1
+        assert enc.swept_joints == (enc.reach_joints()[0],) == (1,)
     no_reach = PoseEncoding.for_arm(robots.load("ur5"), turn=True, reach=0)
-    assert no_reach.swept_joint is None
+    assert no_reach.swept_joints == ()
     assert no_reach.swept(np.zeros((1, 2, 6)), pose.sample_poses(robots.load("ur5"), 2, seed=0), 8).shape == (0, 2, 6)
 
 
@@ -47,17 +47,17 @@ def test_swept_answers_are_the_closed_forms_answers_with_the_joint_set(name):
     T = pose.sample_poses(arm, 5, seed=21)
     Q = proposals(controller, T)
     A = enc.swept(Q, T, 6)
-    assert A.shape == (6 * len(Q), 5, arm.nq)
-    j = enc.swept_joint
-    lo, hi = enc.position.q_lo[j], enc.position.q_hi[j]
-    if hi - lo >= 2 * np.pi:
-        lo, hi = -np.pi, np.pi
-    values = lo + (hi - lo) * (np.arange(6) + 0.5) / 6
-    start = np.repeat(Q[None], 6, axis=0)
-    start[..., j] = values[:, None, None]
+    J = len(enc.swept_joints)
+    assert A.shape == (J * 6 * len(Q), 5, arm.nq)
+    start = np.repeat(Q[None, None], J, axis=0).repeat(6, axis=1)
+    for i, j in enumerate(enc.swept_joints):
+        lo, hi = enc.position.q_lo[j], enc.position.q_hi[j]
+        if hi - lo >= 2 * np.pi:
+            lo, hi = -np.pi, np.pi
+        start[i, ..., j] = (lo + (hi - lo) * (np.arange(6) + 0.5) / 6)[:, None, None]
     np.testing.assert_array_equal(A, enc.finished(start.reshape(-1, 5, arm.nq), T))
     if name == "panda":  # the redundant joint: no closed form moves it
-        np.testing.assert_array_equal(A.reshape(6, len(Q), 5, arm.nq)[..., j], start[..., j])
+        np.testing.assert_array_equal(A.reshape(J, 6, len(Q), 5, arm.nq)[0, ..., 2], start[0, ..., 2])
     ranked = swept_proposals(controller, T, Q, 6, 3, weight=1e-4 / np.radians(0.1))
     p, a = enc.errors(ranked, T)
     e = p**2 + (1e-4 / np.radians(0.1) * a) ** 2

@@ -311,14 +311,14 @@ def proposals(controller, goals) -> np.ndarray:
 
 def swept_proposals(controller, goals, Q: np.ndarray, count: int, keep: int, weight: float) -> np.ndarray:
     """(keep, n, nq): more proposals for pose goals (n, 4, 4), from the answers Q (k, n, nq) of a pose
-    controller with the closed-form reach: each with one joint set to count values over its range and
-    the closed form solving the rest (PoseEncoding.swept: a 7-joint arm's redundant joint, which the
-    network picks from the goal alone and may pick where another joint meets its limit; else the
-    shoulder, whose start picks the solution the reach settles on), the keep nearest each goal first
+    controller with the closed-form reach: each with one joint at a time set to count values over its
+    range and the closed form solving the rest (PoseEncoding.swept: a 7-joint arm's redundant joint,
+    which the network picks from the goal alone and may pick where another joint meets its limit;
+    then the shoulder, whose start picks the solution the reach settles on), the keep nearest each goal first
     (least ||p - p_g||^2 + (weight angle)^2; weight [m/rad]: refine's tol / angle_tol). (0, n, nq) for
     any other controller."""
     encoding = getattr(controller, "encoding", None)
-    if getattr(encoding, "swept_joint", None) is None:
+    if not getattr(encoding, "swept_joints", ()):
         return np.empty((0, *np.shape(Q)[-2:]))
     A = encoding.swept(Q, goals, count)
     d, a = encoding.errors(A, goals)

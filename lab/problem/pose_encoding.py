@@ -241,18 +241,17 @@ class PoseEncoding:
         return np.asarray(sorted(set(joints)), dtype=np.int64)
 
     @property
-    def swept_joint(self) -> int | None:
-        """The joint whose value swept() spreads over its range: the one joint the turn, the reach and the
-        wrist leave to the network, where its turn moves the tool point (a 7-joint arm's redundant
-        joint, the third on the Panda and xArm7; the SO-101's roll, its tool point 7.9 mm off the roll's
-        axis), else the shoulder (the reach's S), whose value at the start picks the solution the
-        reach's passes settle on. None without the reach."""
+    def swept_joints(self) -> tuple[int, ...]:
+        """The joints whose values swept() spreads over their ranges, one at a time: the one joint the
+        turn, the reach and the wrist leave to the network, where its turn moves the tool point (a
+        7-joint arm's redundant joint, the third on the Panda and xArm7; the SO-101's roll, its tool
+        point 7.9 mm off the roll's axis), then the shoulder (the reach's S), whose value at the start
+        picks the solution the reach's passes settle on. () without the reach."""
         if not self.reach:
-            return None
+            return ()
         free = sorted(set(range(len(self.position.q_lo))) - set(self.turned_joints.tolist()))
-        if len(free) == 1 and self._tool_offset(free[0]) > 1e-6:
-            return free[0]
-        return self.reach_joints()[0]
+        lead = (free[0],) if len(free) == 1 and self._tool_offset(free[0]) > 1e-6 else ()
+        return lead + (self.reach_joints()[0],)
 
     def _tool_offset(self, j: int) -> float:
         """The tool point's distance from joint j's axis at the zero pose [m]."""
@@ -267,19 +266,18 @@ class PoseEncoding:
         return float(np.linalg.norm(d - (d @ axis) * axis))
 
     def swept(self, q: np.ndarray, poses: np.ndarray, count: int) -> np.ndarray:
-        """(count k, n, nq): answers q (k, n, nq) with the swept joint set in turn to count values spread
-        evenly over its range (the middles of count equal parts; at most one turn), the
-        closed form then solving the others for each pose (finished). (0, n, nq) without one."""
+        """(joints count k, n, nq): answers q (k, n, nq) with each of the swept joints in turn set to
+        count values spread evenly over its range (the middles of count equal parts; at most one turn),
+        the closed form then solving the others for each pose (finished). (0, n, nq) without any."""
         q = np.asarray(q, dtype=np.float64)
-        j = self.swept_joint
-        if j is None or count < 1:
+        if not self.swept_joints or count < 1:
             return np.empty((0, *q.shape[-2:]))
-        lo, hi = self.position.q_lo[j], self.position.q_hi[j]
-        if self.position.wrap[j] or hi - lo >= 2 * np.pi:  # a turn holds every direction once
-            lo, hi = -np.pi, np.pi
-        values = lo + (hi - lo) * (np.arange(count) + 0.5) / count
-        out = np.repeat(q[None], count, axis=0)  # (count, k, n, nq)
-        out[..., j] = values[:, None, None]
+        out = np.repeat(q[None, None], len(self.swept_joints), axis=0).repeat(count, axis=1)  # (J, count, k, n, nq)
+        for i, j in enumerate(self.swept_joints):
+            lo, hi = self.position.q_lo[j], self.position.q_hi[j]
+            if self.position.wrap[j] or hi - lo >= 2 * np.pi:  # a turn holds every direction once
+                lo, hi = -np.pi, np.pi
+            out[i, ..., j] = (lo + (hi - lo) * (np.arange(count) + 0.5) / count)[:, None, None]
         return self.finished(out.reshape(-1, *q.shape[-2:]), poses)
 
     # ------------------------------------------------------------ what the position part decides
