@@ -232,6 +232,31 @@ def sample_poses(arm: Arm, n: int, seed: int | None = None) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- validation
+@numba.njit(cache=True, nogil=True)
+def _pose_measures(arr, finite, bottom, off, det):
+    """Per pose of arr (n, 4, 4): whether all 16 entries are finite, the largest deviation of the last
+    row from (0, 0, 0, 1), the largest entry of |R^T R - I| and det R (R the rotation block)."""
+    for i in range(arr.shape[0]):
+        ok = True
+        for a in range(4):
+            for b in range(4):
+                if not math.isfinite(arr[i, a, b]):
+                    ok = False
+        finite[i] = ok
+        bottom[i] = max(abs(arr[i, 3, 0]), abs(arr[i, 3, 1]), abs(arr[i, 3, 2]), abs(arr[i, 3, 3] - 1.0))
+        worst = 0.0
+        for a in range(3):
+            for b in range(3):
+                d = abs(arr[i, 0, a] * arr[i, 0, b] + arr[i, 1, a] * arr[i, 1, b] + arr[i, 2, a] * arr[i, 2, b]
+                        - (1.0 if a == b else 0.0))
+                if d > worst:
+                    worst = d
+        off[i] = worst
+        det[i] = (arr[i, 0, 0] * (arr[i, 1, 1] * arr[i, 2, 2] - arr[i, 1, 2] * arr[i, 2, 1])
+                  - arr[i, 0, 1] * (arr[i, 1, 0] * arr[i, 2, 2] - arr[i, 1, 2] * arr[i, 2, 0])
+                  + arr[i, 0, 2] * (arr[i, 1, 0] * arr[i, 2, 1] - arr[i, 1, 1] * arr[i, 2, 0]))
+
+
 def check_poses(poses, *, atol: float = ORTHONORMAL_ATOL, what: str = "poses") -> np.ndarray:
     """poses as a float (n, 4, 4) array (one (4, 4) pose becomes (1, 4, 4)), or ValueError naming the
     problem and the first pose that has it: not an array of 4 x 4 real numbers, NaN or infinity, a
@@ -249,23 +274,21 @@ def check_poses(poses, *, atol: float = ORTHONORMAL_ATOL, what: str = "poses") -
     if arr.ndim != 3 or arr.shape[1:] != (4, 4):
         raise ValueError(f"{what} must have shape (n, 4, 4) (homogeneous transforms, Pinocchio's "
                          f"SE3.homogeneous), got shape {arr.shape}")
-    finite = np.isfinite(arr).reshape(len(arr), -1).all(axis=1)
+    n = len(arr)
+    finite, bottom, off, det = np.empty(n, np.bool_), np.empty(n), np.empty(n), np.empty(n)
+    _pose_measures(np.ascontiguousarray(arr), finite, bottom, off, det)  # compiled: one pose costs microseconds
     if not finite.all():
         i = int(np.flatnonzero(~finite)[0])
         raise ValueError(f"{what}: {int((~finite).sum())} of {len(arr)} poses hold NaN or infinity "
                          f"(the first: pose {i})")
-    bottom = np.abs(arr[:, 3] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=1)
     if (bottom > atol).any():
         i = int(np.argmax(bottom > atol))
         raise ValueError(f"{what}: {int((bottom > atol).sum())} of {len(arr)} poses have a last row other than "
                          f"(0, 0, 0, 1) (the first: pose {i}, last row {arr[i, 3].tolist()})")
-    R = arr[:, :3, :3]
-    off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2))
     if (off > atol).any():
         i = int(np.argmax(off > atol))
         raise ValueError(f"{what}: {int((off > atol).sum())} of {len(arr)} poses have a rotation block that is "
                          f"not orthonormal (the first: pose {i}, |R^T R - I| up to {off[i]:.3g} > {atol:g})")
-    det = np.linalg.det(R)
     if (det < 0).any():
         i = int(np.argmax(det < 0))
         raise ValueError(f"{what}: {int((det < 0).sum())} of {len(arr)} poses have a rotation block with "
