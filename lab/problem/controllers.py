@@ -302,10 +302,15 @@ def proposals(controller, goals) -> np.ndarray:
     goals = np.atleast_2d(np.asarray(goals, dtype=np.float64))
     if getattr(controller, "heads", 1) == 1:
         return np.asarray(controller(goals), dtype=np.float64)[None]
-    Q = controller.encoding.joints(controller.head_outputs(goals), goals)  # (heads, n, nq)
-    if controller.tree_heads is not None:
-        return controller.tree_heads.ranked(Q, goals)
-    order = np.argsort(head_errors(controller.encoding, controller.chain, Q, goals), axis=0, kind="stable")
+    encoding = controller.encoding
+    if getattr(encoding, "goal", "position") == "pose":  # joints and errors in one pass of the kernels
+        Q, E = encoding.answers(controller.head_outputs(goals), goals)  # (heads, n, nq), (heads, n)
+    else:
+        Q = encoding.joints(controller.head_outputs(goals), goals)
+        if controller.tree_heads is not None:
+            return controller.tree_heads.ranked(Q, goals)
+        E = head_errors(encoding, controller.chain, Q, goals)
+    order = np.argsort(E, axis=0, kind="stable")
     return np.take_along_axis(Q, order[:, :, None], axis=0)
 
 

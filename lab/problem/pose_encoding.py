@@ -354,6 +354,20 @@ class PoseEncoding:
         pose_kernels.finish_joints(QT, GP, GR, self.chain, self.position.turn_spec, self.spec())
         return QT.T.reshape(q.shape)
 
+    def answers(self, a: np.ndarray, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(joints(a, poses), sq_errors of them): outputs (..., n, nq) -> joint values (..., n, nq) and
+        their errors (..., n), in one pass of the kernels where the encoding solves the wrist or the
+        reach (a controller's proposals on one pose: the chain walked once, not twice)."""
+        if not (self.wrist or self.reach):
+            q = self.joints(a, poses)
+            return q, self.sq_errors(q, poses)
+        q = self.position.mapped(a)
+        QT, GP, GR = self._side_by_side(q, self.check(poses))
+        D, A = np.empty(QT.shape[1]), np.empty(QT.shape[1])
+        pose_kernels.finish_joints_errors(QT, GP, GR, self.chain, self.position.turn_spec, self.spec(), D, A)
+        e = (D + (self.weight * A) ** 2).reshape(q.shape[:-1])
+        return QT.T.reshape(q.shape), np.where(np.isfinite(e), e, np.inf)
+
     def _side_by_side(self, q: np.ndarray, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Joint values q (..., n, nq) as the kernels take them, (nq, N), with the goals' arrays tiled to
         match (N = every leading row's n goals side by side)."""
@@ -361,6 +375,8 @@ class PoseEncoding:
         QT = np.ascontiguousarray(q.reshape(-1, nq).T)
         GP, GR = self.goal_arrays(poses)
         reps = QT.shape[1] // max(n, 1)
+        if reps == 1:
+            return QT, GP, GR
         return QT, np.ascontiguousarray(np.tile(GP, (1, reps))), np.ascontiguousarray(np.tile(GR, (1, reps)))
 
     def mapped(self, a: np.ndarray) -> np.ndarray:

@@ -419,6 +419,16 @@ def finish_joints(Q, GP, GR, chain, turn, spec):
 
 
 @numba.njit(**_JIT)
+def finish_joints_errors(Q, GP, GR, chain, turn, spec, D, A):
+    """finish_joints, then D (N,) <- the squared position errors and A (N,) <- the angles [rad] of the
+    answers it leaves (pose_parts without a second walk of the chain)."""
+    n = Q.shape[1]
+    R, P = np.empty((3, 3, n)), np.empty((3, n))
+    _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P)
+    _pose_rows(R, P, GP, GR, chain, spec, D, A)
+
+
+@numba.njit(**_JIT)
 def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
     """R, P <- the last joint's frame of Q after the turn and the wrist: the first joint turned toward
     the position's bearing (turn[0] set), then the wrist solved (spec[4] not empty); with the turn and
