@@ -197,10 +197,35 @@ class PoseEncoding:
         head = self.wrist_arrays() if self.wrist else np.concatenate([[-1.0], np.zeros(pose_kernels._S - 1)])
         S, E, F = self.reach_joints() if self.reach else (0, 0, -1)
         three = [S, E, max(F, 0)]
+        centre = self.wrist_centre() if self.reach and self.wrist else None
+        tail = [0.0] * 7 if centre is None else \
+            [1.0, *centre, *(self.tool.T @ (centre - np.asarray(self.chain[4], dtype=np.float64)))]
         return np.ascontiguousarray(np.concatenate([head, [S, E, F, self.reach], self.position.q_lo[three],
                                                     self.position.q_hi[three],
-                                                    np.asarray(self.position.wrap, bool)[three].astype(float)]),
+                                                    np.asarray(self.position.wrap, bool)[three].astype(float),
+                                                    tail]),
                                     dtype=np.float64)
+
+    def wrist_centre(self) -> np.ndarray | None:
+        """Where a spherical wrist's three axes meet, in the last joint's frame (the point no wrist joint
+        moves), or None when they do not meet in one point (within a micrometre, at a configuration
+        of general position): the Kinova's do; the UR arms', Panda's, xArm7's and Z1's are offset."""
+        rot, pos, identity = self.chain[0], self.chain[1], self.chain[3]
+        nq = len(rot)
+        q = 0.3 + 0.4 * np.arange(nq)  # general position: no two wrist axes lined up
+        frame, point, lines = np.eye(3), np.zeros(3), []
+        for k in range(nq):
+            point = point + frame @ np.asarray(pos[k])
+            frame = frame if identity[k] else frame @ np.asarray(rot[k])
+            if k >= nq - 3:
+                lines.append((point.copy(), frame[:, 2].copy()))
+            c, s_ = np.cos(q[k]), np.sin(q[k])
+            frame = frame @ np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+        A = sum(np.eye(3) - np.outer(w, w) for _, w in lines)
+        x = np.linalg.solve(A, sum((np.eye(3) - np.outer(w, w)) @ c for c, w in lines))
+        if max(np.linalg.norm((np.eye(3) - np.outer(w, w)) @ (x - c)) for c, w in lines) > 1e-6:
+            return None
+        return frame.T @ (x - point)
 
     def reach_joints(self) -> tuple[int, int, int]:
         """(S, E, F) of the closed-form reach: the shoulder S, the second joint; the elbow E, the first

@@ -79,6 +79,9 @@ _A2, _A3, _XV, _C, _LO, _HI, _WRAP, _PASSES = 4, 7, 10, 13, 22, 25, 28, 31
 # wraps; _W < 0: no wrist (an approach-axis arm's reach alone)
 _S, _E, _F, _REACH, _RLO, _RHI, _RWRAP = 32, 33, 34, 35, 36, 39, 42
 _SHOULDER, _ELBOW, _FLEX = 0, 1, 2
+# a spherical wrist's centre (PoseEncoding.wrist_centre): set or not, the point in the last joint's
+# frame, and the tool point's offset from it in the tool frame negated (centre = tool point + R_tool off)
+_WC, _WCV, _WCO = 45, 46, 49
 
 
 @numba.njit(**_JIT)
@@ -436,8 +439,11 @@ def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
     the reach's passes, each goal keeping the joint values of its least error (||p - p_g||^2 + L^2
     theta^2) before and after each pass: a pass is exact for each of its joints in turn, not for the
     pose, and where the limits clip a joint or an offset couples them the passes can drift away."""
-    _turned_frames(Q, GP, chain, turn, R, P)
     wr = spec[4]
+    if wr.shape[0] > _WC and wr[_WC] != 0.0 and wr[_REACH] > 0.0:
+        _centred(Q, GP, GR, chain, turn, spec, R, P)
+        return
+    _turned_frames(Q, GP, chain, turn, R, P)
     if wr.shape[0] == 0:
         return
     wrist = wr[_W] >= 0.0
@@ -474,6 +480,57 @@ def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
     Q[:, :] = Qb
     R[:, :, :] = Rb
     P[:, :] = Pb
+
+
+@numba.njit(**_JIT)
+def _centred(Q, GP, GR, chain, turn, spec, R, P):
+    """The reach of an arm with a spherical wrist: the wrist's centre, which no wrist joint moves, is
+    placed on the goal's (its position less the tool's offset from the centre, turned by the goal's
+    rotation) by the turn, the elbow and the shoulder, pass after pass, each goal keeping its nearest
+    pass; then the wrist is solved once for the orientation. The position and the orientation are
+    apart, so the passes converge as on a 3-joint arm."""
+    wr = spec[4]
+    n = Q.shape[1]
+    centre = np.empty(3)
+    for a in range(3):
+        centre[a] = wr[_WCV + a]
+    cchain = (chain[0], chain[1], chain[2], chain[3], centre)
+    GW = np.empty((3, n))
+    for g in range(n):
+        for a in range(3):
+            GW[a, g] = GP[a, g] + (GR[3 * a, g] * wr[_WCO] + GR[3 * a + 1, g] * wr[_WCO + 1]
+                                   + GR[3 * a + 2, g] * wr[_WCO + 2])
+    _turned_frames(Q, GW, cchain, turn, R, P)
+    best = np.empty(n)
+    Qb, Rb, Pb = Q.copy(), R.copy(), P.copy()
+    _centre_sq_errors(R, P, GW, centre, best)
+    D = np.empty(n)
+    for _ in range(int(wr[_REACH])):
+        _reach_rows(Q, GW, GR, cchain, spec, R, P, _ELBOW)
+        _reach_rows(Q, GW, GR, cchain, spec, R, P, _SHOULDER)
+        _turned_frames(Q, GW, cchain, turn, R, P)
+        _centre_sq_errors(R, P, GW, centre, D)
+        for g in range(n):
+            if D[g] < best[g]:
+                best[g] = D[g]
+                Qb[:, g] = Q[:, g]
+                Rb[:, :, g] = R[:, :, g]
+                Pb[:, g] = P[:, g]
+    Q[:, :] = Qb
+    R[:, :, :] = Rb
+    P[:, :] = Pb
+    _wrist_rows(Q, GP, GR, chain, spec, R, P)
+
+
+@numba.njit(**_JIT)
+def _centre_sq_errors(R, P, GW, centre, D):
+    """D (N,) <- the squared distance of the wrist's centre (P + R centre) from the goal's, GW (3, N)."""
+    for g in range(R.shape[2]):
+        d2 = 0.0
+        for a in range(3):
+            d = P[a, g] + R[a, 0, g] * centre[0] + R[a, 1, g] * centre[1] + R[a, 2, g] * centre[2] - GW[a, g]
+            d2 += d * d
+        D[g] = d2
 
 
 @numba.njit(**_JIT)
