@@ -121,23 +121,27 @@ def test_each_goal_keeps_its_best_pass(name):
     assert np.mean(errors[2] < errors[0] * (1 - 1e-6)) > 0.2  # and the later passes help many
 
 
-def test_a_spherical_wrist_has_its_centre_where_its_axes_meet():
-    """PoseEncoding.wrist_centre: the Kinova's three wrist axes meet in one point, fixed in the last
-    joint's frame; checked through Pinocchio at random joint vectors. The other full-pose arms'
-    wrists are offset: None."""
-    arm = robots.load("kinova")
-    centre = PoseEncoding.for_arm(arm, "sphere", 0.0, True).wrist_centre()
-    assert centre is not None
-    model, data = arm.model, arm.model.createData()
-    for q in arm.sample_q(5, seed=12):
-        pin.computeJointJacobians(model, data, arm.to_pinocchio(q[None])[0])
-        last = data.oMi[int(arm.chain.joint_ids[-1])]
-        point = last.translation + last.rotation @ centre
-        for j in range(arm.nq - 3, arm.nq):
-            c, w = _axis(arm, q, j)
-            assert np.linalg.norm(np.cross(point - c, w)) < 1e-9
-    for name in ("ur5", "panda", "xarm7", "z1"):
-        assert PoseEncoding.for_arm(robots.load(name), "sphere", 0.0, True).wrist_centre() is None
+def test_the_wrist_point_is_where_the_wrist_axes_meet():
+    """PoseEncoding.wrist_point: the Kinova's three wrist axes meet in one point, fixed in the last
+    joint's frame; the UR arms' and Z1's last two; the Panda's and xArm7's none. The point, carried by
+    the kernels' frames, lies on Pinocchio's axes at random joint vectors."""
+    for name, meet in (("kinova", 3), ("ur5", 2), ("z1", 2), ("panda", 0), ("xarm7", 0)):
+        arm = robots.load(name)
+        enc = PoseEncoding.for_arm(arm, "sphere", 0.0, True)
+        found = enc.wrist_point()
+        assert (found is None) == (meet == 0), name
+        if found is None:
+            continue
+        point, spherical = found
+        assert spherical == (meet == 3), name
+        q = arm.sample_q(3, seed=12)
+        R, P = np.empty((3, 3, 3)), np.empty((3, 3))
+        _chain_frames(np.ascontiguousarray(q.T.copy()), enc.chain, R, P)
+        for i in range(3):
+            x = P[:, i] + R[:, :, i] @ point
+            for j in range(arm.nq - meet, arm.nq):
+                c, w = _axis(arm, q[i], j)
+                assert np.linalg.norm(np.cross(x - c, w)) < 1e-9, (name, j)
 
 
 def test_the_reach_of_a_spherical_wrist_places_its_centre_then_turns_the_tool():
@@ -148,11 +152,11 @@ def test_the_reach_of_a_spherical_wrist_places_its_centre_then_turns_the_tool():
     arm = robots.load("kinova")
     T = pose.sample_poses(arm, 300, seed=13)
     enc = PoseEncoding.for_arm(arm, "sphere", 0.0, True)
-    assert enc.reach and enc.wrist_centre() is not None
+    assert enc.reach and enc.wrist_point()[1]
     start = arm.sample_q(300, seed=14)
     d, a = pose.pose_errors(arm, T, enc.finished(start, T))
     assert np.mean((d < 1e-9) & (a < 1e-9)) > 0.75, (np.median(d), np.median(a))
-    centre = enc.wrist_centre()
+    centre = enc.wrist_point()[0]
     offset = enc.tool.T @ (centre - np.asarray(enc.chain[4]))
     goal_centres = T[:, :3, 3] + np.einsum("nab,b->na", T[:, :3, :3], offset)
     model, data = arm.model, arm.model.createData()

@@ -197,19 +197,21 @@ class PoseEncoding:
         head = self.wrist_arrays() if self.wrist else np.concatenate([[-1.0], np.zeros(pose_kernels._S - 1)])
         S, E, F = self.reach_joints() if self.reach else (0, 0, -1)
         three = [S, E, max(F, 0)]
-        centre = self.wrist_centre() if self.reach and self.wrist else None
-        tail = [0.0] * 7 if centre is None else \
-            [1.0, *centre, *(self.tool.T @ (centre - np.asarray(self.chain[4], dtype=np.float64)))]
+        point = self.wrist_point() if self.reach and self.wrist else None
+        tail = [0.0] * 7 if point is None else \
+            [1.0 if point[1] else 2.0, *point[0], *(self.tool.T @ (point[0] - np.asarray(self.chain[4], float)))]
         return np.ascontiguousarray(np.concatenate([head, [S, E, F, self.reach], self.position.q_lo[three],
                                                     self.position.q_hi[three],
                                                     np.asarray(self.position.wrap, bool)[three].astype(float),
                                                     tail]),
                                     dtype=np.float64)
 
-    def wrist_centre(self) -> np.ndarray | None:
-        """Where a spherical wrist's three axes meet, in the last joint's frame (the point no wrist joint
-        moves), or None when they do not meet in one point (within a micrometre, at a configuration
-        of general position): the Kinova's do; the UR arms', Panda's, xArm7's and Z1's are offset."""
+    def wrist_point(self) -> tuple[np.ndarray, bool] | None:
+        """(the point where the wrist's axes meet, in the last joint's frame; whether all three meet
+        there) or None: a spherical wrist's centre, which no wrist joint moves (the Kinova's), else the
+        point where the last two axes meet, which only the first wrist joint moves (the UR arms' and
+        Z1's), else None (the Panda's and xArm7's are 7.6-8.8 cm apart). Within a micrometre, at a
+        configuration of general position."""
         rot, pos, identity = self.chain[0], self.chain[1], self.chain[3]
         nq = len(rot)
         q = 0.3 + 0.4 * np.arange(nq)  # general position: no two wrist axes lined up
@@ -221,11 +223,12 @@ class PoseEncoding:
                 lines.append((point.copy(), frame[:, 2].copy()))
             c, s_ = np.cos(q[k]), np.sin(q[k])
             frame = frame @ np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
-        A = sum(np.eye(3) - np.outer(w, w) for _, w in lines)
-        x = np.linalg.solve(A, sum((np.eye(3) - np.outer(w, w)) @ c for c, w in lines))
-        if max(np.linalg.norm((np.eye(3) - np.outer(w, w)) @ (x - c)) for c, w in lines) > 1e-6:
-            return None
-        return frame.T @ (x - point)
+        for meet, spherical in ((lines, True), (lines[1:], False)):
+            A = sum(np.eye(3) - np.outer(w, w) for _, w in meet)
+            x = np.linalg.solve(A, sum((np.eye(3) - np.outer(w, w)) @ c for c, w in meet))
+            if max(np.linalg.norm((np.eye(3) - np.outer(w, w)) @ (x - c)) for c, w in meet) < 1e-6:
+                return frame.T @ (x - point), spherical
+        return None
 
     def reach_joints(self) -> tuple[int, int, int]:
         """(S, E, F) of the closed-form reach: the shoulder S, the second joint; the elbow E, the first

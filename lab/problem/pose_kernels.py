@@ -79,8 +79,9 @@ _A2, _A3, _XV, _C, _LO, _HI, _WRAP, _PASSES = 4, 7, 10, 13, 22, 25, 28, 31
 # wraps; _W < 0: no wrist (an approach-axis arm's reach alone)
 _S, _E, _F, _REACH, _RLO, _RHI, _RWRAP = 32, 33, 34, 35, 36, 39, 42
 _SHOULDER, _ELBOW, _FLEX = 0, 1, 2
-# a spherical wrist's centre (PoseEncoding.wrist_centre): set or not, the point in the last joint's
-# frame, and the tool point's offset from it in the tool frame negated (centre = tool point + R_tool off)
+# the point where the wrist's axes meet (PoseEncoding.wrist_point): 0 none, 1 all three (a spherical
+# wrist's centre), 2 the last two; the point in the last joint's frame; and its offset from the tool
+# point in the tool frame (point = tool point + R_tool off)
 _WC, _WCV, _WCO = 45, 46, 49
 
 
@@ -484,11 +485,13 @@ def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
 
 @numba.njit(**_JIT)
 def _centred(Q, GP, GR, chain, turn, spec, R, P):
-    """The reach of an arm with a spherical wrist: the wrist's centre, which no wrist joint moves, is
-    placed on the goal's (its position less the tool's offset from the centre, turned by the goal's
-    rotation) by the turn, the elbow and the shoulder, pass after pass, each goal keeping its nearest
-    pass; then the wrist is solved once for the orientation. The position and the orientation are
-    apart, so the passes converge as on a 3-joint arm."""
+    """The reach on the point where the wrist's axes meet, placed on the goal's (the goal's position
+    plus the point's offset from the tool, turned by the goal's rotation) by the turn, the elbow and
+    the shoulder, pass after pass. A spherical wrist (_WC 1): no wrist joint moves its centre, so
+    position and orientation are apart: each goal keeps its nearest pass, then the wrist is solved
+    once, and the passes converge as on a 3-joint arm. The last two axes (_WC 2): only the first wrist
+    joint moves the point, so the wrist is solved after each pass, each goal keeping its best pass
+    (||p - p_g||^2 + L^2 theta^2); the point moves far less with the wrist than the tool point does."""
     wr = spec[4]
     n = Q.shape[1]
     centre = np.empty(3)
@@ -500,16 +503,29 @@ def _centred(Q, GP, GR, chain, turn, spec, R, P):
         for a in range(3):
             GW[a, g] = GP[a, g] + (GR[3 * a, g] * wr[_WCO] + GR[3 * a + 1, g] * wr[_WCO + 1]
                                    + GR[3 * a + 2, g] * wr[_WCO + 2])
+    spherical = wr[_WC] == 1.0
+    w2 = spec[3]
     _turned_frames(Q, GW, cchain, turn, R, P)
-    best = np.empty(n)
+    best, D, A = np.empty(n), np.empty(n), np.empty(n)
+    if spherical:
+        _centre_sq_errors(R, P, GW, centre, best)
+    else:
+        _wrist_rows(Q, GP, GR, chain, spec, R, P)
+        _pose_rows(R, P, GP, GR, chain, spec, best, A)
+        for g in range(n):
+            best[g] += w2 * A[g] * A[g]
     Qb, Rb, Pb = Q.copy(), R.copy(), P.copy()
-    _centre_sq_errors(R, P, GW, centre, best)
-    D = np.empty(n)
     for _ in range(int(wr[_REACH])):
         _reach_rows(Q, GW, GR, cchain, spec, R, P, _ELBOW)
         _reach_rows(Q, GW, GR, cchain, spec, R, P, _SHOULDER)
         _turned_frames(Q, GW, cchain, turn, R, P)
-        _centre_sq_errors(R, P, GW, centre, D)
+        if spherical:
+            _centre_sq_errors(R, P, GW, centre, D)
+        else:
+            _wrist_rows(Q, GP, GR, chain, spec, R, P)
+            _pose_rows(R, P, GP, GR, chain, spec, D, A)
+            for g in range(n):
+                D[g] += w2 * A[g] * A[g]
         for g in range(n):
             if D[g] < best[g]:
                 best[g] = D[g]
@@ -519,7 +535,8 @@ def _centred(Q, GP, GR, chain, turn, spec, R, P):
     Q[:, :] = Qb
     R[:, :, :] = Rb
     P[:, :] = Pb
-    _wrist_rows(Q, GP, GR, chain, spec, R, P)
+    if spherical:
+        _wrist_rows(Q, GP, GR, chain, spec, R, P)
 
 
 @numba.njit(**_JIT)
