@@ -439,7 +439,9 @@ def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
     a wrist of two passes, the turn again on the solved wrist's tool point and the wrist again. Then
     the reach's passes, each goal keeping the joint values of its least error (||p - p_g||^2 + L^2
     theta^2) before and after each pass: a pass is exact for each of its joints in turn, not for the
-    pose, and where the limits clip a joint or an offset couples them the passes can drift away."""
+    pose, and where the limits clip a joint or an offset couples them the passes can drift away.
+    Where the wrist's axes meet in a point (spec[4][_WC] set), the reach works on that point instead
+    (_centred)."""
     wr = spec[4]
     if wr.shape[0] > _WC and wr[_WC] != 0.0 and wr[_REACH] > 0.0:
         _centred(Q, GP, GR, chain, turn, spec, R, P)
@@ -472,15 +474,23 @@ def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
             _wrist_rows(Q, GP, GR, chain, spec, R, P)
         _pose_rows(R, P, GP, GR, chain, spec, D, A)
         for g in range(n):
-            e = D[g] + w2 * A[g] * A[g]
-            if e < best[g]:
-                best[g] = e
-                Qb[:, g] = Q[:, g]
-                Rb[:, :, g] = R[:, :, g]
-                Pb[:, g] = P[:, g]
+            D[g] += w2 * A[g] * A[g]
+        _keep_best(D, best, Q, R, P, Qb, Rb, Pb)
     Q[:, :] = Qb
     R[:, :, :] = Rb
     P[:, :] = Pb
+
+
+@numba.njit(**_JIT)
+def _keep_best(D, best, Q, R, P, Qb, Rb, Pb):
+    """Each goal g whose error D[g] is below best[g]: best[g] <- D[g], and its joint values and frame
+    copied into Qb, Rb, Pb."""
+    for g in range(D.shape[0]):
+        if D[g] < best[g]:
+            best[g] = D[g]
+            Qb[:, g] = Q[:, g]
+            Rb[:, :, g] = R[:, :, g]
+            Pb[:, g] = P[:, g]
 
 
 @numba.njit(**_JIT)
@@ -504,39 +514,35 @@ def _centred(Q, GP, GR, chain, turn, spec, R, P):
             GW[a, g] = GP[a, g] + (GR[3 * a, g] * wr[_WCO] + GR[3 * a + 1, g] * wr[_WCO + 1]
                                    + GR[3 * a + 2, g] * wr[_WCO + 2])
     spherical = wr[_WC] == 1.0
-    w2 = spec[3]
     _turned_frames(Q, GW, cchain, turn, R, P)
     best, D, A = np.empty(n), np.empty(n), np.empty(n)
-    if spherical:
-        _centre_sq_errors(R, P, GW, centre, best)
-    else:
-        _wrist_rows(Q, GP, GR, chain, spec, R, P)
-        _pose_rows(R, P, GP, GR, chain, spec, best, A)
-        for g in range(n):
-            best[g] += w2 * A[g] * A[g]
+    _centred_errors(Q, GP, GR, GW, chain, spec, centre, spherical, R, P, best, A)
     Qb, Rb, Pb = Q.copy(), R.copy(), P.copy()
     for _ in range(int(wr[_REACH])):
         _reach_rows(Q, GW, GR, cchain, spec, R, P, _ELBOW)
         _reach_rows(Q, GW, GR, cchain, spec, R, P, _SHOULDER)
         _turned_frames(Q, GW, cchain, turn, R, P)
-        if spherical:
-            _centre_sq_errors(R, P, GW, centre, D)
-        else:
-            _wrist_rows(Q, GP, GR, chain, spec, R, P)
-            _pose_rows(R, P, GP, GR, chain, spec, D, A)
-            for g in range(n):
-                D[g] += w2 * A[g] * A[g]
-        for g in range(n):
-            if D[g] < best[g]:
-                best[g] = D[g]
-                Qb[:, g] = Q[:, g]
-                Rb[:, :, g] = R[:, :, g]
-                Pb[:, g] = P[:, g]
+        _centred_errors(Q, GP, GR, GW, chain, spec, centre, spherical, R, P, D, A)
+        _keep_best(D, best, Q, R, P, Qb, Rb, Pb)
     Q[:, :] = Qb
     R[:, :, :] = Rb
     P[:, :] = Pb
     if spherical:
         _wrist_rows(Q, GP, GR, chain, spec, R, P)
+
+
+@numba.njit(**_JIT)
+def _centred_errors(Q, GP, GR, GW, chain, spec, centre, spherical, R, P, D, A):
+    """D (N,) <- what _centred keeps the least of: a spherical wrist's centre's squared distance from
+    the goal's; else, the wrist solved first, ||p - p_g||^2 + L^2 theta^2 (A: the angles)."""
+    if spherical:
+        _centre_sq_errors(R, P, GW, centre, D)
+        return
+    _wrist_rows(Q, GP, GR, chain, spec, R, P)
+    _pose_rows(R, P, GP, GR, chain, spec, D, A)
+    w2 = spec[3]
+    for g in range(D.shape[0]):
+        D[g] += w2 * A[g] * A[g]
 
 
 @numba.njit(**_JIT)
