@@ -36,6 +36,7 @@ axis. `to_dict()` stores it all, so a pose controller reloads without the arm.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -212,17 +213,8 @@ class PoseEncoding:
         point where the last two axes meet, which only the first wrist joint moves (the UR arms' and
         Z1's), else None (the Panda's and xArm7's are 7.6-8.8 cm apart). Within a micrometre, at a
         configuration of general position."""
-        rot, pos, identity = self.chain[0], self.chain[1], self.chain[3]
-        nq = len(rot)
-        q = 0.3 + 0.4 * np.arange(nq)  # general position: no two wrist axes lined up
-        frame, point, lines = np.eye(3), np.zeros(3), []
-        for k in range(nq):
-            point = point + frame @ np.asarray(pos[k])
-            frame = frame if identity[k] else frame @ np.asarray(rot[k])
-            if k >= nq - 3:
-                lines.append((point.copy(), frame[:, 2].copy()))
-            c, s_ = np.cos(q[k]), np.sin(q[k])
-            frame = frame @ np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+        lines, frame, point = self._axes(0.3 + 0.4 * np.arange(len(self.chain[0])))  # general position
+        lines = lines[-3:]
         for meet, spherical in ((lines, True), (lines[1:], False)):
             A = sum(np.eye(3) - np.outer(w, w) for _, w in meet)
             x = np.linalg.solve(A, sum((np.eye(3) - np.outer(w, w)) @ c for c, w in meet))
@@ -236,12 +228,9 @@ class PoseEncoding:
         distance from S's axis), before the wrist (a full pose: the last three joints) or the roll (an
         approach axis: the last joint); on an approach-axis arm the flex F, the next such joint (it
         turns the approach axis), else -1. ValueError when the arm has none."""
-        rot, kind, identity = self.chain[0], np.asarray(self.chain[2]), np.asarray(self.chain[3])
-        end = len(rot) - (3 if self.axis is None else 1)
-        frame, axes = np.eye(3), []
-        for k in range(end):
-            frame = frame if identity[k] else frame @ rot[k]
-            axes.append(frame[:, 2])
+        kind = np.asarray(self.chain[2])
+        end = len(kind) - (3 if self.axis is None else 1)
+        axes = [w for _, w in self._axes()[0][:end]]
         parallel = [e for e in range(2, end) if kind[e] == 0 and abs(axes[e] @ axes[1]) > 0.99]
         if end >= 3 and kind[1] == 0 and abs(axes[1] @ axes[0]) < 0.99 and parallel:
             if self.axis is None:
@@ -268,7 +257,7 @@ class PoseEncoding:
             joints += [j for j in self.reach_joints() if j >= 0]
         return np.asarray(sorted(set(joints)), dtype=np.int64)
 
-    @property
+    @functools.cached_property
     def swept_joints(self) -> tuple[int, ...]:
         """The joints whose values swept() spreads over their ranges, one at a time: the one joint the
         turn, the reach and the wrist leave to the network, where its turn moves the tool point (a
@@ -283,15 +272,25 @@ class PoseEncoding:
 
     def _tool_offset(self, j: int) -> float:
         """The tool point's distance from joint j's axis at the zero pose [m]."""
-        rot, pos, identity, ee_pos = self.chain[0], self.chain[1], self.chain[3], self.chain[4]
-        frame, point, axis = np.eye(3), np.zeros(3), None
+        lines, frame, point = self._axes()
+        centre, axis = lines[j]
+        d = point + frame @ np.asarray(self.chain[4]) - centre
+        return float(np.linalg.norm(d - (d @ axis) * axis))
+
+    def _axes(self, q=None) -> tuple[list, np.ndarray, np.ndarray]:
+        """(each joint's axis as (a point, its unit direction) in the base frame, the last joint's
+        frame's rotation and origin) at joint values q (None: the zero pose), walking the chain as
+        pose_kernels do."""
+        rot, pos, identity = self.chain[0], self.chain[1], self.chain[3]
+        frame, point, lines = np.eye(3), np.zeros(3), []
         for k in range(len(rot)):
             point = point + frame @ np.asarray(pos[k])
             frame = frame if identity[k] else frame @ np.asarray(rot[k])
-            if k == j:
-                centre, axis = point.copy(), frame[:, 2].copy()
-        d = point + frame @ np.asarray(ee_pos) - centre
-        return float(np.linalg.norm(d - (d @ axis) * axis))
+            lines.append((point.copy(), frame[:, 2].copy()))
+            if q is not None:
+                c, s_ = np.cos(q[k]), np.sin(q[k])
+                frame = frame @ np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+        return lines, frame, point
 
     def swept(self, q: np.ndarray, poses: np.ndarray, count: int) -> np.ndarray:
         """(joints count k, n, nq): answers q (k, n, nq) with each of the swept joints in turn set to
