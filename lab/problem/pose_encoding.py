@@ -201,10 +201,12 @@ class PoseEncoding:
         point = self.wrist_point() if self.reach and self.wrist else None
         tail = [0.0] * 7 if point is None else \
             [1.0 if point[1] else 2.0, *point[0], *(self.tool.T @ (point[0] - np.asarray(self.chain[4], float)))]
+        ends = [0, len(self.position.q_lo) - 1]  # the first joint and the last (an SO arm's exact pass)
         return np.ascontiguousarray(np.concatenate([head, [S, E, F, self.reach], self.position.q_lo[three],
                                                     self.position.q_hi[three],
                                                     np.asarray(self.position.wrap, bool)[three].astype(float),
-                                                    tail]),
+                                                    tail, self.position.q_lo[ends], self.position.q_hi[ends],
+                                                    np.asarray(self.position.wrap, bool)[ends].astype(float)]),
                                     dtype=np.float64)
 
     def wrist_point(self) -> tuple[np.ndarray, bool] | None:

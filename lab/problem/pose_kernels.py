@@ -83,6 +83,10 @@ _SHOULDER, _ELBOW, _FLEX = 0, 1, 2
 # wrist's centre), 2 the last two; the point in the last joint's frame; and its offset from the tool
 # point in the tool frame (point = tool point + R_tool off)
 _WC, _WCV, _WCO = 45, 46, 49
+# an approach-axis arm whose roll follows the flex (the SO arms): the exact pass (_approach_pass) also
+# solves the first joint (_PAN) and the roll (_ROLL); their limits (lo, hi) and whether each wraps
+_PAN, _ROLL = 3, 4
+_PLO, _PHI_, _PWRAP = 52, 54, 56
 
 
 @numba.njit(**_JIT)
@@ -248,7 +252,7 @@ def _bearing(vx, vy, vz, gx, gy, gz, w):
 
 
 @numba.njit(**_JIT)
-def _reach_rows(Q, GP, GR, chain, spec, R, P, step):
+def _reach_rows(Q, GP, GR, chain, spec, R, P, step, PT):
     """One joint of Q (nq, N) solved in closed form for each goal, the others held, and R, P (the last
     joint's frame) turned rigidly with it. step _FLEX: joint F, turned so that the tool's approach axis
     (R axis_j) has the goal's bearing about F's axis (GR: the goals' approach directions). _ELBOW: joint E, turned so that the tool point's
@@ -256,13 +260,24 @@ def _reach_rows(Q, GP, GR, chain, spec, R, P, step):
     keep) is the goal's: with u = p - c the tool point about E's axis (c, w), u = u_par + v,
     |p(t) - s|^2 = |a|^2 + |v|^2 + A cos t + B sin t (a = c + u_par - s, A = 2 a.v, B = 2 a.(w x v)),
     two solutions, the one nearer the joint's value kept (or the one nearer that distance once each is
-    taken into the joint's limits). Else joint S, turned so that the tool point's bearing about its axis
-    is the goal's."""
+    taken into the joint's limits). _SHOULDER: joint S, turned so that the tool point's bearing about its
+    axis is the goal's. _PAN: joint 0, turned so that the goal's approach direction has the tool's
+    approach axis's height along S's axis, which S, E, F and the roll keep (across it on the SO-100,
+    3.7e-6 rad off on the SO-101): the plane they turn that axis in then holds the goal's. _ROLL: the last joint, turned so that
+    the tool point's height along S's axis is the goal's. Each of these two has two solutions, the one
+    within the limits kept, or of two the nearer the joint's value. PT (3, N): each goal's point in the last joint's frame, for the tool
+    point (none: PT.shape[1] == 0)."""
     rot, pos, identity, ee_pos = chain[0], chain[1], chain[3], chain[4]
     wr, axis_j = spec[4], spec[1]
     S = int(wr[_S])
-    j = int(wr[_S + step])
-    lo, hi, wrap = wr[_RLO + step], wr[_RHI + step], wr[_RWRAP + step] != 0.0
+    if step < _PAN:
+        j = int(wr[_S + step])
+        lo, hi, wrap = wr[_RLO + step], wr[_RHI + step], wr[_RWRAP + step] != 0.0
+    else:
+        j = 0 if step == _PAN else rot.shape[0] - 1
+        lo, hi, wrap = wr[_PLO + step - _PAN], wr[_PHI_ + step - _PAN], wr[_PWRAP + step - _PAN] != 0.0
+    point = PT.shape[1] > 0
+    e0, e1, e2 = ee_pos[0], ee_pos[1], ee_pos[2]
     Rp, T1 = np.empty((3, 3)), np.empty((3, 3))
     c0, w0, cs, ws, c, w = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for g in range(Q.shape[1]):
@@ -270,7 +285,7 @@ def _reach_rows(Q, GP, GR, chain, spec, R, P, step):
             for b in range(3):
                 Rp[a, b] = 1.0 if a == b else 0.0
         px, py, pz = 0.0, 0.0, 0.0
-        for k in range(j + 1):  # joint k's axis: T1's z through (px, py, pz)
+        for k in range(max(j, S) + 1):  # joint k's axis: T1's z through (px, py, pz)
             px += Rp[0, 0] * pos[k, 0] + Rp[0, 1] * pos[k, 1] + Rp[0, 2] * pos[k, 2]
             py += Rp[1, 0] * pos[k, 0] + Rp[1, 1] * pos[k, 1] + Rp[1, 2] * pos[k, 2]
             pz += Rp[2, 0] * pos[k, 0] + Rp[2, 1] * pos[k, 1] + Rp[2, 2] * pos[k, 2]
@@ -288,9 +303,11 @@ def _reach_rows(Q, GP, GR, chain, spec, R, P, step):
                     if k == j:
                         c[a], w[a] = pa, wa
             _rz_into(T1, Q[k, g], Rp)
-        tx = P[0, g] + R[0, 0, g] * ee_pos[0] + R[0, 1, g] * ee_pos[1] + R[0, 2, g] * ee_pos[2]
-        ty = P[1, g] + R[1, 0, g] * ee_pos[0] + R[1, 1, g] * ee_pos[1] + R[1, 2, g] * ee_pos[2]
-        tz = P[2, g] + R[2, 0, g] * ee_pos[0] + R[2, 1, g] * ee_pos[1] + R[2, 2, g] * ee_pos[2]
+        if point:
+            e0, e1, e2 = PT[0, g], PT[1, g], PT[2, g]
+        tx = P[0, g] + R[0, 0, g] * e0 + R[0, 1, g] * e1 + R[0, 2, g] * e2
+        ty = P[1, g] + R[1, 0, g] * e0 + R[1, 1, g] * e1 + R[1, 2, g] * e2
+        tz = P[2, g] + R[2, 0, g] * e0 + R[2, 1, g] * e1 + R[2, 2, g] * e2
         ux, uy, uz = tx - c[0], ty - c[1], tz - c[2]
         du = ux * w[0] + uy * w[1] + uz * w[2]
         vx, vy, vz = ux - du * w[0], uy - du * w[1], uz - du * w[2]  # the tool point across the axis
@@ -301,6 +318,37 @@ def _reach_rows(Q, GP, GR, chain, spec, R, P, step):
             ay = R[1, 0, g] * axis_j[0] + R[1, 1, g] * axis_j[1] + R[1, 2, g] * axis_j[2]
             az = R[2, 0, g] * axis_j[0] + R[2, 1, g] * axis_j[1] + R[2, 2, g] * axis_j[2]
             best = _into(q_now + _bearing(ax, ay, az, GR[0, g], GR[1, g], GR[2, g], w), lo, hi, wrap)
+        elif step == _PAN or step == _ROLL:
+            if step == _PAN:  # ws(d) . a = A cos d + B sin d + C, ws turned about joint 0's axis w
+                ga, gb, gc = GR[0, g], GR[1, g], GR[2, g]
+                h = ws[0] * w[0] + ws[1] * w[1] + ws[2] * w[2]
+                px_, py_, pz_ = ws[0] - h * w[0], ws[1] - h * w[1], ws[2] - h * w[2]
+                A = px_ * ga + py_ * gb + pz_ * gc
+                B = (w[1] * pz_ - w[2] * py_) * ga + (w[2] * px_ - w[0] * pz_) * gb + (w[0] * py_ - w[1] * px_) * gc
+                # the approach axis's height along S's axis, which no joint but the first changes
+                ax = R[0, 0, g] * axis_j[0] + R[0, 1, g] * axis_j[1] + R[0, 2, g] * axis_j[2]
+                ay = R[1, 0, g] * axis_j[0] + R[1, 1, g] * axis_j[1] + R[1, 2, g] * axis_j[2]
+                az = R[2, 0, g] * axis_j[0] + R[2, 1, g] * axis_j[1] + R[2, 2, g] * axis_j[2]
+                target = ws[0] * ax + ws[1] * ay + ws[2] * az - h * (w[0] * ga + w[1] * gb + w[2] * gc)
+            else:  # ws . (t(d) - cs) = ws . (c + du w - cs) + A cos d + B sin d, the goal's height
+                A = ws[0] * vx + ws[1] * vy + ws[2] * vz
+                B = ws[0] * qx + ws[1] * qy + ws[2] * qz
+                target = (ws[0] * (GP[0, g] - c[0] - du * w[0]) + ws[1] * (GP[1, g] - c[1] - du * w[1])
+                          + ws[2] * (GP[2, g] - c[2] - du * w[2]))
+            r = math.sqrt(A * A + B * B)
+            if r < 1e-9:
+                continue
+            mid = math.atan2(B, A)
+            half = math.acos(min(1.0, max(-1.0, target / r)))
+            best, move_best = q_now, np.inf
+            for sign in (1.0, -1.0):  # a solution within the limits first, then the nearer
+                t = mid + sign * half
+                t = (t + math.pi) % (2.0 * math.pi) - math.pi
+                cand = _into(q_now + t, lo, hi, wrap)
+                off = (cand - q_now - t) % (2.0 * math.pi)
+                move = abs(cand - q_now) + (0.0 if min(off, 2.0 * math.pi - off) < 1e-12 else 100.0)
+                if move < move_best:
+                    best, move_best = cand, move
         elif step == _ELBOW:
             # s: the point of S's axis nearest joint 0's axis (S's own origin when the two are parallel)
             b = ws[0] * w0[0] + ws[1] * w0[1] + ws[2] * w0[2]
@@ -464,12 +512,16 @@ def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
     w2 = spec[3]
     best = D + w2 * A * A
     Qb, Rb, Pb = Q.copy(), R.copy(), P.copy()
+    none = np.empty((3, 0))
     for _ in range(passes):
-        if wr[_F] >= 0.0:
-            _reach_rows(Q, GP, GR, chain, spec, R, P, _FLEX)
-        _reach_rows(Q, GP, GR, chain, spec, R, P, _ELBOW)
-        _reach_rows(Q, GP, GR, chain, spec, R, P, _SHOULDER)
-        _turned_frames(Q, GP, chain, turn, R, P)
+        if wr[_F] >= 0.0 and int(wr[_F]) == Q.shape[0] - 2:
+            _approach_pass(Q, GP, GR, chain, spec, R, P)
+        else:
+            if wr[_F] >= 0.0:
+                _reach_rows(Q, GP, GR, chain, spec, R, P, _FLEX, none)
+            _reach_rows(Q, GP, GR, chain, spec, R, P, _ELBOW, none)
+            _reach_rows(Q, GP, GR, chain, spec, R, P, _SHOULDER, none)
+            _turned_frames(Q, GP, chain, turn, R, P)
         if wrist:
             _wrist_rows(Q, GP, GR, chain, spec, R, P)
         _pose_rows(R, P, GP, GR, chain, spec, D, A)
@@ -479,6 +531,35 @@ def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
     Q[:, :] = Qb
     R[:, :, :] = Rb
     P[:, :] = Pb
+
+
+@numba.njit(**_JIT)
+def _approach_pass(Q, GP, GR, chain, spec, R, P):
+    """One exact pass of an approach-axis arm whose roll follows the flex (the SO arms): the first
+    joint puts S's axis across the goal's approach direction, the flex turns the approach axis onto
+    the goal's, the roll puts the tool point at the goal's height along S's axis; the tool's offset
+    from the flex's origin is then final, so the elbow and the shoulder place that origin at the goal
+    less the offset, and the flex turns the approach axis back. Exact where no joint meets a limit
+    (the branch of each two-solution joint: the one nearer the joint's value)."""
+    rot, pos, ee_pos = chain[0], chain[1], chain[4]
+    none = np.empty((3, 0))
+    _reach_rows(Q, GP, GR, chain, spec, R, P, _PAN, none)
+    _reach_rows(Q, GP, GR, chain, spec, R, P, _FLEX, none)
+    _reach_rows(Q, GP, GR, chain, spec, R, P, _ROLL, none)
+    n, last = Q.shape[1], Q.shape[0] - 1
+    b = np.empty(3)  # the flex's origin is P - R Rz(q_last)^T rot[last]^T pos[last]
+    for a in range(3):
+        b[a] = rot[last, 0, a] * pos[last, 0] + rot[last, 1, a] * pos[last, 1] + rot[last, 2, a] * pos[last, 2]
+    PT, GW = np.empty((3, n)), np.empty((3, n))
+    for g in range(n):
+        cq, sq = math.cos(Q[last, g]), math.sin(Q[last, g])
+        PT[0, g], PT[1, g], PT[2, g] = -(cq * b[0] + sq * b[1]), -(cq * b[1] - sq * b[0]), -b[2]
+        for a in range(3):
+            GW[a, g] = GP[a, g] - (R[a, 0, g] * (ee_pos[0] - PT[0, g]) + R[a, 1, g] * (ee_pos[1] - PT[1, g])
+                                   + R[a, 2, g] * (ee_pos[2] - PT[2, g]))
+    _reach_rows(Q, GW, GR, chain, spec, R, P, _ELBOW, PT)
+    _reach_rows(Q, GW, GR, chain, spec, R, P, _SHOULDER, PT)
+    _reach_rows(Q, GP, GR, chain, spec, R, P, _FLEX, none)
 
 
 @numba.njit(**_JIT)
@@ -518,9 +599,10 @@ def _centred(Q, GP, GR, chain, turn, spec, R, P):
     best, D, A = np.empty(n), np.empty(n), np.empty(n)
     _centred_errors(Q, GP, GR, GW, chain, spec, centre, spherical, R, P, best, A)
     Qb, Rb, Pb = Q.copy(), R.copy(), P.copy()
+    none = np.empty((3, 0))
     for _ in range(int(wr[_REACH])):
-        _reach_rows(Q, GW, GR, cchain, spec, R, P, _ELBOW)
-        _reach_rows(Q, GW, GR, cchain, spec, R, P, _SHOULDER)
+        _reach_rows(Q, GW, GR, cchain, spec, R, P, _ELBOW, none)
+        _reach_rows(Q, GW, GR, cchain, spec, R, P, _SHOULDER, none)
         _turned_frames(Q, GW, cchain, turn, R, P)
         _centred_errors(Q, GP, GR, GW, chain, spec, centre, spherical, R, P, D, A)
         _keep_best(D, best, Q, R, P, Qb, Rb, Pb)
