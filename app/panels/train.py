@@ -82,8 +82,8 @@ def pose_expectation(robot: str, method: str) -> str:
     except (OSError, ValueError, KeyError, TypeError):
         return ""
     enc = doc.get("controller", {}).get("encoding", {})
-    closed = (f"; {'wrist' if enc.get('wrist') else 'wrist flex'}, elbow and shoulder solved in closed form"
-              if enc.get("reach") else "")
+    closed = ("" if not enc.get("reach") else "; wrist, elbow and shoulder solved in closed form" if enc.get("wrist")
+              else "; every joint solved in closed form")
     return (f"Shipped {methods.get(method).label} pose network ({seconds:.0f} s): {mm:.1f} mm, {deg:.1f}° "
             f"median on held-out poses{closed}.")
 

@@ -25,9 +25,10 @@ solutions, the nearer kept), so the network places the arm and the wrist turns t
 
 The reach (`reach=k` passes, with the turn; on a full-pose arm with the wrist): after the wrist, the
 elbow is solved for the goal's distance from the shoulder, the shoulder for the goal's bearing about
-its axis, then the turn and the wrist again; on an arm held to an approach axis (the SO arms, no
-wrist) the wrist's flex first turns that axis toward the goal's. Each goal keeps the joint values of
-its best pass. The network's outputs for those joints only pick the branch (pose_kernels' reach).
+its axis, then the turn and the wrist again; on an arm held to an approach axis whose roll follows
+the flex (the SO arms, no wrist) a pass solves every joint: the first joint, the flex, the roll, then
+the elbow and the shoulder on the flex's origin, and the flex again. Each goal keeps the joint values
+of its best pass. The network's outputs for those joints only pick the branch (pose_kernels' reach).
 
 `PoseEncoding` carries everything the compiled error needs: the arm's kinematic chain, the tool
 frame's rotation in the chain's last joint frame (robots.pose's tool rotation) and the approach

@@ -17,9 +17,10 @@ The wrist (spec[4], lab.problem.pose_encoding's closed_form_arrays; empty: none)
 last three joints are solved in closed form for the goal's rotation on the frame the others leave (two
 solutions, as an Euler decomposition about the three joints' own axes; each angle taken by whole
 turns into its limits, else clipped), the one nearer the goal kept. The reach (the same array): then,
-pass after pass, the wrist's flex on an approach-axis arm (the axis turned toward the goal's), the
-elbow (the goal's distance from the shoulder), the shoulder (the goal's bearing about its axis), the
-turn and the wrist again (_reach_rows), each goal keeping its best pass. A controller whose output or
+pass after pass, the elbow (the goal's distance from the shoulder), the shoulder (the goal's bearing
+about its axis), the turn and the wrist again (_reach_rows), each goal keeping its best pass; on an
+approach-axis arm whose roll follows the flex (the SO arms) a pass solves all five joints
+(_approach_pass). A controller whose output or
 error is NaN or infinite gets +inf.
 """
 
