@@ -233,9 +233,11 @@ def sample_poses(arm: Arm, n: int, seed: int | None = None) -> np.ndarray:
 
 # ---------------------------------------------------------------- validation
 @numba.njit(cache=True, nogil=True)
-def _pose_measures(arr, finite, bottom, off, det):
+def _pose_measures(arr, atol, finite, bottom, off, det):
     """Per pose of arr (n, 4, 4): whether all 16 entries are finite, the largest deviation of the last
-    row from (0, 0, 0, 1), the largest entry of |R^T R - I| and det R (R the rotation block)."""
+    row from (0, 0, 0, 1), the largest entry of |R^T R - I| and det R (R the rotation block). Returns
+    whether every pose passes (finite, both deviations within atol, det >= 0)."""
+    good = True
     for i in range(arr.shape[0]):
         ok = True
         for a in range(4):
@@ -255,6 +257,9 @@ def _pose_measures(arr, finite, bottom, off, det):
         det[i] = (arr[i, 0, 0] * (arr[i, 1, 1] * arr[i, 2, 2] - arr[i, 1, 2] * arr[i, 2, 1])
                   - arr[i, 0, 1] * (arr[i, 1, 0] * arr[i, 2, 2] - arr[i, 1, 2] * arr[i, 2, 0])
                   + arr[i, 0, 2] * (arr[i, 1, 0] * arr[i, 2, 1] - arr[i, 1, 1] * arr[i, 2, 0]))
+        if not (ok and bottom[i] <= atol and off[i] <= atol and det[i] >= 0.0):
+            good = False
+    return good
 
 
 def check_poses(poses, *, atol: float = ORTHONORMAL_ATOL, what: str = "poses") -> np.ndarray:
@@ -276,7 +281,8 @@ def check_poses(poses, *, atol: float = ORTHONORMAL_ATOL, what: str = "poses") -
                          f"SE3.homogeneous), got shape {arr.shape}")
     n = len(arr)
     finite, bottom, off, det = np.empty(n, np.bool_), np.empty(n), np.empty(n), np.empty(n)
-    _pose_measures(np.ascontiguousarray(arr), finite, bottom, off, det)  # compiled: one pose costs microseconds
+    if _pose_measures(np.ascontiguousarray(arr), float(atol), finite, bottom, off, det):  # compiled: microseconds
+        return arr
     if not finite.all():
         i = int(np.flatnonzero(~finite)[0])
         raise ValueError(f"{what}: {int((~finite).sum())} of {len(arr)} poses hold NaN or infinity "

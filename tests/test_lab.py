@@ -1159,3 +1159,21 @@ def test_methods_named_in_lab_methods_are_loaded_when_the_registry_is_first_aske
                     "my_methods", tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.split()[-1].split(",")[-1] == "mine"
+
+
+@pytest.mark.parametrize("name", ["scara", "planar", "ur5", "so101", "panda"])
+def test_the_compiled_polar_inputs_equal_the_numpy_features(name):
+    """Encoding.compiled_inputs (the pose networks') computes the reach, sphere and bearings features
+    compiled; Encoding.inputs (numpy, the position networks') is their reference: the same inputs
+    within rounding, one goal at a time as in a batch."""
+    from lab.problem.encoding import _REACH, _SPHERE
+
+    arm = robots.load(name)
+    goals = arm.sample_goals(500, seed=31)
+    for features in _REACH:
+        if features in _SPHERE and len(arm.task_axes) != 3:
+            continue
+        enc = Encoding.for_arm(arm, features)
+        x = enc.compiled_inputs(goals)
+        np.testing.assert_allclose(x, enc.inputs(goals), rtol=0, atol=1e-12)
+        assert np.array_equal(np.concatenate([enc.compiled_inputs(g[None]) for g in goals[:20]]), x[:20])

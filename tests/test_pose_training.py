@@ -144,5 +144,7 @@ def test_every_shipped_pose_controller_answers_poses_with_the_error_its_file_rec
     held = doc["held_out"]
     T = pose.sample_poses(arm, held["goals"], seed=held["seed"])
     s = lab.solve(c, arm, T, steps=0)  # the network alone
-    assert 1000 * np.median(s.error) == pytest.approx(held["median_mm"], rel=1e-6)
-    assert np.degrees(np.median(s.angle)) == pytest.approx(held["median_deg"], rel=1e-6)
+    # within a nanometre and a microdegree: where the closed form is exact the median is the passes'
+    # last rounding, which the CPU's vector width (numba) and the inputs' last bit move
+    assert 1000 * np.median(s.error) == pytest.approx(held["median_mm"], rel=1e-6, abs=1e-6)
+    assert np.degrees(np.median(s.angle)) == pytest.approx(held["median_deg"], rel=1e-6, abs=1e-6)

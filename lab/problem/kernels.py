@@ -92,6 +92,44 @@ def _to_joints_row(a, o, qmap):
         a[g] = hi if q > hi else q
 
 
+# the polar inputs polar_inputs computes (lab.problem.encoding's features of the same names)
+POLAR_MODES = {"reach": 0, "sphere": 1, "bearings": 2}
+
+
+@numba.njit(**_JIT)
+def polar_inputs(goals, mode, r_max, z_c, rho_max, ax, ay, facing, in_lo, in_hi, out):
+    """out (n, ni) <- network inputs in about [-1, 1] of goals (n, k): the polar features of POLAR_MODES
+    (encoding._raw_features's, its numpy the reference) scaled by in_lo, in_hi. Per goal: the goal,
+    then r, phi (bearings: from `facing`) and sqrt(1 - r / r_max) about the base axis through (ax, ay);
+    sphere and bearings then rho, atan2(h, r), sqrt(1 - rho / rho_max) about (0, 0, z_c); bearings
+    then phi - pi. The slacks are clipped to [0, 1], the angles wrapped into [-pi, pi)."""
+    two_pi = 2.0 * math.pi
+    k = goals.shape[1]
+    for g in range(goals.shape[0]):
+        x, y = goals[g, 0] - ax, goals[g, 1] - ay
+        r = math.hypot(x, y)
+        phi = math.atan2(y, x)
+        if mode == 2:
+            phi = (phi - facing + math.pi) % two_pi - math.pi
+        for a in range(k):
+            out[g, a] = goals[g, a]
+        c = k
+        out[g, c], out[g, c + 1] = r, phi
+        out[g, c + 2] = math.sqrt(min(1.0, max(0.0, 1.0 - r / r_max)))
+        c += 3
+        if mode >= 1:
+            h = goals[g, 2] - z_c
+            rho = math.hypot(r, h)
+            out[g, c], out[g, c + 1] = rho, math.atan2(h, r)
+            out[g, c + 2] = math.sqrt(min(1.0, max(0.0, 1.0 - rho / rho_max)))
+            c += 3
+            if mode == 2:
+                out[g, c] = (phi - math.pi + math.pi) % two_pi - math.pi
+                c += 1
+        for j in range(c):
+            out[g, j] = 2.0 * (out[g, j] - in_lo[j]) / (in_hi[j] - in_lo[j]) - 1.0
+
+
 # The turn of a controller that turns its first joint in closed form (lab.problem.encoding.Encoding.turn):
 # [on, c (3), w (3), lower, upper, continuous] of the first joint's axis (point c, unit direction w)
 NO_TURN = np.zeros(10)

@@ -361,7 +361,8 @@ class PoseEncoding:
     def inputs(self, poses) -> np.ndarray:
         """Poses (n, 4, 4) -> network inputs (n, n_inputs) in about [-1, 1]."""
         poses = self.check(poses)
-        return np.concatenate([self.position.inputs(poses[:, :3, 3]), self.rotation_features(poses)], axis=1)
+        position = self.position.compiled_inputs(poses[:, :3, 3])
+        return np.concatenate([position, self.rotation_features(poses)], axis=1)
 
     def joints(self, a: np.ndarray, poses=None) -> np.ndarray:
         """Outputs (..., n, nq) -> joint values (..., n, nq), turned toward each pose's position when the
