@@ -53,6 +53,21 @@ def _step(enc, q, T, step):
     return Q.T.copy(), P.T + np.einsum("nab,b->na", R.transpose(2, 0, 1), enc.chain[4]), R.transpose(2, 0, 1)
 
 
+def _one_joint_step(arm, enc, q, j, step, seed):
+    """(goals, Pinocchio's tool frames after the step, the joints after it): goals that joint j alone reaches (its values of
+    another draw, the rest q's), then the kernel's step on j; checked through Pinocchio that only j
+    moved and that the frame the kernel reports is Pinocchio's."""
+    other = q.copy()
+    other[:, j] = arm.sample_q(len(q), seed=seed)[:, j]
+    T = pose.fk_pose(arm, other)
+    after, told, R = _step(enc, q, T, step)
+    M = pose.fk_pose(arm, after)
+    assert np.abs(told - M[:, :3, 3]).max() < 1e-9
+    assert np.abs(R @ enc.tool - M[:, :3, :3]).max() < 1e-9
+    assert np.array_equal(np.delete(after, j, axis=1), np.delete(q, j, axis=1))
+    return T, M, after
+
+
 @pytest.mark.parametrize("name", REACHING)
 def test_each_closed_form_joint_does_what_it_says(name):
     """Through Pinocchio, for goals that one joint alone can reach (another value of it within the
@@ -67,14 +82,7 @@ def test_each_closed_form_joint_does_what_it_says(name):
     for j, step in ((E, pose_kernels._ELBOW), (S, pose_kernels._SHOULDER), (F, pose_kernels._FLEX)):
         if j < 0:
             continue
-        other = q.copy()
-        other[:, j] = arm.sample_q(40, seed=2)[:, j]
-        T = pose.fk_pose(arm, other)
-        after, told, R = _step(enc, q, T, step)
-        M = pose.fk_pose(arm, after)
-        assert np.abs(told - M[:, :3, 3]).max() < 1e-9
-        assert np.abs(R @ enc.tool - M[:, :3, :3]).max() < 1e-9
-        assert np.array_equal(np.delete(after, j, axis=1), np.delete(q, j, axis=1))
+        T, M, _ = _one_joint_step(arm, enc, q, j, step, seed=2)
         if step == pose_kernels._ELBOW:
             s = np.array([_shoulder_point(arm, qi, S) for qi in q])
             tool, goals = M[:, :3, 3], T[:, :3, 3]
@@ -97,14 +105,7 @@ def test_the_so_arms_first_joint_and_roll_do_what_they_say(name):
     S = enc.reach_joints()[0]
     q = arm.sample_q(40, seed=21)
     for j, step in ((0, pose_kernels._PAN), (arm.nq - 1, pose_kernels._ROLL)):
-        other = q.copy()
-        other[:, j] = arm.sample_q(40, seed=22)[:, j]
-        T = pose.fk_pose(arm, other)
-        after, told, R = _step(enc, q, T, step)
-        M = pose.fk_pose(arm, after)
-        assert np.abs(told - M[:, :3, 3]).max() < 1e-9
-        assert np.abs(R @ enc.tool - M[:, :3, :3]).max() < 1e-9
-        assert np.array_equal(np.delete(after, j, axis=1), np.delete(q, j, axis=1))
+        T, M, after = _one_joint_step(arm, enc, q, j, step, seed=22)
         for i in range(len(q)):
             c, w = _axis(arm, after[i], S)
             if step == pose_kernels._PAN:
