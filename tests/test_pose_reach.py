@@ -114,18 +114,19 @@ def test_the_so_arms_first_joint_and_roll_do_what_they_say(name):
                 assert abs(w @ (M[i, :3, 3] - c) - w @ (T[i, :3, 3] - c)) < 1e-9
 
 
-@pytest.mark.parametrize("name", ["so100", "so101"])
-def test_one_pass_puts_an_so_arm_on_its_pose_from_near_its_branch(name):
-    """The SO arms' pass solves every joint in closed form, so one pass lands the pose exactly from
-    joints a little off it (0.1 rad each: each two-solution joint then keeps the pose's own branch)
-    where no limit clips a joint on the way (96 % of these), and the default passes nearly always (99 %);
-    from arbitrary joint values, most poses (81-94 %), through Pinocchio."""
+@pytest.mark.parametrize("name", ["so100", "so101", "ur5", "ur10", "z1"])
+def test_one_pass_puts_the_arm_on_its_pose_from_near_its_branch(name):
+    """The SO arms' pass (_approach_pass) and the UR arms' and Z1's (_wrist_point_pass) solve every
+    joint in closed form, so one pass lands the pose exactly from joints a little off it (0.1 rad each:
+    each two-solution joint then keeps the pose's own branch) where no limit clips a joint on the way
+    (96-100 % of these), and the default passes nearly always (99 %); from arbitrary joint values, most
+    poses (71-96 %), through Pinocchio."""
     arm = robots.load(name)
     q = arm.sample_q(300, seed=23)
     T = pose.fk_pose(arm, q)
     off = arm.within_limits(q + np.random.default_rng(24).uniform(-0.1, 0.1, q.shape))
     start = arm.sample_q(300, seed=25)
-    for reach, begin, share in ((1, off, 0.93), (None, off, 0.98), (None, start, 0.75)):
+    for reach, begin, share in ((1, off, 0.93), (None, off, 0.98), (None, start, 0.65)):
         enc = PoseEncoding.for_arm(arm, "sphere", 0.0, True, reach=reach)
         d, a = pose.pose_errors(arm, T, enc.finished(begin, T))
         assert np.mean((d < 1e-9) & (a < 1e-9)) > share, (reach, np.quantile(d, 0.9), np.quantile(a, 0.9))

@@ -27,8 +27,10 @@ The reach (`reach=k` passes, with the turn; on a full-pose arm with the wrist): 
 elbow is solved for the goal's distance from the shoulder, the shoulder for the goal's bearing about
 its axis, then the turn and the wrist again; on an arm held to an approach axis whose roll follows
 the flex (the SO arms, no wrist) a pass solves every joint: the first joint, the flex, the roll, then
-the elbow and the shoulder on the flex's origin, and the flex again. Each goal keeps the joint values
-of its best pass. The network's outputs for those joints only pick the branch (pose_kernels' reach).
+the elbow and the shoulder on the flex's origin, and the flex again; where the wrist's last two axes
+meet and its first joint is parallel to the shoulder (the UR arms, the Z1), a pass is exact too (the
+first joint from the goal's wrist point, the wrist, the elbow and the shoulder on the first wrist
+joint's origin, the wrist again). Each goal keeps the joint values of its best pass. The network's outputs for those joints only pick the branch (pose_kernels' reach).
 
 `PoseEncoding` carries everything the compiled error needs: the arm's kinematic chain, the tool
 frame's rotation in the chain's last joint frame (robots.pose's tool rotation) and the approach
@@ -200,8 +202,9 @@ class PoseEncoding:
         S, E, F = self.reach_joints() if self.reach else (0, 0, -1)
         three = [S, E, max(F, 0)]
         point = self.wrist_point() if self.reach and self.wrist else None
+        kind = 0.0 if point is None else 1.0 if point[1] else 3.0 if self._wrist_parallel() else 2.0
         tail = [0.0] * 7 if point is None else \
-            [1.0 if point[1] else 2.0, *point[0], *(self.tool.T @ (point[0] - np.asarray(self.chain[4], float)))]
+            [kind, *point[0], *(self.tool.T @ (point[0] - np.asarray(self.chain[4], float)))]
         ends = [0, len(self.position.q_lo) - 1]  # the first joint and the last (an SO arm's exact pass)
         return np.ascontiguousarray(np.concatenate([head, [S, E, F, self.reach], self.position.q_lo[three],
                                                     self.position.q_hi[three],
@@ -224,6 +227,13 @@ class PoseEncoding:
             if max(np.linalg.norm((np.eye(3) - np.outer(w, w)) @ (x - c)) for c, w in meet) < 1e-6:
                 return frame.T @ (x - point), spherical
         return None
+
+    def _wrist_parallel(self) -> bool:
+        """Whether the first wrist joint's axis is parallel to the shoulder's (the UR arms', the Z1's):
+        then the wrist point moves in one plane across them, and a pass of the reach is exact
+        (pose_kernels._wrist_point_pass)."""
+        lines = self._axes(0.3 + 0.4 * np.arange(len(self.chain[0])))[0]
+        return abs(lines[self.reach_joints()[0]][1] @ lines[len(lines) - 3][1]) > 1.0 - 1e-9
 
     def reach_joints(self) -> tuple[int, int, int]:
         """(S, E, F) of the closed-form reach: the shoulder S, the second joint; the elbow E, the first

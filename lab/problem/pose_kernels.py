@@ -20,7 +20,8 @@ turns into its limits, else clipped), the one nearer the goal kept. The reach (t
 pass after pass, the elbow (the goal's distance from the shoulder), the shoulder (the goal's bearing
 about its axis), the turn and the wrist again (_reach_rows), each goal keeping its best pass; on an
 approach-axis arm whose roll follows the flex (the SO arms) a pass solves all five joints
-(_approach_pass). A controller whose output or
+(_approach_pass), and on an arm whose last two wrist axes meet and whose first wrist joint is
+parallel to the shoulder (the UR arms, the Z1) a pass is exact too (_wrist_point_pass). A controller whose output or
 error is NaN or infinite gets +inf.
 """
 
@@ -81,12 +82,15 @@ _A2, _A3, _XV, _C, _LO, _HI, _WRAP, _PASSES = 4, 7, 10, 13, 22, 25, 28, 31
 _S, _E, _F, _REACH, _RLO, _RHI, _RWRAP = 32, 33, 34, 35, 36, 39, 42
 _SHOULDER, _ELBOW, _FLEX = 0, 1, 2
 # the point where the wrist's axes meet (PoseEncoding.wrist_point): 0 none, 1 all three (a spherical
-# wrist's centre), 2 the last two; the point in the last joint's frame; and its offset from the tool
-# point in the tool frame (point = tool point + R_tool off)
+# wrist's centre), 2 the last two, 3 the last two with the first wrist joint parallel to the shoulder
+# (a pass then exact: _wrist_point_pass); the point in the last joint's frame; and its offset from the
+# tool point in the tool frame (point = tool point + R_tool off)
 _WC, _WCV, _WCO = 45, 46, 49
 # an approach-axis arm whose roll follows the flex (the SO arms): the exact pass (_approach_pass) also
 # solves the first joint (_PAN) and the roll (_ROLL); their limits (lo, hi) and whether each wraps
 _PAN, _ROLL = 3, 4
+# the first joint turned so that a point's plane across S's axis holds the goal's (_wrist_point_pass)
+_PAN_POINT = 5
 _PLO, _PHI_, _PWRAP = 52, 54, 56
 
 
@@ -275,8 +279,9 @@ def _reach_rows(Q, GP, GR, chain, spec, R, P, step, PT):
         j = int(wr[_S + step])
         lo, hi, wrap = wr[_RLO + step], wr[_RHI + step], wr[_RWRAP + step] != 0.0
     else:
-        j = 0 if step == _PAN else rot.shape[0] - 1
-        lo, hi, wrap = wr[_PLO + step - _PAN], wr[_PHI_ + step - _PAN], wr[_PWRAP + step - _PAN] != 0.0
+        last = 1 if step == _ROLL else 0
+        j = rot.shape[0] - 1 if step == _ROLL else 0
+        lo, hi, wrap = wr[_PLO + last], wr[_PHI_ + last], wr[_PWRAP + last] != 0.0
     point = PT.shape[1] > 0
     e0, e1, e2 = ee_pos[0], ee_pos[1], ee_pos[2]
     Rp, T1 = np.empty((3, 3)), np.empty((3, 3))
@@ -319,17 +324,20 @@ def _reach_rows(Q, GP, GR, chain, spec, R, P, step, PT):
             ay = R[1, 0, g] * axis_j[0] + R[1, 1, g] * axis_j[1] + R[1, 2, g] * axis_j[2]
             az = R[2, 0, g] * axis_j[0] + R[2, 1, g] * axis_j[1] + R[2, 2, g] * axis_j[2]
             best = _into(q_now + _bearing(ax, ay, az, GR[0, g], GR[1, g], GR[2, g], w), lo, hi, wrap)
-        elif step == _PAN or step == _ROLL:
-            if step == _PAN:  # ws(d) . a = A cos d + B sin d + C, ws turned about joint 0's axis w
-                ga, gb, gc = GR[0, g], GR[1, g], GR[2, g]
+        elif step >= _PAN:
+            if step != _ROLL:  # ws(d) . a = A cos d + B sin d + C, ws turned about joint 0's axis w
+                if step == _PAN:  # a: the goal's approach direction; the approach axis's height along
+                    ga, gb, gc = GR[0, g], GR[1, g], GR[2, g]  # S's axis, which no joint but the first changes
+                    ax = R[0, 0, g] * axis_j[0] + R[0, 1, g] * axis_j[1] + R[0, 2, g] * axis_j[2]
+                    ay = R[1, 0, g] * axis_j[0] + R[1, 1, g] * axis_j[1] + R[1, 2, g] * axis_j[2]
+                    az = R[2, 0, g] * axis_j[0] + R[2, 1, g] * axis_j[1] + R[2, 2, g] * axis_j[2]
+                else:  # a: the goal point from joint 0's axis; the point's own height along S's axis
+                    ga, gb, gc = GP[0, g] - c[0], GP[1, g] - c[1], GP[2, g] - c[2]
+                    ax, ay, az = tx - c[0], ty - c[1], tz - c[2]
                 h = ws[0] * w[0] + ws[1] * w[1] + ws[2] * w[2]
                 px_, py_, pz_ = ws[0] - h * w[0], ws[1] - h * w[1], ws[2] - h * w[2]
                 A = px_ * ga + py_ * gb + pz_ * gc
                 B = (w[1] * pz_ - w[2] * py_) * ga + (w[2] * px_ - w[0] * pz_) * gb + (w[0] * py_ - w[1] * px_) * gc
-                # the approach axis's height along S's axis, which no joint but the first changes
-                ax = R[0, 0, g] * axis_j[0] + R[0, 1, g] * axis_j[1] + R[0, 2, g] * axis_j[2]
-                ay = R[1, 0, g] * axis_j[0] + R[1, 1, g] * axis_j[1] + R[1, 2, g] * axis_j[2]
-                az = R[2, 0, g] * axis_j[0] + R[2, 1, g] * axis_j[1] + R[2, 2, g] * axis_j[2]
                 target = ws[0] * ax + ws[1] * ay + ws[2] * az - h * (w[0] * ga + w[1] * gb + w[2] * gc)
             else:  # ws . (t(d) - cs) = ws . (c + du w - cs) + A cos d + B sin d, the goal's height
                 A = ws[0] * vx + ws[1] * vy + ws[2] * vz
@@ -542,25 +550,60 @@ def _approach_pass(Q, GP, GR, chain, spec, R, P):
     from the flex's origin is then final, so the elbow and the shoulder place that origin at the goal
     less the offset, and the flex turns the approach axis back. Exact where no joint meets a limit
     (the branch of each two-solution joint: the one nearer the joint's value)."""
-    rot, pos, ee_pos = chain[0], chain[1], chain[4]
     none = np.empty((3, 0))
     _reach_rows(Q, GP, GR, chain, spec, R, P, _PAN, none)
     _reach_rows(Q, GP, GR, chain, spec, R, P, _FLEX, none)
     _reach_rows(Q, GP, GR, chain, spec, R, P, _ROLL, none)
-    n, last = Q.shape[1], Q.shape[0] - 1
-    b = np.empty(3)  # the flex's origin is P - R Rz(q_last)^T rot[last]^T pos[last]
-    for a in range(3):
-        b[a] = rot[last, 0, a] * pos[last, 0] + rot[last, 1, a] * pos[last, 1] + rot[last, 2, a] * pos[last, 2]
-    PT, GW = np.empty((3, n)), np.empty((3, n))
-    for g in range(n):
-        cq, sq = math.cos(Q[last, g]), math.sin(Q[last, g])
-        PT[0, g], PT[1, g], PT[2, g] = -(cq * b[0] + sq * b[1]), -(cq * b[1] - sq * b[0]), -b[2]
-        for a in range(3):
-            GW[a, g] = GP[a, g] - (R[a, 0, g] * (ee_pos[0] - PT[0, g]) + R[a, 1, g] * (ee_pos[1] - PT[1, g])
-                                   + R[a, 2, g] * (ee_pos[2] - PT[2, g]))
+    PT, GW = _origin_and_goal(Q, GP, chain, R, Q.shape[0] - 2)
     _reach_rows(Q, GW, GR, chain, spec, R, P, _ELBOW, PT)
     _reach_rows(Q, GW, GR, chain, spec, R, P, _SHOULDER, PT)
     _reach_rows(Q, GP, GR, chain, spec, R, P, _FLEX, none)
+
+
+@numba.njit(**_JIT)
+def _origin_and_goal(Q, GP, chain, R, j):
+    """(PT, GJ), each (3, N): joint j's origin in the last joint's frame (the joints after j carry it:
+    PT = -M^T o, M and o the last frame's rotation and origin in joint j's turned frame), and where it
+    must go for the tool point to be on GP with the tool turned as R has it, GP - R (ee_pos - PT)."""
+    rot, pos, ee_pos = chain[0], chain[1], chain[4]
+    n, nq = Q.shape[1], Q.shape[0]
+    PT, GJ = np.empty((3, n)), np.empty((3, n))
+    M, T1 = np.empty((3, 3)), np.empty((3, 3))
+    for g in range(n):
+        for a in range(3):
+            for b in range(3):
+                M[a, b] = 1.0 if a == b else 0.0
+        ox, oy, oz = 0.0, 0.0, 0.0
+        for k in range(j + 1, nq):
+            ox += M[0, 0] * pos[k, 0] + M[0, 1] * pos[k, 1] + M[0, 2] * pos[k, 2]
+            oy += M[1, 0] * pos[k, 0] + M[1, 1] * pos[k, 1] + M[1, 2] * pos[k, 2]
+            oz += M[2, 0] * pos[k, 0] + M[2, 1] * pos[k, 1] + M[2, 2] * pos[k, 2]
+            _mm(M, rot[k], T1)
+            _rz_into(T1, Q[k, g], M)
+        for a in range(3):
+            PT[a, g] = -(M[0, a] * ox + M[1, a] * oy + M[2, a] * oz)
+        for a in range(3):
+            GJ[a, g] = GP[a, g] - (R[a, 0, g] * (ee_pos[0] - PT[0, g]) + R[a, 1, g] * (ee_pos[1] - PT[1, g])
+                                   + R[a, 2, g] * (ee_pos[2] - PT[2, g]))
+    return PT, GJ
+
+
+@numba.njit(**_JIT)
+def _wrist_point_pass(Q, GP, GR, GW, chain, cchain, spec, R, P):
+    """One exact pass of an arm whose last two axes meet in a point and whose first wrist joint is
+    parallel to the shoulder and the elbow (the UR arms, the Z1): the first joint turns the plane the
+    three parallel joints move that point in until it holds the goal's point (GW); the wrist turns
+    the tool to the goal's orientation; the tool's offset from the first wrist joint's origin is then
+    final, so the elbow and the shoulder place that origin on the goal less the offset; the wrist
+    again. Exact where no joint meets a limit (each two-solution joint: as _reach_rows and
+    _wrist_rows choose)."""
+    none = np.empty((3, 0))
+    _reach_rows(Q, GW, GR, cchain, spec, R, P, _PAN_POINT, none)
+    _wrist_rows(Q, GP, GR, chain, spec, R, P)
+    PT, GJ = _origin_and_goal(Q, GP, chain, R, Q.shape[0] - 3)
+    _reach_rows(Q, GJ, GR, chain, spec, R, P, _ELBOW, PT)
+    _reach_rows(Q, GJ, GR, chain, spec, R, P, _SHOULDER, PT)
+    _wrist_rows(Q, GP, GR, chain, spec, R, P)
 
 
 @numba.njit(**_JIT)
@@ -583,7 +626,8 @@ def _centred(Q, GP, GR, chain, turn, spec, R, P):
     position and orientation are apart: each goal keeps its nearest pass, then the wrist is solved
     once, and the passes converge as on a 3-joint arm. The last two axes (_WC 2): only the first wrist
     joint moves the point, so the wrist is solved after each pass, each goal keeping its best pass
-    (||p - p_g||^2 + L^2 theta^2); the point moves far less with the wrist than the tool point does."""
+    (||p - p_g||^2 + L^2 theta^2); the point moves far less with the wrist than the tool point does.
+    With that joint parallel to the shoulder (_WC 3), each pass is _wrist_point_pass, exact."""
     wr = spec[4]
     n = Q.shape[1]
     centre = np.empty(3)
@@ -601,11 +645,18 @@ def _centred(Q, GP, GR, chain, turn, spec, R, P):
     _centred_errors(Q, GP, GR, GW, chain, spec, centre, spherical, R, P, best, A)
     Qb, Rb, Pb = Q.copy(), R.copy(), P.copy()
     none = np.empty((3, 0))
+    w2 = spec[3]
     for _ in range(int(wr[_REACH])):
-        _reach_rows(Q, GW, GR, cchain, spec, R, P, _ELBOW, none)
-        _reach_rows(Q, GW, GR, cchain, spec, R, P, _SHOULDER, none)
-        _turned_frames(Q, GW, cchain, turn, R, P)
-        _centred_errors(Q, GP, GR, GW, chain, spec, centre, spherical, R, P, D, A)
+        if wr[_WC] == 3.0:
+            _wrist_point_pass(Q, GP, GR, GW, chain, cchain, spec, R, P)
+            _pose_rows(R, P, GP, GR, chain, spec, D, A)
+            for g in range(n):
+                D[g] += w2 * A[g] * A[g]
+        else:
+            _reach_rows(Q, GW, GR, cchain, spec, R, P, _ELBOW, none)
+            _reach_rows(Q, GW, GR, cchain, spec, R, P, _SHOULDER, none)
+            _turned_frames(Q, GW, cchain, turn, R, P)
+            _centred_errors(Q, GP, GR, GW, chain, spec, centre, spherical, R, P, D, A)
         _keep_best(D, best, Q, R, P, Qb, Rb, Pb)
     Q[:, :] = Qb
     R[:, :, :] = Rb
