@@ -56,7 +56,8 @@ def test_pose_fitness_equals_pinocchio_frame_placement_and_log3(name, turn, head
         direct = _direct_fitness(arm, enc, c(problem.train_goals), problem.train_goals)
         assert f == pytest.approx(direct, rel=1e-7)
         assert problem.controller_mse(c) == pytest.approx(direct, rel=1e-7)
-    assert len(set(np.round(fitness, 12))) == 3  # three different networks, three different figures
+    if not enc.exact_pass:  # three different networks, three different figures (an exact pass: the
+        assert len(set(np.round(fitness, 12))) == 3  # networks only pick branches, and may pick the same)
 
 
 def test_pose_controller_round_trips_with_identical_answers():

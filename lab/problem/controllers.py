@@ -235,9 +235,20 @@ def head_errors(encoding: Encoding, chain: tuple, Q: np.ndarray, goals) -> np.nd
     return np.where(np.isfinite(E), E, np.inf).reshape(*lead, heads, g)
 
 
+# a pose answer whose squared error (||p - p_g||^2 + (L angle)^2, m^2) is below this is exact: where
+# several heads are, the first of them answers, so that rounding does not flip the arm between branches
+EXACT_POSE = 1e-18
+
+
+def _exact_ties(encoding, E: np.ndarray) -> np.ndarray:
+    """E with a pose answer's exact errors (below EXACT_POSE) set to 0 (position errors as they are)."""
+    return np.where(E < EXACT_POSE, 0.0, E) if getattr(encoding, "goal", "position") == "pose" else E
+
+
 def choose_heads(encoding: Encoding, chain: tuple, Q: np.ndarray, goals) -> np.ndarray:
-    """(..., g) the head of least squared end-effector error, Q (..., heads, g, nq) joint values."""
-    return np.argmin(head_errors(encoding, chain, Q, goals), axis=-2)
+    """(..., g) the head of least squared end-effector error, Q (..., heads, g, nq) joint values (of
+    several exact pose answers, the first)."""
+    return np.argmin(_exact_ties(encoding, head_errors(encoding, chain, Q, goals)), axis=-2)
 
 
 class TreeHeads:
@@ -305,6 +316,7 @@ def proposals(controller, goals) -> np.ndarray:
     encoding = controller.encoding
     if getattr(encoding, "goal", "position") == "pose":  # joints and errors in one pass of the kernels
         Q, E = encoding.answers(controller.head_outputs(goals), goals)  # (heads, n, nq), (heads, n)
+        E = _exact_ties(encoding, E)
     else:
         Q = encoding.joints(controller.head_outputs(goals), goals)
         if controller.tree_heads is not None:

@@ -30,7 +30,8 @@ the flex (the SO arms, no wrist) a pass solves every joint: the first joint, the
 the elbow and the shoulder on the flex's origin, and the flex again; where the wrist's last two axes
 meet and its first joint is parallel to the shoulder (the UR arms, the Z1), a pass is exact too (the
 first joint from the goal's wrist point, the wrist, the elbow and the shoulder on the first wrist
-joint's origin, the wrist again). Each goal keeps the joint values of its best pass. The network's outputs for those joints only pick the branch (pose_kernels' reach).
+joint's origin, the wrist again). Each goal keeps the joint values of its best pass. The network's
+outputs for those joints only pick the branch (pose_kernels' reach).
 
 `PoseEncoding` carries everything the compiled error needs: the arm's kinematic chain, the tool
 frame's rotation in the chain's last joint frame (robots.pose's tool rotation) and the approach
@@ -227,6 +228,16 @@ class PoseEncoding:
             if max(np.linalg.norm((np.eye(3) - np.outer(w, w)) @ (x - c)) for c, w in meet) < 1e-6:
                 return frame.T @ (x - point), spherical
         return None
+
+    @property
+    def exact_pass(self) -> bool:
+        """Whether a pass of the reach solves every joint in closed form (the SO arms: the roll after
+        the flex; the UR arms and the Z1: the wrist point's plane), so that the network only picks the
+        branch."""
+        closed = self.__dict__.get("_closed", np.zeros(0))
+        if not self.reach or len(closed) <= pose_kernels._WC:
+            return False
+        return closed[pose_kernels._WC] == 3.0 or closed[pose_kernels._F] == len(self.position.q_lo) - 2
 
     def _wrist_parallel(self) -> bool:
         """Whether the first wrist joint's axis is parallel to the shoulder's (the UR arms', the Z1's):

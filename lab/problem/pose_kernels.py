@@ -258,20 +258,22 @@ def _bearing(vx, vy, vz, gx, gy, gz, w):
 
 @numba.njit(**_JIT)
 def _reach_rows(Q, GP, GR, chain, spec, R, P, step, PT):
-    """One joint of Q (nq, N) solved in closed form for each goal, the others held, and R, P (the last
-    joint's frame) turned rigidly with it. step _FLEX: joint F, turned so that the tool's approach axis
-    (R axis_j) has the goal's bearing about F's axis (GR: the goals' approach directions). _ELBOW: joint E, turned so that the tool point's
-    distance from s (the point of joint S's axis nearest joint 0's axis, which S's and joint 0's turns
-    keep) is the goal's: with u = p - c the tool point about E's axis (c, w), u = u_par + v,
-    |p(t) - s|^2 = |a|^2 + |v|^2 + A cos t + B sin t (a = c + u_par - s, A = 2 a.v, B = 2 a.(w x v)),
-    two solutions, the one nearer the joint's value kept (or the one nearer that distance once each is
-    taken into the joint's limits). _SHOULDER: joint S, turned so that the tool point's bearing about its
-    axis is the goal's. _PAN: joint 0, turned so that the goal's approach direction has the tool's
-    approach axis's height along S's axis, which S, E, F and the roll keep (across it on the SO-100,
-    3.7e-6 rad off on the SO-101): the plane they turn that axis in then holds the goal's. _ROLL: the last joint, turned so that
-    the tool point's height along S's axis is the goal's. Each of these two has two solutions, the one
-    within the limits kept, or of two the nearer the joint's value. PT (3, N): each goal's point in the last joint's frame, for the tool
-    point (none: PT.shape[1] == 0)."""
+    """One joint of Q (nq, N) solved in closed form for each goal, the others held, and R, P (the last joint's
+    frame) turned rigidly with it. step _FLEX: joint F, turned so that the tool's approach axis (R axis_j) has
+    the goal's bearing about F's axis (GR: the goals' approach directions). _ELBOW: joint E, turned so that the
+    tool point's distance from s (the point of joint S's axis nearest joint 0's axis, which S's and joint 0's
+    turns keep) is the goal's: with u = p - c the tool point about E's axis (c, w), u = u_par + v, |p(t) - s|^2
+    = |a|^2 + |v|^2 + A cos t + B sin t (a = c + u_par - s, A = 2 a.v, B = 2 a.(w x v)), two solutions, the one
+    nearer the joint's value kept (or the one nearer that distance once each is taken into the joint's limits).
+    _SHOULDER: joint S, turned so that the tool point's bearing about its axis is the goal's. _PAN: joint 0,
+    turned so that the goal's approach direction has the tool's approach axis's height along S's axis, which S,
+    E, F and the roll keep (across it on the SO-100, 3.7e-6 rad off on the SO-101): the plane they turn that
+    axis in then holds the goal's. _ROLL: the last joint, turned so that the tool point's height along S's axis
+    is the goal's. Each of these two has two solutions, the one within the limits kept, or of two the nearer the
+    joint's value. _PAN_POINT: joint 0, turned so that the goal point (GP) has the tool point's height along S's
+    axis, which S, E and the joints after them keep where they turn about axes parallel to S's or through that
+    point (two solutions, as _PAN). PT (3, N): each goal's point in the last joint's frame, for the tool point
+    (none: PT.shape[1] == 0)."""
     rot, pos, identity, ee_pos = chain[0], chain[1], chain[3], chain[4]
     wr, axis_j = spec[4], spec[1]
     S = int(wr[_S])
