@@ -81,9 +81,12 @@ def pose_expectation(robot: str, method: str) -> str:
         mm, deg, seconds = float(h["median_mm"]), float(h["median_deg"]), float(doc["seconds"])
     except (OSError, ValueError, KeyError, TypeError):
         return ""
-    enc = doc.get("controller", {}).get("encoding", {})
-    closed = ("" if not enc.get("reach") else "; wrist, elbow and shoulder solved in closed form" if enc.get("wrist")
-              else "; every joint solved in closed form")
+    try:
+        encoding = lab.controller_from_dict(doc["controller"]).encoding
+    except (KeyError, TypeError, ValueError):
+        encoding = None
+    closed = ("" if not getattr(encoding, "reach", 0) else "; every joint solved in closed form"
+              if encoding.exact_pass else "; wrist, elbow and shoulder solved in closed form")
     return (f"Shipped {methods.get(method).label} pose network ({seconds:.0f} s): {mm:.1f} mm, {deg:.1f}° "
             f"median on held-out poses{closed}.")
 
