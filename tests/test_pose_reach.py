@@ -54,9 +54,9 @@ def _step(enc, q, T, step):
 
 
 def _one_joint_step(arm, enc, q, j, step, seed):
-    """(goals, Pinocchio's tool frames after the step, the joints after it): goals that joint j alone reaches (its values of
-    another draw, the rest q's), then the kernel's step on j; checked through Pinocchio that only j
-    moved and that the frame the kernel reports is Pinocchio's."""
+    """(goals, Pinocchio's tool frames after the step, the joints after it): goals that joint j alone
+    reaches (its values of another draw, the rest q's), then the kernel's step on j; checked through
+    Pinocchio that only j moved and that the frame the kernel reports is Pinocchio's."""
     other = q.copy()
     other[:, j] = arm.sample_q(len(q), seed=seed)[:, j]
     T = pose.fk_pose(arm, other)

@@ -26,6 +26,7 @@ import lab
 import robots
 from lab import methods
 from lab.experiments import budgets
+from lab.problem.encodings import encoding_from_dict
 from lab.running.config import UNBOUNDED
 
 from app.classroom.limits import refusal as limits_refusal
@@ -82,7 +83,7 @@ def pose_expectation(robot: str, method: str) -> str:
     except (OSError, ValueError, KeyError, TypeError):
         return ""
     try:
-        encoding = lab.controller_from_dict(doc["controller"]).encoding
+        encoding = encoding_from_dict(doc["controller"]["encoding"])
     except (KeyError, TypeError, ValueError):
         encoding = None
     closed = ("" if not getattr(encoding, "reach", 0) else "; every joint solved in closed form"

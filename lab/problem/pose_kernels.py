@@ -91,7 +91,7 @@ _WC, _WCV, _WCO = 45, 46, 49
 _PAN, _ROLL = 3, 4
 # the first joint turned so that a point's plane across S's axis holds the goal's (_wrist_point_pass)
 _PAN_POINT = 5
-_PLO, _PHI_, _PWRAP = 52, 54, 56
+_END_LO, _END_HI, _END_WRAP = 52, 54, 56
 
 
 @numba.njit(**_JIT)
@@ -283,7 +283,7 @@ def _reach_rows(Q, GP, GR, chain, spec, R, P, step, PT):
     else:
         last = 1 if step == _ROLL else 0
         j = rot.shape[0] - 1 if step == _ROLL else 0
-        lo, hi, wrap = wr[_PLO + last], wr[_PHI_ + last], wr[_PWRAP + last] != 0.0
+        lo, hi, wrap = wr[_END_LO + last], wr[_END_HI + last], wr[_END_WRAP + last] != 0.0
     point = PT.shape[1] > 0
     e0, e1, e2 = ee_pos[0], ee_pos[1], ee_pos[2]
     Rp, T1 = np.empty((3, 3)), np.empty((3, 3))
