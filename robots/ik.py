@@ -33,6 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from robots.limbs import hips
+from robots.limbs import solve as solve_limbs
 from robots import pose
 from robots.arm import Arm
 from robots.registry import in_metres
@@ -332,7 +334,7 @@ def _vector_tools(arm: Arm):
 
 def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, damping: float = 1e-3,
            halvings: int = 4, turn: bool = True, curved: bool = True, flips: bool = True,
-           angle_tol: float | None = None) -> RefineResult:
+           angle_tol: float | None = None, limbs: bool = True) -> RefineResult:
     """A learned seed made exact: at most `steps` damped Gauss-Newton steps from q0 toward each goal,
     each after a closed-form turn of the first joint (turn=True), each bent along the arc the
     joints' turns trace (curved=True).
@@ -395,9 +397,16 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     proposal its largest group took). Groups share no joint, so a leg solved in one proposal and an
     arm in another make one answer that solves both.
 
+    A tree's limbs in closed form (limbs=True), a tree's turn: before its first step, each proposal
+    has every limb with a hip (a free first joint, two joints whose axes meet, a knee: g1's legs and
+    arms, talos-legs' legs) solved for its effector's goal, the solution nearest the proposal's own
+    joints, and a shared prefix (g1's waist) moved where an arm cannot reach its goal under it
+    (robots.limbs, which keeps a limb group's proposed joints where they are nearer). limbs=False:
+    the proposals as given.
+
     Pose goals, (n, 4, 4) homogeneous transforms of the tool frame (robots.pose): the same damped
     Gauss-Newton steps in SE(3), each goal held to tol and to angle_tol [rad] (default 0.1 degree):
-    refine_pose, where the turn, the bend and the half turns do not apply."""
+    refine_pose, where the turn, the bend, the half turns and the limbs do not apply."""
     if pose.is_pose_array(goals):
         return refine_pose(arm, goals, q0, steps=steps, tol=tol, angle_tol=angle_tol, damping=damping,
                            halvings=halvings)
@@ -414,6 +423,8 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     if goals.shape[1:] != goal_shape or q.shape[1:] != (len(goals), arm.nq) or not len(q):
         raise ValueError(f"{arm.name}: goals must be (n, {', '.join(map(str, goal_shape))}) and q0 (n, {arm.nq}) "
                          f"or (k, n, {arm.nq}), got {goals.shape} and {np.shape(q0)}")
+    if limbs and arm.is_tree and len(axes) == 3 and hips(arm):
+        q = np.stack([solve_limbs(arm, goals, qj)[0] for qj in q])
     goals = goals.reshape(len(goals), -1)  # a tree's goal: its effectors' coordinates one after the other
     size = workspace_size(arm)
     lam2_eye = (damping * size) ** 2 * np.eye(goals.shape[1])
@@ -484,11 +495,11 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
     first = min(steps, 1)  # the proposals' first steps; then the nearest takes the rest
     flippable = [j for j in range(1, arm.nq) if flips and not arm.is_prismatic[j]]
     # a tree with several proposals: each limb group (no joint shared) may keep another proposal's joints
-    limbs = [(np.concatenate([np.arange(e * m, (e + 1) * m) for e in g]),
-              np.unique(np.concatenate([arm.chain.path(e) for e in g])), len(g))
-             for g in arm.chain.limb_groups] if arm.is_tree and len(q) > 1 else []
-    if len(limbs) < 2:
-        limbs = []
+    groups = [(np.concatenate([np.arange(e * m, (e + 1) * m) for e in g]),
+               np.unique(np.concatenate([arm.chain.path(e) for e in g])), len(g))
+              for g in arm.chain.limb_groups] if arm.is_tree and len(q) > 1 else []
+    if len(groups) < 2:
+        groups = []
     out_q, out_err = np.empty((len(goals), arm.nq)), np.zeros(len(goals))
     taken, choice = np.zeros(len(goals), np.int64), np.zeros(len(goals), np.int64)
     for i, goal in enumerate(goals):
@@ -501,8 +512,8 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
                 best, choice[i], before = state, j, seed[2]
             if close(best[1], best[2]):  # done: the later proposals cannot do better than within tolerance
                 break
-        if limbs and len(states) > 1 and not close(best[1], best[2]):
-            best, choice[i] = _limbwise(states, limbs, error, goal, best, choice[i])
+        if groups and len(states) > 1 and not close(best[1], best[2]):
+            best, choice[i] = _limbwise(states, groups, error, goal, best, choice[i])
         if first and flippable and not close(best[1], best[2]) and best[2] > 0.1 * before:
             # the best first step took less than 90 % of the error off: the seed may sit on the wrong
             # side of a fold (a wrist turning its offset away from a goal near full reach); the best
