@@ -7,6 +7,9 @@ effector within 0.1 mm (refine's default tolerance). Printed per tree:
 
 - refined: the share of goals within tolerance after at most 3, 8 and 20 steps (a multi-head network:
   every head's answer proposed, each limb group's nearest first, and refine mixes them by group);
+- without limbs: the same in 3 steps with refine(..., limbs=False), no limb solved in closed form
+  (robots.limbs) first, and the time per goal of both (the forward pass excluded; numba's kernels
+  compiled before the clock starts);
 - fails by effector: how many goals each effector misses after 3 steps (a goal fails when one does);
 - by group: each limb group's success alone (lab.problem.wiring.limb_groups: groups share no joint);
 - limb by limb: each group refined on its own (the other effectors' goals set where they already
@@ -28,6 +31,7 @@ import json
 import math
 import os
 import sys
+import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -64,9 +68,14 @@ def measure(robot: str, n: int, goal_seed: int) -> dict:
     q0 = seeds[0]  # the network's answer
     tol = default_tolerance(arm)
     out = {"robot": robot, "goals": n, "goal_seed": goal_seed, "heads": len(seeds)}
-    for steps in (3, 8, 20):
+    refine(arm, goals[:4], seeds[:, :4], steps=3)  # numba's kernels compiled outside the clock
+    for limbs in (False, True):
+        start = time.perf_counter()
+        r3 = refine(arm, goals, seeds, steps=3, limbs=limbs)
+        out["us_per_goal" if limbs else "us_per_goal_without_limbs"] = 1e6 * (time.perf_counter() - start) / n
+        out["refined_3" if limbs else "refined_3_without_limbs"] = float(r3.converged.mean())
+    for steps in (8, 20):
         out[f"refined_{steps}"] = float(refine(arm, goals, seeds, steps=steps).converged.mean())
-    r3 = refine(arm, goals, seeds, steps=3)
     miss = np.linalg.norm(arm.reach(r3.q) - goals, axis=-1) >= tol  # (n, E)
     out["fails_by_effector"] = dict(zip(arm.effectors, miss.sum(axis=0).tolist()))
     groups = limb_groups(arm)
@@ -116,6 +125,8 @@ def main() -> None:
         print(f"{robot} ({row['heads']} head{'s' if row['heads'] > 1 else ''}): refined {100 * row['refined_3']:.2f} / {100 * row['refined_8']:.2f} / "
               f"{100 * row['refined_20']:.2f} % (3 / 8 / 20 steps); limb by limb {100 * row['limb_by_limb_3']:.2f} %; "
               f"flips, upper bound {100 * row['flips_upper_bound']:.2f} %")
+        print(f"  3 steps: {100 * row['refined_3']:.2f} %, {row['us_per_goal']:.0f} us per goal; without limbs "
+              f"{100 * row['refined_3_without_limbs']:.2f} %, {row['us_per_goal_without_limbs']:.0f} us per goal")
         print(f"  fails by effector (3 steps): {row['fails_by_effector']}")
         for g in row["groups"]:
             print(f"  {'+'.join(g['effectors'])} ({g['joints']} joints): {100 * g['refined_3']:.2f} %, flips upper "

@@ -191,8 +191,8 @@ def _subangle(bx, by, bz, cx, cy, cz, ax, ay, az):
 
 def hips(arm: Arm) -> tuple[Hip, ...]:
     """The hips of a tree's limbs (module docstring), one per effector that has one; () on a serial
-    arm or a tree without any (solo12's three-joint legs, allegro's fingers, whose second and third
-    axes are parallel)."""
+    arm or a limb without one (solo12's three-joint legs; allegro's fingers, whose second and third
+    axes are parallel: its thumb has one)."""
     if not arm.is_tree:
         return ()
     if arm not in _cache:
