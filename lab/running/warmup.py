@@ -24,7 +24,7 @@ KIND_LABELS = {"arm": "serial arms", "tree": "trees of several end effectors"}
 # of docs/log.md with an empty numba cache), a serial arm's before a tree's: a tree's kernels call most
 # of an arm's, so a tree's step before its method's arm step takes both (and the arm's then a fifth of
 # its own); scaled by how the long steps done so far compared with their estimates (a busy machine is slower)
-KINEMATICS_SECONDS = 1.0
+KINEMATICS_SECONDS = 18.0  # the kinematics, the pose solver and a tree's limbs: 18.6 s measured on a cold cache
 SCALED_BY = 5.0  # s: only steps at least this long scale the estimate (a short one is mostly imports)
 
 
@@ -91,7 +91,7 @@ def plan(first: str | None = None, first_kind: str = "arm") -> list[Step]:
 def _kinematics() -> None:
     import robots
 
-    from robots import pose, pose_solve
+    from robots import limbs, pose, pose_solve
 
     arm = robots.load("planar")
     q = arm.sample_q(2, seed=0)
@@ -99,6 +99,9 @@ def _kinematics() -> None:
     arm.joint_positions(q)
     ur5 = robots.load("ur5")  # pose goals: the tool frame, its Jacobian and the compiled pose solver
     pose_solve.solve_pose(ur5, pose.sample_poses(ur5, 1, seed=0)[0], seconds=None)
+    tree = robots.load(TREE)  # a tree's limbs in closed form, which refine applies first
+    q = tree.sample_q(2, seed=0)
+    limbs.solve(tree, tree.reach(q), q)
 
 
 def _method(method: str, robot: str) -> None:
