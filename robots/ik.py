@@ -33,10 +33,10 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from robots.limbs import hips
-from robots.limbs import solve as solve_limbs
 from robots import pose
 from robots.arm import Arm
+from robots.limbs import hips
+from robots.limbs import solve as solve_limbs
 from robots.registry import in_metres
 
 _local = threading.local()  # one pin.Data per thread and arm (pink's rule: Data is not shared)

@@ -212,8 +212,8 @@ def _find_hips(arm: Arm) -> tuple[Hip, ...]:
         own = [j for j in path if j not in shared]
         start = path.index(own[0]) if own else len(path)
         limb = path[start:start + 4]
-        if len(limb) < 4 or any(chain.kind[j] != REVOLUTE for j in limb) or path[start:] != own:
-            continue
+        if len(limb) < 4 or any(chain.kind[j] != REVOLUTE for j in path[:start + 4]) or path[start:] != own:
+            continue  # _local_goals undoes a prefix of revolute joints only
         axes, origins = [], []
         for j in limb:
             placement = data.oMi[int(chain.joint_ids[j])]

@@ -10,11 +10,6 @@ from robots.limbs import hips, solve
 N = 60
 
 
-def random_joints(arm, n, seed):
-    rng = np.random.default_rng(seed)
-    return arm.lower + (arm.upper - arm.lower) * rng.random((n, arm.nq))
-
-
 def test_the_hips_are_found_where_four_revolute_joints_have_two_axes_that_meet():
     g1 = {h.effector: h for h in hips(robots.load("g1"))}
     assert sorted(g1) == [0, 1, 2, 3]  # both hands, both feet
@@ -32,7 +27,7 @@ def test_the_hips_are_found_where_four_revolute_joints_have_two_axes_that_meet()
 @pytest.mark.parametrize("robot", ["g1", "talos-legs", "allegro"])
 def test_the_joints_that_reached_a_goal_are_among_the_solutions_for_their_first_joint(robot):
     arm = robots.load(robot)
-    true = random_joints(arm, N, 0)
+    true = arm.sample_q(N, seed=0)
     goals = arm.reach(true)
     for hip in hips(arm):
         if not hip.exact:
@@ -48,8 +43,8 @@ def test_a_solved_limb_lands_on_its_goal_from_a_seed_anywhere(robot):
     """Exact hips to rounding; g1's shoulders, whose axes miss each other, to micrometres in the median
     after the corrections (refine takes them the rest of the way)."""
     arm = robots.load(robot)
-    goals = arm.reach(random_joints(arm, N, 1))
-    q, solved = solve(arm, goals, random_joints(arm, N, 2))
+    goals = arm.reach(arm.sample_q(N, seed=1))
+    q, solved = solve(arm, goals, arm.sample_q(N, seed=2))
     error = np.linalg.norm(arm.reach(q) - goals, axis=-1)
     for hip in hips(arm):
         e = hip.effector
@@ -62,11 +57,11 @@ def test_a_solved_limb_lands_on_its_goal_from_a_seed_anywhere(robot):
 
 def test_solve_never_takes_a_limb_group_farther_from_its_goals():
     arm = robots.load("g1")
-    true = random_joints(arm, N, 3)
+    true = arm.sample_q(N, seed=3)
     goals = arm.reach(true)
     q, _ = solve(arm, goals, true)  # already on every goal: nothing nearer, the same joints to rounding
     np.testing.assert_allclose(q, true, atol=1e-9)
-    seed = random_joints(arm, N, 4)
+    seed = arm.sample_q(N, seed=4)
     before = np.linalg.norm(arm.reach(seed) - goals, axis=-1)
     after = np.linalg.norm(arm.reach(solve(arm, goals, seed)[0]) - goals, axis=-1)
     for group in arm.chain.limb_groups:
@@ -77,11 +72,11 @@ def test_the_waist_turns_where_an_arm_cannot_reach_its_goal_under_the_seeds():
     """Seeds on the goals' own joints but for g1's waist, set elsewhere: where a hand's goal is out of
     its arm's reach under that waist, the waist moves and both hands are solved under the new one."""
     arm = robots.load("g1")
-    true = random_joints(arm, N, 5)
+    true = arm.sample_q(N, seed=5)
     goals = arm.reach(true)
     waist = [12, 13, 14]
     seed = true.copy()
-    seed[:, waist] = random_joints(arm, N, 6)[:, waist]
+    seed[:, waist] = arm.sample_q(N, seed=6)[:, waist]
     q, solved = solve(arm, goals, seed)
     moved = np.any(q[:, waist] != seed[:, waist], axis=1)
     assert moved.sum() >= N // 4
@@ -93,7 +88,7 @@ def test_the_waist_turns_where_an_arm_cannot_reach_its_goal_under_the_seeds():
 
 def test_bad_shapes_are_refused_with_what_was_expected():
     arm = robots.load("g1")
-    q = random_joints(arm, 3, 7)
+    q = arm.sample_q(3, seed=7)
     with pytest.raises(ValueError, match=r"goals \(n, 4, 3\) and q \(n, 29\)"):
         solve(arm, arm.reach(q)[:, :2], q)
     with pytest.raises(ValueError, match="got"):
