@@ -94,8 +94,10 @@ def describe(config: lab.TrainConfig) -> str:
 class StudentRun:
     """One student's run: queued, then running in a worker process, then finished, stopped or failed."""
 
-    def __init__(self, tab: int, name: str, config: lab.TrainConfig, owner: "ClassRuns"):
+    def __init__(self, tab: int, name: str, config: lab.TrainConfig, owner: "ClassRuns", lesson: str | None = None):
         self.tab, self.name, self.config, self._owner = tab, name, config, owner
+        self.lesson = lesson  # the lesson link it was started from ("class-as-a-search"; None: none)
+        self.board = owner.boards  # the board it was started on (ClassRuns.new_board)
         self.id = uuid.uuid4().hex[:12]  # the runner's run_id once it starts
         self.state = "queued"
         self.runner: ProcessRunner | None = None
@@ -172,6 +174,8 @@ class ClassRuns:
         self.closed = False
         self.version = 0  # bumped at every change of a run's state (the board redraws)
         self._seats: dict[str, dict[int, int]] = {}  # a lesson -> {tab: its seat} (lesson_seat)
+        self.board_since = 0.0  # time.time() of the presenter's "New board": earlier runs leave the board
+        self.boards = 1  # the board's number (1 until the presenter's first New board)
 
     # ------------------------------------------------------------------ names
     def name_of(self, tab: int) -> str:
@@ -226,10 +230,10 @@ class ClassRuns:
             queue = list(self._queue)
         return (queue.index(run) + 1 if run in queue else None), len(queue)
 
-    def submit(self, tab: int, config: lab.TrainConfig) -> str | None:
+    def submit(self, tab: int, config: lab.TrainConfig, lesson: str | None = None) -> str | None:
         """Queue the tab's run (started at once when a worker is free); refused, saying why, while
         the tab has a run queued or running, beyond the server's limits, when the queue is full or the
-        server is stopping."""
+        server is stopping. lesson: the lesson link the tab opened (the board groups its runs)."""
         if (why := limits_refusal(config, self.limits)) is not None:
             return f"refused: {why}"
         with self._lock:
@@ -240,7 +244,7 @@ class ClassRuns:
                 return f"refused: your run is {mine.status()}; one run at a time per tab (stop it first)"
             if len(self._queue) >= MAX_QUEUED:
                 return f"refused: the class's queue is full ({MAX_QUEUED} runs wait); try again when some have run"
-            run = StudentRun(tab, self.name_of(tab), config, self)
+            run = StudentRun(tab, self.name_of(tab), config, self, lesson)
             self.runs[run.id] = run
             self._queue.append(run)
             self.version += 1
@@ -300,6 +304,8 @@ class ClassRuns:
                          "started": time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(run.submitted)),
                          "recording": None, "controller": None}
             entry["student"] = run.name
+            if run.lesson:
+                entry["lesson"] = run.lesson
             if run.note and not entry.get("error"):
                 entry["error"] = run.note
             self.notebook.add(entry, timeout=1.0)
@@ -371,3 +377,20 @@ class ClassRuns:
     def rows(self) -> list[StudentRun]:
         with self._lock:
             return list(self.runs.values())
+
+    def new_board(self) -> int:
+        """The presenter's fresh board: the runs queued before now leave the board and its chart (a
+        run still queued or running stays listed until it ends); the notebook keeps every one. Returns
+        the new board's number."""
+        with self._lock:
+            self.board_since = time.time()
+            self.boards += 1
+            self.version += 1
+            return self.boards
+
+    def board_rows(self, going: bool = True) -> list[StudentRun]:
+        """The current board's runs (submitted since the last New board), and with `going` the earlier
+        ones still queued or running."""
+        with self._lock:
+            return [r for r in self.runs.values()
+                    if r.board == self.boards or (going and not r.ended)]
