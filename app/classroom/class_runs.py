@@ -106,6 +106,7 @@ class StudentRun:
         self.note: str | None = None  # why it stopped or failed, when not by its own end
         self.submitted = time.time()
         self.started: float | None = None
+        self.ended_at: float | None = None  # time.time() of its end (ClassRuns._ended)
         self.recording: str | None = None  # its .rrd, when the server records student runs
         self.logger = None  # its RerunLogger
         self.controller = None  # the best so far (the tab's own arm shows it)
@@ -285,6 +286,7 @@ class ClassRuns:
         """A run's end (its reader thread): its state, its notebook entry, the next queued run."""
         with self._lock:
             run.summary, run.state = summary, summary.state
+            run.ended_at = time.time()  # its wall time, start to end (a queued run's wait estimate: app/classroom/student_run.py)
             run.track.population = None  # an ended run keeps its numbers, not its last population's networks
             if summary.controller is not None:
                 run.controller, run.version = summary.controller, run.version + 1
