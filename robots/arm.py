@@ -14,6 +14,7 @@ continuous joint is a single angle in [-pi, pi] (Pinocchio stores it as cos/sin)
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -22,6 +23,7 @@ import numpy as np
 import pinocchio as pin
 
 from robots.kinematics import PRISMATIC, ChainKinematics
+from robots.urdf_tree import resolve_meshes
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,6 +46,10 @@ class Arm:
         package_dirs  directories that resolve package:// mesh paths
         joint_names   (nq,) names of the chain's joints, root first
         rest       (nq,) rest posture (the model's reference posture, clipped to the limits)
+        source     the string `robots.load` rebuilds the arm from: a registered name, "erd:NAME#frame",
+                   "/path/arm.urdf#frame" (robots/sources.py); from_urdf's own: "path#frames"
+        urdf_sha256  sha256 of the URDF file's bytes (robots.source_status checks it against the file)
+        missing_meshes  links whose visual mesh does not resolve: left out of visual_model
     """
 
     name: str
@@ -60,6 +66,9 @@ class Arm:
     q_ref: np.ndarray = field(repr=False)  # Pinocchio configuration for coordinates off the chain
     chain: ChainKinematics = field(repr=False)
     _visual_builder: object = field(repr=False, default=None)
+    source: str = ""  # the string robots.load rebuilds this arm from (robots/sources.py)
+    urdf_sha256: str = ""  # of the URDF file's bytes when the arm was built
+    missing_meshes: tuple[str, ...] = ()  # links whose visual mesh file does not resolve (drawn without it)
 
     @property
     def nq(self) -> int:
@@ -282,6 +291,7 @@ def from_urdf(
     limits: dict[str, tuple[float, float]] | None = None,
     srdf: tuple[str, str] | None = None,
     posture: dict[str, float] | None = None,
+    source: str | None = None,
 ) -> Arm:
     """Build an `Arm` from a URDF file and the name of its end-effector frame, or a sequence of names
     (a tree of several end effectors: feet, fingertips, hands; one name, or a sequence of one, is a
@@ -295,6 +305,11 @@ def from_urdf(
     srdf:        (SRDF path, posture name) giving the reference posture, when `reference` is None.
     posture:     joint values by joint name set over the reference posture (a URDF without an SRDF
                  posture: a humanoid's bent knees); the rest posture follows it.
+    source:      the string robots.load rebuilds this arm from (default: "path#frame1,frame2").
+
+    Also refused by name, with what to do: a joint of several axes (floating, planar) or a mimic joint
+    on a chain, a chain of more than MAX_JOINTS joints. Visual meshes that do not resolve are left out
+    of visual_model (their links: `missing_meshes`).
     """
     urdf_path = os.path.realpath(os.fspath(urdf_path))
     name = name or os.path.splitext(os.path.basename(urdf_path))[0]
@@ -303,8 +318,9 @@ def from_urdf(
                                         and 0 <= a <= 2 for a in axes) and len(set(axes)) == len(axes)):
         raise ValueError(f"{name}: task_axes must be distinct axes among 0, 1, 2 (x, y, z), got {axes!r}")
     try:
-        with open(urdf_path, encoding="utf-8") as f:
-            xml = f.read()
+        with open(urdf_path, "rb") as f:
+            raw = f.read()
+        xml = raw.decode("utf-8")
     except OSError as e:
         raise OSError(f"{name}: cannot read URDF {urdf_path}: {e.strerror}") from e
     except UnicodeDecodeError as e:
@@ -321,25 +337,22 @@ def from_urdf(
     on_chain = set().union(*(full.supports[full.frames[f].parentJoint] for f in frame_ids))
     locked = [j for j in range(1, full.njoints) if j not in on_chain]
     q_full = _with_posture(full, _reference(full, reference, srdf, name), posture or {}, name)
+    _check_chain_joints(full, sorted(on_chain - {0}), xml, frames, name)
     model = pin.buildReducedModel(full, locked, q_full) if locked else full
     frame_ids = tuple(_find_frame(model, f, name, urdf_path) for f in frames)
     chain = ChainKinematics(model, frame_ids)
 
     joint_names = tuple(model.names[int(j)] for j in chain.joint_ids)
-    mimics = _mimic_joints(xml) & set(joint_names)
-    if mimics:
-        to = ("chain to " if len(frames) == 1 else "chains to ") + ", ".join(map(repr, frames))
-        raise ValueError(f"{name}: joint(s) {', '.join(sorted(mimics))} on the {to} mimic "
-                         "another joint; mimic joints are supported only off the chain (locked)")
     lower, upper = _limits(model, chain, limits or {}, name)
     q_ref = pin.neutral(model)
     arm_q_ref = _reduce_reference(full, model, q_full)
     rest = _within(chain.from_pinocchio(arm_q_ref)[None], lower, upper, chain.continuous)[0]
     dirs = tuple(package_dirs)
     ee_names = tuple(model.frames[f].name for f in frame_ids)
+    vis_xml, missing = resolve_meshes(xml, os.path.dirname(urdf_path), dirs)
 
     def build_visual() -> pin.GeometryModel:
-        vis_full = pin.buildGeomFromUrdfString(full, xml, pin.GeometryType.VISUAL, package_dirs=list(dirs))
+        vis_full = pin.buildGeomFromUrdfString(full, vis_xml, pin.GeometryType.VISUAL, package_dirs=list(dirs))
         if not locked:
             return vis_full
         _, vis = pin.buildReducedModel(full, vis_full, locked, q_full)
@@ -351,6 +364,8 @@ def from_urdf(
         name=name, model=model, lower=lower, upper=upper, task_axes=tuple(int(a) for a in task_axes),
         effectors=ee_names, effector_ids=frame_ids, urdf_path=urdf_path, package_dirs=dirs, joint_names=joint_names,
         rest=rest, q_ref=q_ref, chain=chain, _visual_builder=build_visual,
+        source=source if source is not None else f"{urdf_path}#{','.join(frames)}",
+        urdf_sha256=hashlib.sha256(raw).hexdigest(), missing_meshes=missing,
     )
 
 
@@ -488,6 +503,34 @@ def _with_posture(full: pin.Model, q: np.ndarray, posture: dict, name: str) -> n
         else:
             q[jm.idx_q] = value
     return q
+
+
+MAX_JOINTS = 40  # joints on the chains to the effectors: the lab's encodings and kernels stop here
+
+
+def _check_chain_joints(full: pin.Model, joints: list[int], xml: str, frames: tuple[str, ...], name: str) -> None:
+    """Refuse, naming the joint and what to do, what the lab cannot model on the chains to the
+    effectors: a joint of several axes (floating, planar, spherical), a mimic joint, more than MAX_JOINTS joints."""
+    to = ("chain to " if len(frames) == 1 else "chains to ") + ", ".join(map(repr, frames))
+    for j in joints:
+        jm = full.joints[j]
+        if jm.nv != 1:
+            before = full.names[full.parents[j]] if full.parents[j] else "none (it is the first joint)"
+            raise ValueError(
+                f"{name}: joint {full.names[j]!r} on the {to} is a joint of {jm.nv} axes: {jm.shortname()} is not "
+                "supported (one-axis revolute, continuous and prismatic joints only); make it fixed in the URDF "
+                f"(the lab fixes the root link in space), or pick an end effector before it (the joint before it: {before})")
+    mimics = _mimic_joints(xml) & {full.names[j] for j in joints}
+    if mimics:
+        first = min(full.getJointId(m) for m in mimics)
+        parent = full.frames[full.frames[full.getFrameId(full.names[first], pin.FrameType.JOINT)].parentFrame].name
+        fix = (f"pass ee={parent!r} (the link before {full.names[first]!r}) to stop the chain before it"
+               if parent and full.parents[first] else "drop the <mimic> tag to make it a joint of its own")
+        raise ValueError(f"{name}: joint(s) {', '.join(sorted(mimics))} on the {to} mimic "
+                         f"another joint; mimic joints are supported only off the chain (locked): {fix}")
+    if len(joints) > MAX_JOINTS:
+        raise ValueError(f"{name}: the {to} hold {len(joints)} joints, more than the lab's {MAX_JOINTS}; pick an "
+                         f"end effector nearer the root (joint {MAX_JOINTS + 1} is {full.names[joints[MAX_JOINTS]]!r})")
 
 
 def _mimic_joints(xml: str) -> set[str]:

@@ -87,7 +87,7 @@ def kind(name: str) -> str:
     """What kind of arm a name is: "paper" (the paper's two arms, in its units), "snake" (a
     hyper-redundant planar arm of robots/snake.py, in the paper's units), "real" (a real arm, in
     metres), "tree" (a real robot with several end effectors, in metres), or "custom" (an arm made
-    with from_urdf under another name)."""
+    with from_urdf under another name, or loaded as "erd:NAME" or a URDF path: in metres)."""
     spec = SPECS.get(name) if isinstance(name, str) else None
     return spec.kind if spec is not None else "custom"
 
@@ -98,11 +98,14 @@ def in_metres(name: str) -> bool:
     return kind(name) not in ("paper", "snake")
 
 
-def load(name: str) -> Arm:
-    """The arm registered under `name` (see `names()`); built once, then shared."""
-    if not isinstance(name, str) or name not in SPECS:
-        raise ValueError(f"unknown robot {name!r}; known robots: {', '.join(names())}")
-    return _build(name)
+def load(name, ee=None) -> Arm:
+    """The arm a robot string names, built once, then shared: a registered name (see `names()`),
+    "erd:NAME" (any example-robot-data robot) or a URDF file's path, with its tool frame(s) after '#'
+    or in ee= (robots/sources.py); without them, a registered robot's own, else the end of the longest
+    chain (said in a log line). An Arm is returned as it is."""
+    from robots import sources
+
+    return sources.load(name, ee)
 
 
 @functools.cache
@@ -110,11 +113,11 @@ def _build(name: str) -> Arm:
     spec = SPECS[name]
     if spec.urdf is not None:
         return from_urdf(os.path.join(URDF_DIR, spec.urdf), spec.ee_frame, name=name,
-                         task_axes=spec.task_axes)
+                         task_axes=spec.task_axes, source=name)
     path, share, srdf = _erd_paths(spec.erd)
     return from_urdf(path, spec.ee_frame, name=name, task_axes=spec.task_axes,
                      package_dirs=(share,), xml_replace=spec.xml_replace, srdf=srdf,
-                     posture=dict(spec.posture) or None)
+                     posture=dict(spec.posture) or None, source=name)
 
 
 def _erd_paths(erd_name: str) -> tuple[str, str, tuple[str, str] | None]:
