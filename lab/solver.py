@@ -29,6 +29,7 @@ returning (k, n, nq); a controller without the attribute answers position goals.
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass
 
@@ -92,7 +93,7 @@ SWEEP_KEEP = 4  # of which the nearest each goal are proposed
 
 def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None = None,
           angle_tol: float | None = None, seconds: float | None = None, seed: int | None = 0,
-          sweep: int = SWEEP) -> Solution:
+          sweep: int = SWEEP, progress: bool = True) -> Solution:
     """Joint angles that put the arm on `goals`: the controller's answers (every head's, as
     proposals), then at most `steps` refinement steps (robots.ik.refine) toward each goal.
 
@@ -105,13 +106,19 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
     (the network's own answer; no refinement, not even refine's turn of the first joint), measured.
     seconds (pose goals): a wall-time budget a goal for robots.pose_solve.solve_pose, which takes
     the proposals' compiled descents (each at most pose_solve.STEPS_FROM_START steps, `steps` not
-    used) and then descents from random joint vectors (a generator of `seed`) until one is within
-    tolerance or the budget is spent; steps then counts every descent's steps. sweep (pose goals
+    used) and then descents from random joint vectors (a generator of `seed` + the goal's index)
+    until one is within tolerance or the budget is spent; steps then counts every descent's steps.
+    sweep (pose goals
     refined by steps, a pose controller with the closed-form reach): where no answer of the
     controller's is within tolerance, its answers with one joint at a time set to `sweep` values over
     its range and the closed form solving the rest are proposed too, the SWEEP_KEEP nearest each goal after the
     controller's own (lab.problem.controllers.swept_proposals; 0: none). ValueError, naming the problem, for a
-    controller made for other goals or another arm, and for goals refine refuses."""
+    controller made for other goals or another arm, and for goals refine refuses.
+
+    An empty batch (0 goals) gives an empty Solution of the same shapes ((0, nq) joint angles).
+    Many goals are solved CHUNK at a time (the network's proposals and refinement's work bounded by
+    a chunk, not by the batch; each goal's answer is the one it gets alone), with a progress line on
+    stderr once the call has run PROGRESS_AFTER seconds (progress=False: none)."""
     t0 = time.perf_counter()
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
         raise ValueError(f"steps must be an integer >= 0, got {steps!r}")
@@ -131,14 +138,13 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
             raise ValueError(f"{arm.name}: goals must be an array of numbers") from None
         goals = goals[None] if goals.ndim == (2 if arm.is_tree else 1) else goals
         shape = (*((arm.n_effectors,) if arm.is_tree else ()), len(arm.task_axes))
-        if goals.shape[1:] != shape or not len(goals):
+        if goals.shape[1:] != shape:
             raise ValueError(f"{arm.name}: goals must be positions (n, {', '.join(map(str, shape))}) or poses "
                              f"(n, 4, 4), got shape {goals.shape}")
         if not np.isfinite(goals).all():
             bad = int((~np.isfinite(goals)).reshape(len(goals), -1).any(axis=1).sum())
             raise ValueError(f"{arm.name}: {bad} of {len(goals)} goals hold NaN or infinity")
     kind = "pose" if is_pose else "position"
-    seeds = []
     if controller is not None:
         if goal_kind(controller) != kind:
             fix = ("; for pose goals without a pose controller pass controller=None and q0 (or nothing: the "
@@ -151,6 +157,76 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
         if encoding is not None and not is_pose and tuple(encoding.task_axes) != tuple(arm.task_axes):
             raise ValueError(f"{arm.name}: this controller takes goals on task axes {tuple(encoding.task_axes)}, "
                              f"the arm's are {tuple(arm.task_axes)}")
+    extra = None
+    if q0 is not None:
+        q0 = np.asarray(q0, dtype=np.float64)
+        extra = q0 if q0.ndim == 3 else np.atleast_2d(q0)[None]
+        if extra.shape[1:] != (len(goals), arm.nq) or not len(extra):
+            raise ValueError(f"{arm.name}: q0 must be ({len(goals)}, {arm.nq}) or (k, {len(goals)}, {arm.nq}), "
+                             f"got shape {q0.shape}")
+    if seconds is not None:
+        if not is_pose:
+            raise ValueError(f"{arm.name}: seconds (the compiled solver's budget) applies to pose goals (n, 4, 4); "
+                             f"for position goals leave it None (refinement steps)")
+        if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0:
+            raise ValueError(f"seconds must be a number > 0 (a goal's budget), got {seconds!r}")
+    if is_pose:
+        tol, angle_tol = pose_tolerances(arm, tol, angle_tol)
+    else:
+        if angle_tol is not None:
+            raise ValueError(f"{arm.name}: angle_tol applies to pose goals (n, 4, 4); these goals have shape "
+                             f"{goals.shape}")
+        tol = default_tolerance(arm) if tol is None else float(tol)
+    args = (controller, arm, steps, tol, angle_tol, seconds, seed, sweep, is_pose)
+    n = len(goals)
+    if 0 < n <= CHUNK:  # one chunk (a drag's one pose): no copies, no progress line
+        return _chunk(*args, goals, extra, 0, t0)
+    if n == 0:
+        return _empty(controller, arm, extra, tol, angle_tol, is_pose, t0)
+    parts, bar = [], _Progress(n, f"lab.solve {arm.name}", t0, progress)
+    try:
+        for a in range(0, n, CHUNK):
+            b = min(a + CHUNK, n)
+            parts.append(_chunk(*args, goals[a:b], None if extra is None else extra[:, a:b], a, t0))
+            bar.advance(b - a)
+    finally:
+        bar.close()
+    return _joined(parts, time.perf_counter() - t0)
+
+
+CHUNK = 4096  # goals solved at once: the proposals, swept proposals and refinement's arrays of a chunk at most
+PROGRESS_AFTER = 3.0  # s: a call still going after this long shows a progress line (stderr)
+
+
+class _Progress:
+    """A progress line on stderr (tqdm, as python -m lab's), started only once the call has run
+    PROGRESS_AFTER seconds: a quick call prints nothing."""
+
+    def __init__(self, total: int, label: str, t0: float, enabled: bool):
+        self.total, self.label, self.t0, self.enabled = total, label, t0, enabled
+        self.done, self.bar = 0, None
+
+    def advance(self, k: int) -> None:
+        self.done += k
+        if self.bar is not None:
+            self.bar.update(k)
+        elif self.enabled and self.done < self.total and time.perf_counter() - self.t0 >= PROGRESS_AFTER:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=self.total, initial=self.done, desc=self.label, unit="goal", file=sys.stderr,
+                            mininterval=1.0, dynamic_ncols=True)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _chunk(controller, arm, steps, tol, angle_tol, seconds, seed, sweep, is_pose, goals, extra, offset,
+           t0) -> Solution:
+    """solve on checked goals (at most CHUNK of them), the goals[offset:] of the call; tol and
+    angle_tol resolved; extra: the caller's q0 of these goals, (k, n, nq), or None; seconds since t0."""
+    seeds = []
+    if controller is not None:
         own = controller.proposals(goals) if hasattr(controller, "proposals") else _proposals(controller, goals)
         own = np.asarray(own, dtype=np.float64)
         if own.shape[1:] != (len(goals), arm.nq):
@@ -158,12 +234,7 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
         seeds.append(own)
         if is_pose and steps and seconds is None and sweep:
             seeds.append(_swept(controller, arm, goals, own, sweep, tol, angle_tol))
-    if q0 is not None:
-        q0 = np.asarray(q0, dtype=np.float64)
-        extra = q0 if q0.ndim == 3 else np.atleast_2d(q0)[None]
-        if extra.shape[1:] != (len(goals), arm.nq):
-            raise ValueError(f"{arm.name}: q0 must be ({len(goals)}, {arm.nq}) or (k, {len(goals)}, {arm.nq}), "
-                             f"got shape {q0.shape}")
+    if extra is not None:
         seeds.append(extra)
     if not seeds:
         seeds.append(np.broadcast_to(arm.rest, (1, len(goals), arm.nq)))
@@ -173,22 +244,43 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
         first_error, first_angle = pose.pose_errors(arm, goals, first)
     else:
         first_error, first_angle = _position_errors(arm, goals, first), None
+    network = controller is not None
     if seconds is not None:
-        return _budgeted(arm, goals, seeds, first_error, first_angle, controller is not None, tol, angle_tol,
-                         seconds, seed, is_pose, t0)
+        return _budgeted(arm, goals, seeds, first_error, first_angle, network, tol, angle_tol, seconds,
+                         None if seed is None else seed + offset, t0)
     if steps == 0:  # the first proposal alone, measured (refine would still turn the first joint)
-        if is_pose:
-            tol, angle_tol = pose_tolerances(arm, tol, angle_tol)
-        else:
-            tol = default_tolerance(arm) if tol is None else float(tol)
         r = RefineResult(first, first_error, np.zeros(len(goals), np.int64), 0.0, angle=first_angle, tol=tol,
-                         angle_tol=angle_tol if is_pose else None)
+                         angle_tol=angle_tol)
     else:
         r = refine(arm, goals, seeds, steps=steps, tol=tol, angle_tol=angle_tol)
-    network = controller is not None
     return Solution(q=r.q, error=r.error, angle=r.angle, converged=r.converged, tol=r.tol, angle_tol=r.angle_tol,
                     steps=r.steps, choice=r.choice, network_error=first_error if network else None,
                     network_angle=first_angle if network else None, seconds=time.perf_counter() - t0)
+
+
+def _empty(controller, arm, extra, tol, angle_tol, is_pose, t0) -> Solution:
+    """The answer to 0 goals: arrays of length 0 where a batch has arrays (choice: None when only
+    one proposal is known, the rest pose or a single q0; a controller's may be several)."""
+    none = np.zeros(0)
+    several = controller is not None or (extra is not None and len(extra) > 1)
+    return Solution(q=np.zeros((0, arm.nq)), error=none, angle=none.copy() if is_pose else None,
+                    converged=np.zeros(0, bool), tol=tol, angle_tol=angle_tol if is_pose else None,
+                    steps=np.zeros(0, np.int64), choice=np.zeros(0, np.int64) if several else None,
+                    network_error=none.copy() if controller is not None else None,
+                    network_angle=none.copy() if controller is not None and is_pose else None,
+                    seconds=time.perf_counter() - t0)
+
+
+def _joined(parts: list[Solution], seconds: float) -> Solution:
+    """The chunks' Solutions as one, in order."""
+    def cat(name):
+        values = [getattr(p, name) for p in parts]
+        return None if any(v is None for v in values) else np.concatenate(values)
+
+    head = parts[0]
+    return Solution(q=cat("q"), error=cat("error"), angle=cat("angle"), converged=cat("converged"), tol=head.tol,
+                    angle_tol=head.angle_tol, steps=cat("steps"), choice=cat("choice"),
+                    network_error=cat("network_error"), network_angle=cat("network_angle"), seconds=seconds)
 
 
 def _swept(controller, arm, goals, own, sweep, tol, angle_tol) -> np.ndarray:
@@ -206,15 +298,10 @@ def _swept(controller, arm, goals, own, sweep, tol, angle_tol) -> np.ndarray:
     return out
 
 
-def _budgeted(arm, goals, seeds, first_error, first_angle, network: bool, tol, angle_tol, seconds, seed, is_pose,
-              t0) -> Solution:
-    """solve's seconds: each pose goal by robots.pose_solve.solve_pose from its proposals, then restarts."""
-    if not is_pose:
-        raise ValueError(f"{arm.name}: seconds (the compiled solver's budget) applies to pose goals (n, 4, 4); for "
-                         f"position goals leave it None (refinement steps)")
-    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0:
-        raise ValueError(f"seconds must be a number > 0 (a goal's budget), got {seconds!r}")
-    tol, angle_tol = pose_tolerances(arm, tol, angle_tol)
+def _budgeted(arm, goals, seeds, first_error, first_angle, network: bool, tol, angle_tol, seconds,
+              seed, t0) -> Solution:
+    """solve's seconds: each pose goal by robots.pose_solve.solve_pose from its proposals, then restarts
+    (goal i's generator: seed + i)."""
     n = len(goals)
     q, error, angle = np.empty((n, arm.nq)), np.empty(n), np.empty(n)
     converged, steps = np.zeros(n, bool), np.zeros(n, np.int64)

@@ -425,7 +425,7 @@ def refine(arm: Arm, goals, q0, *, steps: int = 3, tol: float | None = None, dam
                          f"or (k, n, {arm.nq}), got {goals.shape} and {np.shape(q0)}")
     if limbs and arm.is_tree and len(axes) == 3 and hips(arm):
         q = np.stack([solve_limbs(arm, goals, qj)[0] for qj in q])
-    goals = goals.reshape(len(goals), -1)  # a tree's goal: its effectors' coordinates one after the other
+    goals = goals.reshape(len(goals), int(np.prod(goal_shape)))  # a tree's: its effectors' coordinates in turn
     size = workspace_size(arm)
     lam2_eye = (damping * size) ** 2 * np.eye(goals.shape[1])
     tol = default_tolerance(arm) if tol is None else float(tol)
@@ -647,7 +647,7 @@ def refine_pose(arm: Arm, poses, q0, *, steps: int = 3, tol: float | None = None
     tol, angle_tol = pose_tolerances(arm, tol, angle_tol)
     q = np.asarray(q0, dtype=np.float64)
     if q.ndim not in (1, 2, 3) or q.shape[-1] != arm.nq or (q.ndim == 1 and len(goals) != 1) or \
-            (q.ndim > 1 and q.shape[-2] != len(goals)) or q.size == 0:
+            (q.ndim > 1 and q.shape[-2] != len(goals)) or (q.ndim == 3 and not len(q)):
         raise ValueError(f"{arm.name}: q0 must be ({len(goals)}, {arm.nq}) or (k, {len(goals)}, {arm.nq}) for "
                          f"{len(goals)} pose goals, got shape {np.shape(q0)}")
     q = arm.within_limits(q if q.ndim == 3 else np.atleast_2d(q)[None])  # (k, n, nq)
