@@ -5,6 +5,9 @@
     run.controller(goals)        # (n, len(task_axes)) -> (n, nq) within the joint limits
     run.train_mse, run.test_mse  # final best on the training and held-out goals
     lab.solve(run.controller, "ur5", goals)  # the network, then refinement: q, each goal's error (lab/solver.py)
+    lab.solve(None, arm, poses)  # pose goals (n, 4, 4): the compiled solver, 5 ms a pose, 1e-5 m and 1e-5 rad
+    lab.evolve("erd:ur3", seconds=60)  # any robot: a registered name, erd:NAME, a URDF path, or a robots.Arm
+    lab.pretrained("panda", goal="pose")  # a controller the project ships (lab/shipped.py)
     lab.evolve("ur5", seconds=60)  # a time budget: 60 s of optimizer time, then its best controller
     lab.load_controller("recordings/....rrd", generation=None)  # a controller back from a Rerun recording
     lab.Runner(config) / lab.ProcessRunner(config)  # a run in a background thread / in a worker process
@@ -26,12 +29,13 @@ from lab.problem.controllers import Controller, GraphController, MLPController, 
 from lab.running.config import TrainConfig
 from lab.running.evolve import Run, evolve
 from lab.running.runner import GenerationEvent, Runner, RunSummary
+from lab.shipped import pretrained
 from lab.solver import Solution, solve
 
 __all__ = [
     "Backend", "Controller", "GenerationEvent", "GraphController", "MLPController", "Method", "Options",
     "ProcessRunner", "RerunLogger", "Run", "RunSummary", "Runner", "SettingError", "Solution", "StepResult", "TrainConfig",
-    "controller_from_dict", "evolve", "load_controller", "methods", "read_recording", "solve",
+    "controller_from_dict", "evolve", "load_controller", "methods", "pretrained", "read_recording", "solve",
 ]
 
 

@@ -18,12 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-import robots
 from lab.methods.base import (BEARINGS_ARMS, LIMITED_MARGIN, Backend, Options, StepResult, margin_of,  # noqa: F401
                               mlp_joints, mlp_shape, option, real_arm_io)
 from lab.methods.registry import LivePlot, Method, SpeedReference, register
 from lab.problem.checks import flag, real, whole
 from lab.problem.controllers import MAX_HEADS, MLPController, mlp_size
+from lab.problem.robot import arm_kind
 from lab.problem.wiring import Wiring
 
 REAL_ARM_GENERATIONS = 45_000  # a real arm's budget: about 4-5 minutes on two cores for 5-7 joints
@@ -265,9 +265,9 @@ def defaults(arm) -> dict:
       single-head run finds (the second head starts leaning back). On the SO arms the goals behind
       the base near its axis need the arm curled forward over the axis, the tip beyond it (the
       third head starts there); SO101's fourth is the second's mirror image in the base joint."""
-    if robots.kind(arm.name) in ("paper", "snake"):
+    if arm_kind(arm) in ("paper", "snake"):
         return dict(features="reach", margin=2.0, hidden=5)
-    if robots.kind(arm.name) == "tree":
+    if arm_kind(arm) == "tree":
         return tree_defaults(arm)
     return {**dict(features="bearings" if arm.name in BEARINGS_ARMS else "sphere", margin=margin_of(arm),
                    hidden=32, targets=300, population=50, generations=REAL_ARM_GENERATIONS, sigma0=0.05,
@@ -302,7 +302,7 @@ def budget_defaults(arm, seconds: float) -> dict:
     the SO arms two (the second leaning back, for the goals behind the base); fewer heads are
     cheaper generations."""
     d = {k: v for k, v in defaults(arm).items() if k != "generations"}
-    if robots.kind(arm.name) != "real":
+    if arm_kind(arm) != "real":
         return d
     d.update(real_arm_io(arm), heads=BUDGET_HEADS.get(arm.name, 1))
     if seconds <= SHORT_BUDGET:
@@ -316,7 +316,9 @@ POSE_GENERATIONS = 20_000  # pose goals without a budget, one head: about 5 minu
 # 4 heads 80 degrees median angle and 13.7 % refined, against 1 head's 106 degrees and 8.9 % in 240 s
 # (docs/log.md). With the reach, 240 s, refined in 3 steps: SO-100 two (98.6 % against one head's 85.4
 # %), SO-101 four (60.1 % against two heads' 47.8 % and one's 36.6 %)
-POSE_HEADS = {**{name: 4 for name in ("ur5", "ur10", "panda", "xarm7", "kinova", "z1", "so101")}, "so100": 2}
+FULL_POSE_HEADS = 4  # every registered arm held to a full pose (6-7 joints) has 4; so has an arm of a URDF
+POSE_HEADS = {**{name: FULL_POSE_HEADS for name in ("ur5", "ur10", "panda", "xarm7", "kinova", "z1", "so101")},
+              "so100": 2}
 
 
 def pose_defaults(arm, seconds: float | None) -> dict:
@@ -324,8 +326,9 @@ def pose_defaults(arm, seconds: float | None) -> dict:
     real arm's inputs and output mapping with the first joint turned in closed form toward the
     position's bearing (real_arm_io: any exact answer has that bearing, and the orientation turns
     with it), POSE_HEADS heads, and without a budget POSE_GENERATIONS generations; chosen by short
-    budgeted runs (docs/log.md)."""
-    heads = POSE_HEADS.get(arm.name, 1)
+    budgeted runs (docs/log.md). An arm outside the registry: FULL_POSE_HEADS where it has 6 joints or more,
+    as the registered arms of its size."""
+    heads = POSE_HEADS.get(arm.name, FULL_POSE_HEADS if arm.nq >= 6 else 1)
     d = dict(real_arm_io(arm), heads=heads)
     if seconds is None:  # four heads cost about 3.5x a generation (UR5, one thread: 35-44 ms against 10-12)
         d["generations"] = POSE_GENERATIONS if heads == 1 else POSE_GENERATIONS * 3 // 10

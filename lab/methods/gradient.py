@@ -25,11 +25,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-import robots
 from lab.methods.base import Backend, Options, StepResult, option, real_arm_io
 from lab.methods.registry import LivePlot, Method, register
 from lab.problem.checks import real
 from lab.problem.controllers import MLPController, mlp_size
+from lab.problem.robot import arm_kind
 from lab.problem.wiring import Wiring
 
 
@@ -132,9 +132,9 @@ def defaults(arm) -> dict:
     Trees (several end effectors): "sphere" inputs in each limb frame, each limb that moves one
     effector alone turned in closed form (as CMA-ES's trees), TREE_TARGETS training goals: with 300,
     a full-batch descent fits them and generalizes badly (the comparisons: docs/log.md)."""
-    if robots.kind(arm.name) in ("paper", "snake"):
+    if arm_kind(arm) in ("paper", "snake"):
         return dict(features="reach", margin=2.0, hidden=5, population=1, generations=3000, learning_rate=0.03)
-    if robots.kind(arm.name) == "tree":
+    if arm_kind(arm) == "tree":
         return dict(features="sphere", margin=0.0, hidden=32, targets=TREE_TARGETS, population=1, generations=20_000,
                     turn=True)
     return dict(real_arm_io(arm), margin=0.0, hidden=32, targets=300, population=1, generations=20_000)

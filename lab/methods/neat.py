@@ -43,7 +43,6 @@ from dataclasses import dataclass
 import neat
 import numpy as np
 
-import robots
 
 from lab.methods.base import Backend, Options, StepResult, option, real_arm_io
 from lab.methods.registry import LivePlot, Method, SpeedReference, register
@@ -51,6 +50,7 @@ from lab.problem.checks import real
 from lab.problem.controllers import GraphController, join_programs, lay_out, run_programs
 from lab.methods.neat_genome import FastGenome, FastReproduction
 from lab.methods.neat_species import FastSpeciesSet
+from lab.problem.robot import arm_kind
 
 _RANDOM_LOCK = threading.Lock()
 BAD_FITNESS = -1e30  # neat-python needs a finite float; NaN/inf outputs get this
@@ -467,9 +467,9 @@ def defaults(arm) -> dict:
     joint turned in closed form), 300 goals, a population of 100, weight perturbations of 0.1 and
     structural mutations 25-50 times the paper's (add node 0.05, add connection 0.1), so that
     networks grow within minutes, from no hidden node; REAL_ARM_GENERATIONS generations."""
-    if robots.kind(arm.name) == "tree":  # and each limb that moves one effector alone turned, as every method's trees
+    if arm_kind(arm) == "tree":  # and each limb that moves one effector alone turned, as every method's trees
         return dict(features="polar", margin=0.5, hidden=0, turn=True)
-    if robots.kind(arm.name) != "real":  # the paper's arms and the snakes
+    if arm_kind(arm) != "real":  # the paper's arms and the snakes
         return dict(features="polar", margin=0.5, hidden=0)
     return dict(real_arm_io(arm), hidden=0, targets=300, population=100, generations=REAL_ARM_GENERATIONS,
                 mutation_power=0.1, add_node=0.05, add_connection=0.1)

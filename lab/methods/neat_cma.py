@@ -24,7 +24,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-import robots
 from lab.methods import neat as neat_method
 from lab.methods.base import StepResult, option, real_arm_io
 from lab.methods.cmaes import CMAESBackend
@@ -32,6 +31,7 @@ from lab.methods.neat import BAD_FITNESS, NEATBackend, NEATOptions, _enabled, _l
 from lab.methods.registry import Method, register
 from lab.problem.checks import real, whole
 from lab.problem.controllers import join_programs
+from lab.problem.robot import arm_kind
 
 
 @dataclass(frozen=True)
@@ -169,7 +169,7 @@ def defaults(arm) -> dict:
     sooner (UR5, 60 s); on the UR5 600 goals (ARM_TARGETS: with 300 its runs stalled or its grown
     networks overfit; the other arms did as well or better with 300: docs/results/budgets.md)."""
     d = neat_method.defaults(arm)
-    if robots.kind(arm.name) == "real":
+    if arm_kind(arm) == "real":
         d["add_node"] = 0.1
     if arm.name in ARM_TARGETS:
         d["targets"] = ARM_TARGETS[arm.name]

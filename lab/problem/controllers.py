@@ -470,16 +470,42 @@ def run_programs(program: tuple, X: np.ndarray) -> np.ndarray:
     return out.transpose(0, 2, 1)
 
 
-def controller_from_dict(d: dict) -> Controller:
-    """Rebuild a controller from its `to_dict()`; ValueError, naming what is wrong, for anything else."""
+def controller_from_dict(d: dict, arm=None) -> Controller:
+    """Rebuild a controller from its `to_dict()`; ValueError, naming what is wrong, for anything else.
+    arm (an Arm, or a robot's string: lab/problem/robot.py): also ValueError unless the controller was
+    made for that arm (its joints and their limits, its goals' axes)."""
     if not isinstance(d, dict):
         raise ValueError(f"not a controller: expected a dict, got {type(d).__name__}")
     try:
-        return _from_dict(d)
+        controller = _from_dict(d)
     except KeyError as e:
         raise ValueError(f"not a controller: its field {e.args[0]!r} is missing") from e
     except (TypeError, ValueError, AttributeError) as e:
         raise ValueError(f"not a controller: {e}") from e
+    if arm is not None:
+        check_made_for(controller, arm)
+    return controller
+
+
+def check_made_for(controller, arm) -> None:
+    """ValueError, naming the difference, unless `controller` answers `arm`'s joints within its limits
+    (arm: an Arm or a robot's string) on its goals' axes (a pose controller: x, y, z)."""
+    from lab.problem.robot import load_arm
+
+    arm = load_arm(arm)
+    enc = controller.encoding
+    if len(enc.q_lo) != arm.nq:
+        raise ValueError(f"{arm.name}: this controller answers {len(enc.q_lo)} joints, the arm has {arm.nq}")
+    if not (np.allclose(enc.q_lo, arm.lower) and np.allclose(enc.q_hi, arm.upper)):
+        raise ValueError(f"{arm.name}: this controller's joint limits are not the arm's (another arm of "
+                         f"{arm.nq} joints?)")
+    effectors = int(getattr(enc, "effectors", None) or 1)  # a tree's encoding: its number of effectors
+    if effectors != arm.n_effectors:
+        raise ValueError(f"{arm.name}: this controller answers {effectors} end effector(s), the arm has "
+                         f"{arm.n_effectors}")
+    if getattr(enc, "goal", "position") != "pose" and tuple(enc.task_axes) != tuple(arm.task_axes):
+        raise ValueError(f"{arm.name}: this controller takes goals on task axes {tuple(enc.task_axes)}, the "
+                         f"arm's are {tuple(arm.task_axes)}")
 
 
 def _from_dict(d: dict) -> Controller:

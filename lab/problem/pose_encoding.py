@@ -87,17 +87,22 @@ def check_goal(goal) -> str:
     return goal
 
 
-def check_pose_robot(name: str) -> None:
-    """ValueError, naming the robot and why, unless pose goals can train a network on it: a real arm
-    (robots' kind "real") whose tool frame robots.pose knows (a full pose, or the SO arms' approach axis)."""
-    kind = robots.kind(name)
+def check_pose_robot(robot) -> None:
+    """ValueError, naming the robot and why, unless pose goals can train a network on it (a name or an
+    Arm): a real arm (lab.problem.robot.arm_kind "real": a registered real arm, or a serial arm of a
+    URDF) whose tool frame robots.pose knows (a full pose, or the SO arms' approach axis)."""
+    from lab.problem.robot import arm_kind, load_arm
+
+    arm = load_arm(robot)
+    kind = arm_kind(arm)
     if kind != "real":
         what = {"paper": "one of the paper's arms", "snake": "a planar snake", "tree": "a tree of several end effectors"}
         real = ", ".join(n for n in robots.names() if robots.kind(n) == "real")
-        raise ValueError(f"goal='pose' is for a real arm ({real}); {name} is {what.get(kind, kind)}")
+        raise ValueError(f"goal='pose' is for a real arm ({real}, or a serial arm of a URDF); {arm.name} is "
+                         f"{what.get(kind, kind)}")
     from robots import pose
 
-    pose.approach_axis(robots.load(name))  # ValueError naming why for an arm without a pose
+    pose.approach_axis(arm)  # ValueError naming why for an arm without a pose
 
 
 @dataclass(frozen=True, eq=False)

@@ -58,6 +58,7 @@ from lab.running import pipes
 from lab import methods
 from lab.running.config import TrainConfig
 from lab.problem import Problem
+from lab.problem.robot import robot_slug
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +75,7 @@ def default_path(config: TrainConfig, folder: str | os.PathLike = "recordings", 
     the same second (two apps on one folder, a race of one method and seed) never share a file.
     Creates the folder; raises OSError when nothing can be created there."""
     stamp = (now or datetime.now()).strftime("%Y%m%d-%H%M%S")
-    stem = Path(folder) / f"{config.robot}-{config.method}-s{config.seed}-{stamp}"
+    stem = Path(folder) / f"{robot_slug(config.robot)}-{config.method}-s{config.seed}-{stamp}"
     Path(folder).mkdir(parents=True, exist_ok=True)
     for k in range(1, 10_000):
         path = stem.with_suffix(".rrd") if k == 1 else Path(f"{stem}-{k}.rrd")

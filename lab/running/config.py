@@ -31,6 +31,7 @@ from lab.problem.checks import flag, real, shown, whole
 from lab.problem.controllers import MAX_HEADS
 from lab.problem.encoding import FEATURES
 from lab.problem.pose_encoding import can_reach, check_goal, check_pose_robot, default_reach
+from lab.problem.robot import load_arm, robot_name
 
 # upper bounds that keep a run within this machine's memory and time (a population of 10^9 would
 # hang in pycma's or neat's setup; hidden 256 is a CMA-ES search space of about 2,300 weights)
@@ -51,7 +52,7 @@ class TrainConfig:
     """One training run's settings. TrainConfig(robot=..., method=..., sigma0=...): shared fields
     by name, the method's options by name too (or as `options`, an Options or a dict)."""
 
-    robot: str = "planar"
+    robot: str = "planar"  # a registered name, erd:NAME or a URDF path (lab/problem/robot.py; an Arm: its name)
     method: str = methods.DEFAULT_METHOD
     generations: int | None = None  # None: the method's default for the arm, else 1000 (with seconds: UNBOUNDED)
     population: int | None = None  # None: the method's default for the arm, else 50
@@ -78,7 +79,9 @@ class TrainConfig:
                  hidden: int | None = None, options: Options | dict | None = None, paper: bool = False,
                  resample: bool = False, heads: int | None = None, seconds: float | None = None,
                  turn: bool | None = None, wiring: bool | None = None, goal: str = "position", reach: int | None = None,
-                 **option_values):
+                 ee: str | None = None, **option_values):
+        if ee is not None or isinstance(robot, robots.Arm):  # the robot's canonical string (lab/problem/robot.py)
+            robot = robot_name(robot, ee)
         if option_values:
             base = options.to_dict() if isinstance(options, Options) else dict(options or {})
             options = {**base, **option_values}
@@ -93,13 +96,15 @@ class TrainConfig:
 
     def __post_init__(self):
         method = methods.get(self.method)
-        if not isinstance(self.robot, str) or self.robot not in robots.names():
-            raise ValueError(f"unknown robot {shown(self.robot)}; known robots: {', '.join(robots.names())}")
+        if not isinstance(self.robot, str):
+            load_arm(self.robot)  # unknown robot ..., by name
         check_goal(self.goal)
-        if self.goal == "pose":
-            check_pose_robot(self.robot)  # a real arm, or an error naming the robot
         self._check(method)  # what was given, before any arm is loaded
-        arm = robots.load(self.robot)
+        arm = load_arm(self.robot)  # a registered name, erd:NAME or a URDF path (robots.load)
+        if arm.name != self.robot:  # the canonical string ("erd:ur3" as robots.load names it)
+            object.__setattr__(self, "robot", arm.name)
+        if self.goal == "pose":
+            check_pose_robot(arm)  # a real arm, or an error naming the robot
         budget = {} if self.seconds is None else {"generations": UNBOUNDED}
         defaults = {**PROTOCOL, **budget, **method.defaults_for(arm, self.seconds, goal=self.goal)}
         for name in _PER_METHOD:

@@ -41,11 +41,17 @@ class Run:
                    s.state, s.run_id)
 
 
-def evolve(robot: str = "planar", method: str = DEFAULT_METHOD, generations: int | None = None,
+def evolve(robot="planar", method: str = DEFAULT_METHOD, generations: int | None = None,
            population: int | None = None, targets: int | None = None, seed: int = 0, *, paper: bool = False,
-           seconds: float | None = None, goal: str = "position", subscribers: Iterable[Callable] = (),
-           **options) -> Run:
+           seconds: float | None = None, goal: str = "position", ee: str | None = None,
+           subscribers: Iterable[Callable] = (), **options) -> Run:
     """Evolve a neuro-controller for `robot` with `method` (lab.methods.names()); blocks until done.
+
+    robot: a registered name, erd:NAME (an example-robot-data robot), a URDF file's path, or a
+    robots.Arm (robots.load(ROBOT, ee=FRAME)); ee: the tool frame of a robot given by string. The
+    run's config.robot is its canonical string (lab/problem/robot.py). Any robot gets its method's
+    defaults from its kind, joint count and reach (Method.defaults_for): an arm of a URDF those of a
+    registered real arm.
 
     generations, population, targets: None is the method's default for the arm (the paper's
     protocol, 1000, 50 and 70, unless the method declares others for that arm).
@@ -63,7 +69,7 @@ def evolve(robot: str = "planar", method: str = DEFAULT_METHOD, generations: int
     """
     config = TrainConfig.preset(paper=paper, robot=robot, method=method, generations=generations,
                                 population=population, targets=targets, seed=seed, seconds=seconds,
-                                goal=goal, **options)
+                                goal=goal, ee=ee, **options)
     runner = Runner(config)
     for s in subscribers:
         runner.subscribe(s)
