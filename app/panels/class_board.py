@@ -10,7 +10,18 @@ recording is opened as the Runs tab opens one (`replay`: its generation slider s
 generations, its population at each), any other run's best network is shown as a replayed controller
 (`show`); the Runs tab's "Back to live" returns to the class's run. And a **class chart** plots the finished runs' held-out MSE (log scale) against a setting
 the presenter picks (hidden units, population, goals, seed, method): the sweep the class has made.
+The chart (app/panels/class_chart.py) compares only runs that differ in the setting it plots (the
+largest group of runs with every other setting equal, seeds as repeats) and says how many it left out.
 The render loop calls `refresh`; the table and chart are redrawn only when a run has changed.
+
+The presenter's **board** controls (shared controls: a viewer's click is dropped by the gate): **New
+board** starts a fresh board for a lesson (ClassRuns.new_board: the earlier runs leave the table and
+the chart, a run still going stays listed until it ends; the notebook keeps every run), **Show the
+chart large** opens the chart in the presenter's own tab, in a column of its own at the left (large
+type, a grid, each point's student on hover: what a projector shows the room at 1366 x 768), and
+**Download the class's runs** sends the session's runs as a CSV file to the presenter's tab
+(app/classroom/gradebook.py: name, lesson, board, every setting, state, generations, training and
+held-out MSE, seconds, recording). The table groups the runs of each lesson link under its name.
 """
 
 from __future__ import annotations
@@ -18,19 +29,18 @@ from __future__ import annotations
 import html
 import math
 import os
+import time
 
 import numpy as np
 
-import lab
-
 from app.classroom.class_runs import ClassRuns, describe
+from app.classroom.gradebook import class_csv
+from app.panels.class_chart import AXES, chart_svg
 from app.training.live import decimate
 
 NONE = "(no run going)"
 NOTHING = "(no run with a network yet)"
-# the class chart's settings: label -> the run's value of it
-AXES = {"hidden units": lambda c: c.hidden, "population": lambda c: c.population, "goals": lambda c: c.targets,
-        "seed": lambda c: c.seed, "method": lambda c: lab.methods.get(c.method).label}
+BIG_WIDTH = 900  # px: the large chart's column in the presenter's tab (the lab's panel beside it at 1366 px)
 ROWS = 60  # rows drawn at most (the newest); the notebook keeps every run
 
 
@@ -54,73 +64,53 @@ def fmt(x: float | None) -> str:
     return "-" if x is None or not math.isfinite(x) else f"{x:.3g}"
 
 
+def _row(r) -> str:
+    _gens, best, _median = r.track.curves()
+    return "<tr>" + "".join(f"<td>{c}</td>" for c in (
+        f"<b>{html.escape(r.name)}</b>", html.escape(describe(r.config)), html.escape(r.status()),
+        str(r.generation), fmt(r.best()), fmt(r.held_out()), spark(best))) + "</tr>"
+
+
+def lost_html(runs: ClassRuns) -> str:
+    """A line in red when the students' runs cannot go where they go (a Ray cluster lost), else ""."""
+    lost = runs.unavailable()
+    return ("" if lost is None else f'<div style="color:#c00"><b>{html.escape(lost[0].upper() + lost[1:])}.</b> '
+            "New runs are refused until it answers again; runs waiting for it have failed.</div>")
+
+
 def board_html(runs: ClassRuns) -> str:
-    rows = runs.rows()
+    """The current board's runs (ClassRuns.board_rows), newest first, those of each lesson link under
+    its name (the lesson of the newest run first), then the runs started without one; a lost Ray
+    cluster's line (lost_html) first."""
+    return lost_html(runs) + _board_html(runs)
+
+
+def _board_html(runs: ClassRuns) -> str:
+    rows = runs.board_rows()
+    earlier = len(runs.rows()) - len([r for r in rows if r.board == runs.boards])
+    note = (f" Board {runs.boards}: {earlier} earlier run{'s' * (earlier != 1)} left the board (the notebook "
+            f"keeps them; Download has them all)." if runs.boards > 1 else "")
     if not rows:
         return ("<small>No student run yet. A student's tab (a viewer's) has the folder <b>My experiment</b>: "
-                "its runs appear here as they queue, train and end.</small>")
+                f"its runs appear here as they queue, train and end.{note}</small>")
     going = sum(not r.ended for r in rows)
-    head = (f"<small>{len(rows)} run{'s' * (len(rows) != 1)} since the server started, {going} queued or running, "
-            f"{runs.workers} at once.</small>")
+    head = (f"<small>{len(rows)} run{'s' * (len(rows) != 1)} on this board, {going} queued or running, "
+            f"{runs.workers} at once.{note}</small>")
+    newest = list(reversed(rows))[:ROWS]
+    groups: dict = {}
+    for r in newest:
+        groups.setdefault(r.lesson or "", []).append(r)
     cells = []
-    for r in list(reversed(rows))[:ROWS]:
-        _gens, best, _median = r.track.curves()
-        cells.append(
-            "<tr>" + "".join(f"<td>{c}</td>" for c in (
-                f"<b>{html.escape(r.name)}</b>", html.escape(describe(r.config)), html.escape(r.status()),
-                str(r.generation), fmt(r.best()), fmt(r.held_out()), spark(best))) + "</tr>")
+    for lesson, group in sorted(groups.items(), key=lambda kv: kv[0] == ""):
+        if len(groups) > 1 or lesson:
+            title = (f"Lesson {html.escape(lesson if lesson != '1' else 'link (shared settings)')}" if lesson
+                     else "Runs started without a lesson link")
+            cells.append(f'<tr><td colspan="7" style="background:#eef;font-weight:bold">{title}: '
+                         f"{len(group)} run{'s' * (len(group) != 1)}</td></tr>")
+        cells.extend(_row(r) for r in group)
     return (head + '<table style="font-size:11px;border-collapse:collapse;width:100%;table-layout:auto">'
             "<tr><th>name</th><th>settings</th><th>state</th><th>gen.</th><th>best train MSE</th>"
             "<th>held-out MSE</th><th>curve</th></tr>" + "".join(cells) + "</table>")
-
-
-def chart_svg(runs: list, axis: str, width: int = 320, height: int = 180) -> str:
-    """SVG: each finished run's held-out MSE (log scale) against the setting `axis` (AXES), a point per
-    run, its name as the point's tooltip (escaped), and on a numeric setting the class's curve (a line
-    through the median held-out MSE at each value); a numeric setting on a linear axis (a log one over a wide
-    range of positive values), a method one column each."""
-    points = [(AXES[axis](r.config), r.held_out(), r.name) for r in runs if r.state == "finished"]
-    points = [(x, y, n) for x, y, n in points if y is not None and math.isfinite(y) and y > 0]
-    if not points:
-        return f"<small>Class chart: no finished run yet (held-out MSE against {html.escape(axis)}).</small>"
-    xs = sorted({x for x, _y, _n in points}, key=lambda v: (isinstance(v, str), v))
-    numeric = all(isinstance(x, (int, float)) for x in xs)
-    pad_l, pad_b, pad_t, pad_r = 40, 30, 8, 10
-    w, h = width - pad_l - pad_r, height - pad_t - pad_b
-    if numeric:
-        # values over a wide range of positive numbers (hidden units 2 to 64) on a log axis, else linear
-        scale = np.log if min(xs) > 0 and max(xs) >= 8 * min(xs) else float
-        lo, hi = scale(min(xs)), scale(max(xs))
-        span = hi - lo if hi > lo else 1.0
-        place = lambda x: pad_l + w * ((scale(x) - lo) / span if hi > lo else 0.5)  # noqa: E731
-    else:
-        place = lambda x: pad_l + w * (xs.index(x) + 0.5) / len(xs)  # noqa: E731
-    logs = np.log10([y for _x, y, _n in points])
-    ylo, yhi = float(logs.min()), float(logs.max())
-    yspan = yhi - ylo if yhi > ylo else 1.0
-    ypos = lambda v: pad_t + h * ((yhi - v) / yspan if yhi > ylo else 0.5)  # noqa: E731
-    dots = "".join(
-        f'<circle cx="{place(x):.1f}" cy="{ypos(np.log10(y)):.1f}" r="3.5" fill="#d62728" fill-opacity="0.7">'
-        f'<title>{html.escape(n)}: {html.escape(str(x))}, held-out MSE {y:.3g}</title></circle>' for x, y, n in points)
-    curve = ""
-    if numeric and len(xs) > 1:  # the class's curve: the median held-out MSE (in log) at each value
-        medians = [(x, float(np.median([np.log10(y) for px, y, _n in points if px == x]))) for x in xs]
-        line = " ".join(f"{place(x):.1f},{ypos(m):.1f}" for x, m in medians)
-        curve = (f'<polyline points="{line}" fill="none" stroke="#1f77b4" stroke-width="2">'
-                 f'<title>the class\'s median held-out MSE at each {html.escape(axis)}</title></polyline>')
-    ticks = xs if len(xs) <= 10 else [xs[0], xs[len(xs) // 2], xs[-1]]
-    xlabels = "".join(f'<text x="{place(x):.1f}" y="{height - 16}" font-size="9" text-anchor="middle">'
-                      f'{html.escape(str(x))}</text>' for x in ticks)
-    axes = (f'<line x1="{pad_l}" y1="{pad_t + h}" x2="{pad_l + w}" y2="{pad_t + h}" stroke="#888"/>'
-            f'<line x1="{pad_l}" y1="{pad_t}" x2="{pad_l}" y2="{pad_t + h}" stroke="#888"/>'
-            f'<text x="{pad_l - 3}" y="{pad_t + 8}" font-size="9" text-anchor="end">{10 ** yhi:.2g}</text>'
-            f'<text x="{pad_l - 3}" y="{pad_t + h}" font-size="9" text-anchor="end">{10 ** ylo:.2g}</text>'
-            f'<text x="{pad_l + w / 2:.0f}" y="{height - 3}" font-size="10" text-anchor="middle">'
-            f'{html.escape(axis)}</text>')
-    return (f"<div><small><b>Class chart</b>: held-out MSE (log scale) of {len(points)} finished run"
-            f"{'s' * (len(points) != 1)} against {html.escape(axis)}"
-            f"{'; the line: the class median at each value' if curve else ''}</small>"
-            f'<svg width="{width}" height="{height}" xmlns="http://www.w3.org/2000/svg">{axes}{xlabels}{curve}{dots}</svg></div>')
 
 
 class ClassBoard:
@@ -133,6 +123,15 @@ class ClassBoard:
         self.axis = gui.add_dropdown("Chart against", tuple(AXES), initial_value="hidden units",
                                      hint="the class chart's horizontal axis: a setting of the runs")
         self.chart = gui.add_html(chart_svg([], "hidden units"))
+        with gui.add_folder("Presenter: board, chart, grade book"):
+            self.new_button = gui.add_button("New board", hint="a fresh board for a lesson: the runs so far leave the "
+                                                                "table and the chart (the notebook keeps them)")
+            self.big_button = gui.add_button("Show the chart large", hint="the chart in your own tab, large, for the "
+                                                                          "projector (a point's student on hover)")
+            self.csv_button = gui.add_button("Download the class's runs (CSV)",
+                                             hint="every run of this session, a row each: name, lesson, board, every "
+                                                  "setting, state, generations, errors, seconds, recording")
+            self.board_message = gui.add_markdown("")
         with gui.add_folder("Presenter: show a run to the class", expand_by_default=False):
             self.show_choice = gui.add_dropdown("Run to show", (NOTHING,), initial_value=NOTHING)
             self.show_button = gui.add_button("Show in the shared scene",
@@ -147,13 +146,17 @@ class ClassBoard:
         self.stop_button.on_click(lambda e: self.stop_chosen())
         self.show_button.on_click(lambda e: self.show_chosen(e.client))
         self.axis.on_update(lambda e: self._draw_chart())
+        self.new_button.on_click(lambda e: self.new_board())
+        self.big_button.on_click(lambda e: self.show_big(e.client))
+        self.csv_button.on_click(lambda e: self.download(e.client))
+        self._big: dict[int, tuple] = {}  # a presenter tab's id -> (its large chart's column, its html)
         self._drawn = None
         self._ids: dict[str, str] = {}  # dropdown label -> run id
         self._shows: dict[str, str] = {}  # "Run to show" label -> run id
 
     def refresh(self) -> None:
         rows = self.runs.rows()
-        key = (self.runs.version, tuple((r.id, r.generation, r.state, r.name) for r in rows))
+        key = (self.runs.version, self.runs.unavailable(), tuple((r.id, r.generation, r.state, r.name) for r in rows))
         if key == self._drawn:
             return
         self._drawn = key
@@ -174,9 +177,63 @@ class ClassBoard:
 
     def _draw_chart(self) -> None:
         axis = self.axis.value if self.axis.value in AXES else "hidden units"
-        content = chart_svg(self.runs.rows(), axis)
+        rows = self.runs.board_rows(going=False)
+        content = chart_svg(rows, axis)
         if self.chart.content != content:
             self.chart.content = content
+        big = chart_svg(rows, axis, big=True)
+        for cid, (_column, shown) in list(self._big.items()):
+            try:
+                if shown.content != big:
+                    shown.content = big
+            except Exception:  # noqa: BLE001 - that tab has gone
+                self._big.pop(cid, None)
+
+    # ------------------------------------------------------------------ the presenter's board controls
+    def new_board(self) -> str:
+        """A fresh board: the runs so far leave the table and chart (the notebook keeps every one)."""
+        n = self.runs.new_board()
+        text = (f"Board {n} since {time.strftime('%H:%M')}: the earlier runs left the table and the chart "
+                f"(the notebook and Download keep them).")
+        self.board_message.content = text
+        self.refresh()
+        return text
+
+    def show_big(self, client) -> str | None:
+        """The chart, large, in a column at the left of `client`'s own tab (a presenter's: the board's
+        buttons are shared controls), redrawn with the board; its button closes it."""
+        if client is None:
+            return "refused: no tab to show the chart in"
+        self.close_big(client.client_id)
+        gui = client.gui
+        axis = self.axis.value if self.axis.value in AXES else "hidden units"
+        column = gui.add_panel()
+        with column.add_tab("Class chart"):
+            close = gui.add_button("Close the chart")
+            shown = gui.add_html(chart_svg(self.runs.board_rows(going=False), axis, big=True))
+        column.dock_left()
+        column.set_width(BIG_WIDTH)
+        close.on_click(lambda _e, cid=client.client_id: self.close_big(cid))
+        self._big[client.client_id] = (column, shown)
+        return None
+
+    def close_big(self, client_id: int) -> None:
+        column = self._big.pop(client_id, (None, None))[0]
+        if column is not None:
+            try:
+                column.remove()
+            except Exception:  # noqa: BLE001 - that tab has gone
+                pass
+
+    def download(self, client) -> str | None:
+        """Every run of the session as a CSV file (app/classroom/gradebook.py), sent to `client`'s tab."""
+        if client is None:
+            return "refused: no tab to send the file to"
+        rows = self.runs.rows()
+        name = f"class-runs-{time.strftime('%Y-%m-%d-%H%M')}.csv"
+        client.send_file_download(name, class_csv(rows), save_immediately=True)
+        self.board_message.content = f"Sent {name}: {len(rows)} run{'s' * (len(rows) != 1)}."
+        return None
 
     def show_chosen(self, client=None) -> str | None:
         """Show the chosen run to the class: an ended run's recording opened in the Runs tab (its
