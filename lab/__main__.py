@@ -12,7 +12,7 @@ import sys  # noqa: E402
 
 import robots  # noqa: E402
 
-from lab import methods  # noqa: E402
+from lab import cli_tools, methods  # noqa: E402
 from lab.experiments import cli as experiments_cli  # noqa: E402
 from lab.problem import environment  # noqa: E402
 from lab.problem.encoding import FEATURES  # noqa: E402
@@ -48,7 +48,10 @@ def _train_parser(sub) -> None:
     p = sub.add_parser("train", help="evolve one controller and print its training and held-out MSE",
                        description="Evolve one neuro-controller; shows a progress bar, then the final "
                                    "training and held-out MSE.")
-    p.add_argument("--robot", default="planar", help=f"one of: {', '.join(robots.names())}")
+    p.add_argument("--robot", default="planar", help=f"one of: {', '.join(robots.names())}; or erd:NAME (an "
+                   "example-robot-data robot: erd:ur3, erd:bravo7_no_ee), or a URDF file's path")
+    p.add_argument("--ee", default=None, metavar="FRAME",
+                   help="the tool frame (default: the robot's; a URDF's: the end of its longest chain)")
     p.add_argument("--method", default=methods.DEFAULT_METHOD,
                    help="; ".join(f"{m.name}: {m.summary}" for m in methods.all_methods()))
     p.add_argument("--generations", type=int, default=None, help="default: the method's for the arm (the paper: 1000)")
@@ -134,7 +137,7 @@ def train(args) -> int:
 
     try:
         config = TrainConfig.preset(
-            paper=args.paper, robot=args.robot, method=args.method, generations=args.generations,
+            paper=args.paper, robot=args.robot, ee=args.ee, method=args.method, generations=args.generations,
             population=args.population, targets=args.targets, seed=args.seed, hidden=args.hidden,
             heads=args.heads, features=args.features, margin=args.margin, test_goals=args.test_goals, resample=args.resample,
             seconds=args.seconds, goal=args.goal, reach=args.reach, **given_options(args))
@@ -216,13 +219,15 @@ def _main(argv=None) -> int:
     _replay_parser(sub)
     experiments_cli.add_parser(sub)
     experiments_cli.add_claims_parser(sub)
+    cli_tools.add_parsers(sub)
     args = parser.parse_args(argv)
     # a service manager's SIGTERM and a closing terminal's SIGHUP stop a command as Ctrl-C does: a
     # training is stopped after its generation, an experiment's workers are ended, nothing is left running
     for sig in (signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, _interrupt)
     return {"train": train, "replay": replay, "reproduce": experiments_cli.main,
-            "claims": experiments_cli.claims_main}[args.command](args)
+            "claims": experiments_cli.claims_main, "solve": cli_tools.solve_main,
+            "export": cli_tools.export_main}[args.command](args)
 
 
 if __name__ == "__main__":

@@ -272,3 +272,19 @@ def save(controller, path, goals=None, robot: str | None = None) -> float | None
         f.write(model.SerializeToString())
     os.replace(tmp, path)
     return worst
+
+
+def left_out(controller) -> list[str]:
+    """What this controller's answers hold that its ONNX file does not (see the module), in words."""
+    enc = controller.encoding
+    out = []
+    if getattr(enc, "turns", False) and getattr(getattr(enc, "position", enc), "turn", None) is not None:
+        out.append("the first joint's turn toward the goal's bearing")
+    if getattr(controller, "heads", 1) > 1:
+        out.append(f"the choice among its {controller.heads} heads (the nearest by forward kinematics)")
+    if getattr(enc, "wrist", False):
+        out.append("the closed-form wrist (the last three joints)")
+    if getattr(enc, "reach", 0):
+        out.append(f"the closed-form reach ({enc.reach} passes: the shoulder and the elbow)")
+    out.append("the refinement of lab.solve")
+    return out

@@ -11,14 +11,15 @@
     poses = pose.sample_poses(arm, 100, seed=1)  # (n, 4, 4) pose goals
     s = lab.solve(None, arm, poses, q0=q_near)  # no pose controller yet: refine from q0 (or the rest pose)
     s.error, s.angle                            # position [m] and angle [rad] errors
-    s = lab.solve(pose_controller, arm, poses, seconds=0.005)  # compiled descents, then restarts: 5 ms a pose
+    s = lab.solve(pose_controller, arm, poses)  # the default on poses: compiled descents, then restarts,
+                                                # 5 ms a pose at most, within 1e-5 m and 1e-5 rad (TRAC-IK's terms)
 
 The network proposes (every head of a multi-head MLP: lab.problem.controllers.proposals, the
 nearest its goal first), robots.ik.refine makes the answer exact: on the shipped SO-100 controller
 the proposals of all its heads bring more goals within 0.1 mm than its one chosen answer
 (docs/pose.md).
 
-With `seconds` (pose goals), each goal is solved by robots.pose_solve instead: compiled
+With `seconds` (pose goals; their default, 5 ms), each goal is solved by robots.pose_solve instead: compiled
 Levenberg-Marquardt descents from the proposals in order, then from random joint vectors while the
 budget lasts (TRAC-IK's terms: docs/results/pose.md).
 
@@ -29,7 +30,9 @@ returning (k, n, nq); a controller without the attribute answers position goals.
 
 from __future__ import annotations
 
+import contextlib
 import sys
+import threading
 import time
 from dataclasses import dataclass
 
@@ -38,6 +41,7 @@ import numpy as np
 import robots
 from lab.problem.controllers import proposals as _proposals
 from lab.problem.controllers import swept_proposals
+from lab.problem.robot import load_arm
 from robots import pose, pose_solve
 from robots.ik import RefineResult, default_tolerance, pose_tolerances, refine
 
@@ -88,22 +92,29 @@ def _position_errors(arm: robots.Arm, goals: np.ndarray, q: np.ndarray) -> np.nd
 
 
 SWEEP = 16  # values of each swept joint tried on pose goals (docs/pose.md)
+STEPS = 3  # refinement steps by default (position goals; pose goals with steps given and no seconds)
+# pose goals by default: the compiled solver (robots.pose_solve) with TRAC-IK's budget and tolerances
+# (5 ms a pose, 1e-5 m, 1e-5 rad; docs/results/pose.md), which meets them on 99.75-100 % of poses
+POSE_SECONDS, POSE_TOL = 0.005, 1e-5
 SWEEP_KEEP = 4  # of which the nearest each goal are proposed
 
 
-def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None = None,
+def solve(controller, arm, goals, *, q0=None, steps: int | None = None, tol: float | None = None,
           angle_tol: float | None = None, seconds: float | None = None, seed: int | None = 0,
           sweep: int = SWEEP, progress: bool = True) -> Solution:
     """Joint angles that put the arm on `goals`: the controller's answers (every head's, as
     proposals), then at most `steps` refinement steps (robots.ik.refine) toward each goal.
 
     controller: a lab controller (lab.controller_from_dict, a Run's), or None to refine from q0;
-    arm: a robots.Arm or a name robots.load knows; goals: positions (n, len(task_axes)) ((n, E,
+    arm: a robots.Arm or a robot's string robots.load knows (a registered name, erd:NAME, a URDF path); goals: positions (n, len(task_axes)) ((n, E,
     len(task_axes)) on a tree) or poses (n, 4, 4) of the tool frame (robots.pose; a pose controller,
     or controller=None). q0: (n, nq) or (k, n, nq) more proposals, tried after the controller's
     (with controller=None: the only ones; neither given: the rest pose). tol [length] and angle_tol
     [rad]: refine's (default 0.1 mm on a real arm, 0.1 degree). steps=0: the first proposal alone
     (the network's own answer; no refinement, not even refine's turn of the first joint), measured.
+    Defaults: position goals, STEPS refinement steps; pose goals, the compiled solver with TRAC-IK's
+    terms (seconds=POSE_SECONDS, tol=angle_tol=POSE_TOL: 5 ms, 1e-5 m, 1e-5 rad), unless steps,
+    seconds or the tolerances are given (steps alone: refinement, at 0.1 mm and 0.1 degree by default).
     seconds (pose goals): a wall-time budget a goal for robots.pose_solve.solve_pose, which takes
     the proposals' compiled descents (each at most pose_solve.STEPS_FROM_START steps, `steps` not
     used) and then descents from random joint vectors (a generator of `seed` + the goal's index)
@@ -120,14 +131,13 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
     a chunk, not by the batch; each goal's answer is the one it gets alone), with a progress line on
     stderr once the call has run PROGRESS_AFTER seconds (progress=False: none)."""
     t0 = time.perf_counter()
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0):
         raise ValueError(f"steps must be an integer >= 0, got {steps!r}")
     if isinstance(sweep, bool) or not isinstance(sweep, (int, np.integer)) or sweep < 0:
         raise ValueError(f"sweep must be an integer >= 0 (values of the swept joint), got {sweep!r}")
-    if isinstance(arm, str):
-        arm = robots.load(arm)
-    if not isinstance(arm, robots.Arm):
+    if not isinstance(arm, (str, robots.Arm)):
         raise ValueError(f"arm must be a robots.Arm or a robot's name, got {type(arm).__name__}")
+    arm = load_arm(arm)  # a registered name, erd:NAME or a URDF path (lab/problem/robot.py)
     is_pose = pose.is_pose_array(goals)
     if is_pose:
         goals = pose.check_poses(goals, what=f"{arm.name}: pose goals")
@@ -164,6 +174,9 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
         if extra.shape[1:] != (len(goals), arm.nq) or not len(extra):
             raise ValueError(f"{arm.name}: q0 must be ({len(goals)}, {arm.nq}) or (k, {len(goals)}, {arm.nq}), "
                              f"got shape {q0.shape}")
+    if is_pose and steps is None and seconds is None:  # the default on poses: the compiled solver, TRAC-IK's terms
+        seconds = POSE_SECONDS
+    steps = STEPS if steps is None else steps
     if seconds is not None:
         if not is_pose:
             raise ValueError(f"{arm.name}: seconds (the compiled solver's budget) applies to pose goals (n, 4, 4); "
@@ -171,6 +184,8 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
         if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0:
             raise ValueError(f"seconds must be a number > 0 (a goal's budget), got {seconds!r}")
     if is_pose:
+        if seconds is not None:  # the compiled solver: TRAC-IK's tolerances unless given
+            tol, angle_tol = (POSE_TOL if tol is None else tol), (POSE_TOL if angle_tol is None else angle_tol)
         tol, angle_tol = pose_tolerances(arm, tol, angle_tol)
     else:
         if angle_tol is not None:
@@ -180,14 +195,16 @@ def solve(controller, arm, goals, *, q0=None, steps: int = 3, tol: float | None 
     args = (controller, arm, steps, tol, angle_tol, seconds, seed, sweep, is_pose)
     n = len(goals)
     if 0 < n <= CHUNK:  # one chunk (a drag's one pose): no copies, no progress line
-        return _chunk(*args, goals, extra, 0, t0)
+        with _compile_notice(is_pose):
+            return _chunk(*args, goals, extra, 0, t0)
     if n == 0:
         return _empty(controller, arm, extra, tol, angle_tol, is_pose, t0)
     parts, bar = [], _Progress(n, f"lab.solve {arm.name}", t0, progress)
     try:
         for a in range(0, n, CHUNK):
             b = min(a + CHUNK, n)
-            parts.append(_chunk(*args, goals[a:b], None if extra is None else extra[:, a:b], a, t0))
+            with _compile_notice(is_pose):
+                parts.append(_chunk(*args, goals[a:b], None if extra is None else extra[:, a:b], a, t0))
             bar.advance(b - a)
     finally:
         bar.close()
@@ -296,6 +313,49 @@ def _swept(controller, arm, goals, own, sweep, tol, angle_tol) -> np.ndarray:
         out = out[: len(more)]
         out[:, ~met] = more
     return out
+
+
+COMPILE_NOTICE_AFTER = 1.0  # s: where numba's cache cannot be read, a first pose solve this long says it compiles
+COMPILE_NOTICE = "lab.solve: compiling the pose solver (once; cached afterwards) ..."
+_solved_once = threading.Event()  # set once a pose solve has returned in this process
+
+
+def _solver_cached() -> bool | None:
+    """Whether numba's on-disk cache holds robots.pose_solve's kernel for its current source (then a first
+    solve loads it in a moment); None where the cache cannot be read (numba's private API)."""
+    try:
+        return bool(pose_solve.descend_many._cache._cache_file._load_index())
+    except Exception:  # noqa: BLE001 - another numba: the timer decides
+        return None
+
+
+@contextlib.contextmanager
+def _compile_notice(active: bool = True):
+    """Around a pose solve (active): the first in this process, where robots.pose_solve's kernel is neither
+    loaded nor cached on disk (numba then compiles the pose kernels: 16-40 s), prints COMPILE_NOTICE on stderr
+    first; where the cache cannot be read, when the solve has not returned after COMPILE_NOTICE_AFTER s
+    and the kernel is not loaded by then. Later solves, and a first one that loads a cache, say nothing."""
+    if not active or _solved_once.is_set() or pose_solve.descend_many.signatures:
+        yield
+        return
+    cached = _solver_cached()
+    if cached is False:
+        print(COMPILE_NOTICE, file=sys.stderr, flush=True)
+
+    def say() -> None:  # unless the solver's kernel is loaded by then (a long batch, not a compile)
+        if not pose_solve.descend_many.signatures:
+            print(COMPILE_NOTICE, file=sys.stderr, flush=True)
+
+    timer = threading.Timer(COMPILE_NOTICE_AFTER, say) if cached is None else None
+    if timer is not None:
+        timer.daemon = True
+        timer.start()
+    try:
+        yield
+    finally:
+        if timer is not None:
+            timer.cancel()
+        _solved_once.set()
 
 
 def _budgeted(arm, goals, seeds, first_error, first_angle, network: bool, tol, angle_tol, seconds,
