@@ -23,7 +23,7 @@ import numpy as np
 import pinocchio as pin
 
 from robots.kinematics import PRISMATIC, ChainKinematics
-from robots.urdf_tree import resolve_meshes
+from robots.urdf_tree import rename_clashing_links, resolve_meshes
 
 
 @dataclass(frozen=True, eq=False)
@@ -292,6 +292,7 @@ def from_urdf(
     srdf: tuple[str, str] | None = None,
     posture: dict[str, float] | None = None,
     source: str | None = None,
+    _rename_links: bool = False,
 ) -> Arm:
     """Build an `Arm` from a URDF file and the name of its end-effector frame, or a sequence of names
     (a tree of several end effectors: feet, fingertips, hands; one name, or a sequence of one, is a
@@ -327,6 +328,8 @@ def from_urdf(
         raise ValueError(f"{name}: {urdf_path} is not UTF-8 text (byte {e.start}): not a URDF file") from e
     for old, new in xml_replace:
         xml = xml.replace(old, new)
+    if _rename_links:
+        xml, _ = rename_clashing_links(xml)
     try:
         full = pin.buildModelFromXML(xml)
     except Exception as e:  # Pinocchio raises ValueError/RuntimeError with its parser's text
@@ -338,7 +341,14 @@ def from_urdf(
     locked = [j for j in range(1, full.njoints) if j not in on_chain]
     q_full = _with_posture(full, _reference(full, reference, srdf, name), posture or {}, name)
     _check_chain_joints(full, sorted(on_chain - {0}), xml, frames, name)
-    model = pin.buildReducedModel(full, locked, q_full) if locked else full
+    try:
+        model = pin.buildReducedModel(full, locked, q_full) if locked else full
+    except ValueError as e:  # a link and a joint of one name (anymal_c's): read again with the link renamed
+        if _rename_links or "Several frames match" not in str(e):
+            raise
+        return from_urdf(urdf_path, ee_frame, name=name, task_axes=task_axes, package_dirs=package_dirs,
+                         xml_replace=xml_replace, reference=reference, limits=limits, srdf=srdf, posture=posture,
+                         source=source, _rename_links=True)
     frame_ids = tuple(_find_frame(model, f, name, urdf_path) for f in frames)
     chain = ChainKinematics(model, frame_ids)
 

@@ -10,8 +10,9 @@ example-robot-data robot ("erd:NAME"), or a URDF file path, each with its tool f
     chains(origin_of("erd:tiago"))   # the chains from the root and the frames that end them
 
 The tool frame, when none is given: the chains are the paths from the root link to each leaf link,
-counted in actuated joints; a chain stops before a gripper (a mimic joint, or a joint named finger,
-gripper, jaw, thumb, knuckle or claw after the arm's first joint), whose joints are then locked. The
+counted in actuated joints; a chain stops before a gripper or hand (a mimic joint; the first joint named
+finger, gripper, jaw, thumb, knuckle or claw after joints named otherwise; a link where two or more
+chains start after 4 or more joints, each shorter than those), whose joints are then locked. The
 chain with most joints wins (ties: the first frame's name); its frame is a leaf link, a tool-like name
 first (tcp, tool, end effector, tip), the link before the gripper last.
 """
@@ -166,7 +167,8 @@ def chains(origin: Origin, tree: UrdfTree | None = None) -> list[Chain]:
         joints, cut, after = [], None, []  # after: the links past the last joint kept
         for j in tree.path(leaf):
             if j.type in MOVING:
-                if j.mimic is not None or (joints and GRIPPER.search(j.name)) or j.parent in hands:
+                gripper = joints and GRIPPER.search(j.name) and not any(GRIPPER.search(k.name) for k in joints)
+                if j.mimic is not None or gripper or j.parent in hands:
                     cut = j
                     break
                 joints.append(j)

@@ -107,7 +107,7 @@ def _resolve(filename: str, urdf_dir: str, package_dirs) -> str | None:
     """The file a mesh's filename names, or None: package://pkg/rest under a package dir (or
     ROS_PACKAGE_PATH), file:// and absolute paths as they are, relative paths from the URDF's folder."""
     if filename.startswith("package://"):
-        rest = filename[len("package://"):]
+        rest = filename[len("package://"):].lstrip("/")  # talos_full: "package:///example-robot-data/..."
         dirs = list(package_dirs) + [d for d in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if d]
         for d in dirs:
             candidate = os.path.join(d, rest)
@@ -144,3 +144,23 @@ def resolve_meshes(xml: str, urdf_dir: str, package_dirs) -> tuple[str, tuple[st
                 mesh.set("filename", found)
                 changed = True
     return (ET.tostring(root, encoding="unicode") if changed else xml), tuple(missing)
+
+
+def rename_clashing_links(xml: str) -> tuple[str, dict[str, str]]:
+    """(xml, {old: new}) with each link that shares its name with a joint renamed NAME_link (Pinocchio's
+    buildReducedModel cannot tell such frames apart). The joint keeps its name, and its frame sits where
+    the link's did: an end effector named so is still found, as that joint's frame."""
+    import re
+
+    links = set(re.findall(r"<link\s+name\s*=\s*[\"']([^\"']+)[\"']", xml))
+    joints = set(re.findall(r"<joint\s+name\s*=\s*[\"']([^\"']+)[\"']", xml))
+    renamed = {}
+    for old in sorted(links & joints):
+        new = old + "_link"
+        while new in links or new in joints:
+            new += "_"
+        renamed[old] = new
+        q = re.escape(old)
+        xml = re.sub(rf"(<link\s+name\s*=\s*[\"']){q}([\"'])", rf"\g<1>{new}\g<2>", xml)
+        xml = re.sub(rf"(\blink\s*=\s*[\"']){q}([\"'])", rf"\g<1>{new}\g<2>", xml)
+    return xml, renamed

@@ -2,6 +2,8 @@
 
     geoms = visual_geometry(arm)   # one VisualGeometry per visual object of the chain
     poses = joint_poses(arm, q)    # {joint index: (position (3,), wxyz (4,))} in the base frame
+    undrawn_joints(arm)            # the chain's joints whose link has nothing to draw (no visual, or a
+                                   # mesh that does not resolve: arm.missing_meshes)
 
 Meshes come from the geometry's BVH as Pinocchio loaded it (already scaled), so .dae and .stl
 files need no loader of their own; the paper's arms are boxes and cylinders. Used by the app
@@ -74,3 +76,10 @@ def joint_poses(arm: Arm, q, data: pin.Data | None = None) -> dict[int, tuple[np
     data = data if data is not None else arm.model.createData()
     pin.forwardKinematics(arm.model, data, arm.to_pinocchio(np.asarray(q, dtype=np.float64)))
     return {j: se3_pose(data.oMi[j]) for j in range(1, arm.model.njoints)}
+
+
+def undrawn_joints(arm: Arm) -> tuple[str, ...]:
+    """The chain's joints whose moving link no visual object draws (the URDF gives it no <visual>, or its
+    mesh file does not resolve: `arm.missing_meshes` names those links); a viewer draws a capsule there."""
+    drawn = {g.joint for g in visual_geometry(arm)}
+    return tuple(arm.model.names[int(j)] for j in arm.chain.joint_ids if int(j) not in drawn)

@@ -214,3 +214,40 @@ def test_describe_lists_a_humanoids_chains():
     assert loads and text.count("chain ") >= 5
     assert re.search(r"chain 1: 9 joints, stops before 'gripper_left_joint'", text)
     assert re.search(r"leg_left_4_joint +revolute +\[", text)
+
+
+def test_the_joints_with_nothing_to_draw_are_named():
+    from robots.visual import undrawn_joints
+
+    arm = robots.load(OWN)  # only link1 (moved by base_yaw) has a visual that resolves
+    assert undrawn_joints(arm) == ("shoulder", "slide", "elbow", "wrist")
+    assert undrawn_joints(robots.load("ur5")) == ()
+
+
+def test_package_meshes_resolve_under_the_package_dirs_with_any_number_of_slashes(tmp_path):
+    from robots.urdf_tree import resolve_meshes
+
+    mesh = tmp_path / "share" / "pkg" / "meshes" / "a.stl"
+    mesh.parent.mkdir(parents=True)
+    mesh.write_text("solid a\nendsolid a\n")
+    (tmp_path / "rel.stl").write_text("solid b\nendsolid b\n")
+    xml = ('<robot name="m"><link name="a"><visual><geometry><mesh filename="package:///pkg/meshes/a.stl"/>'
+           '</geometry></visual></link><link name="b"><visual><geometry><mesh filename="rel.stl"/></geometry>'
+           '</visual></link><link name="c"><visual><geometry><mesh filename="package://pkg/none.stl"/></geometry>'
+           '</visual></link></robot>')
+    out, missing = resolve_meshes(xml, str(tmp_path), (str(tmp_path / "share"),))
+    assert missing == ("c",)
+    assert str(tmp_path / "rel.stl") in out and "package:///pkg/meshes/a.stl" in out and "none.stl" not in out
+
+
+def test_a_link_named_as_a_joint_is_read_again_renamed():
+    """anymal_c names a link and a joint LF_HAA (Pinocchio cannot reduce such a model): it loads, its joints keep
+    their names."""
+    arm = robots.load("erd:anymal_c")
+    assert arm.ee_frame == "LF_FOOT" and arm.joint_names == ("LF_HAA", "LF_HFE", "LF_KFE")
+    assert np.isfinite(arm.fk(arm.sample_q(10, seed=0))).all()
+
+
+def test_a_robot_finger_is_one_chain_not_a_gripper():
+    arm = robots.load("erd:finger_edu")
+    assert arm.nq == 3 and arm.ee_frame == "finger_tip_link"
