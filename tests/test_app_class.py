@@ -6,6 +6,7 @@ scheduler alone: tests/test_class_runs.py."""
 
 from __future__ import annotations
 
+import time
 import urllib.parse
 
 import pytest
@@ -298,7 +299,7 @@ def test_the_class_as_a_search_gives_each_student_tab_its_part(app):
             tabs[-1].wait_for(lambda m: m.get("name") == "/tab/goal0/label", 60)
         panels = [session_of(app, t).my_run for t in tabs]
         for k, panel in enumerate(panels):
-            assert wait_until(lambda: "part of the class" in panel.message.content, 30)
+            assert wait_until(lambda: "part of the class" in panel.part.content, 30)
             config = panel.config()
             assert (config.hidden, config.seed, config.generations, config.population) == \
                 (values[k], 0, int(lesson.params["generations"]), int(lesson.params["population"]))
@@ -352,3 +353,124 @@ def test_the_presenter_shows_a_finished_students_recording_and_scrubs_its_genera
     finally:
         viewer.close()
         lab_app.stop()
+
+
+def folder_and_first_line(probe, label):
+    """(the folder's creation message, the content of the first markdown inside it)."""
+    folder = probe.wait_for(lambda m: m["type"] == "GuiFolderMessage" and m["props"].get("label") == label, 30)
+    first = probe.wait_for(lambda m: m["type"] == "GuiMarkdownMessage" and m.get("container_uuid") == folder["uuid"], 30)
+    content = first["props"]["_markdown"]
+    for _t, m in list(probe.messages):  # its later content (take_part writes it after the tab connects)
+        if m["type"] == "GuiUpdateMessage" and m.get("uuid") == first["uuid"] and "_markdown" in m.get("updates", {}):
+            content = m["updates"]["_markdown"]
+    return folder, content
+
+
+def red_notifications(probe) -> list:
+    return [m for _t, m in list(probe.messages)
+            if "Notification" in m["type"] and m.get("props", {}).get("color") == "red"]
+
+
+@pytest.mark.parametrize("name", ["class-as-a-search", "position-or-pose"])
+def test_a_lesson_link_opens_my_experiment_unfolded_with_the_students_part_first_and_no_failure(app, name):
+    """Issue 57: a viewer's lesson link did what the lesson meant (the shared settings stay the
+    presenter's), yet its tab read "this lesson link's settings were not applied" and the student's part
+    sat in a folded folder. Now the folder opens, its first line is the student's part, nothing is red;
+    the tab's runs are grouped under the lesson."""
+    from app.classroom.lesson import LESSONS
+    from app.probe import Probe
+
+    url = urllib.parse.unquote(LESSONS[name].link(app.url).split("?websocket=", 1)[1]).replace("ws://", "http://")
+    tab = Probe(url).start(60)
+    plain = tab_of(app.url)
+    try:
+        tab.wait_for(lambda m: m.get("name") == "/tab/goal0/label", 60)
+        panel = session_of(app, tab).my_run
+        assert wait_until(lambda: "Press **Start my run**" in panel.part.content, 30)
+        assert wait_until(lambda: "Start my run" in folder_and_first_line(tab, "My experiment (this tab)")[1], 30)
+        folder, first = folder_and_first_line(tab, "My experiment (this tab)")
+        assert folder["props"]["expand_by_default"] is True
+        assert ("Your part of the class's search" if name == "class-as-a-search" else "Your run in this lesson") in first
+        assert panel.lesson == name and panel.config().robot == LESSONS[name].params["robot"]
+        plain_folder, plain_first = folder_and_first_line(plain, "My experiment (this tab)")
+        assert plain_folder["props"]["expand_by_default"] is False and plain_first == ""  # no lesson: folded
+        time.sleep(1.0)  # any notification the connect sends has arrived by now
+        assert red_notifications(tab) == [], red_notifications(tab)
+        assert not any("not applied" in str(m) for _t, m in list(tab.messages))
+    finally:
+        tab.close()
+        plain.close()
+
+
+def test_a_viewers_hint_names_start_my_run_and_a_refused_name_is_said_in_the_folder(app):
+    """Issue 57: "Ana (phone)" silently became "student 6"; the viewer's hint named the presenter's Start."""
+    presenter = tab_of(urllib.parse.unquote(app.presenter_url.split("websocket=")[1]))
+    viewer = tab_of(app.url)
+    try:
+        s_viewer, s_presenter = session_of(app, viewer), session_of(app, presenter)
+        assert "**Start my run**" in s_viewer.intro.content and "**Start** trains" not in s_viewer.intro.content
+        assert "**Start** trains a new one" in s_presenter.intro.content
+        mine = s_viewer.my_run
+        viewer.send(_messages.GuiUpdateMessage(uuid=gui_uuid(viewer, "Your name"), updates={"value": "Ana (phone)"}))
+        given = app.class_runs.name_of(mine.tab)
+        assert wait_until(lambda: "refused" in mine.name_note.content, 30)
+        assert "'Ana (phone)'" in mine.name_note.content and f"**{given}**" in mine.name_note.content
+        assert "'('" in mine.name_note.content
+        small(mine, generations=3)
+        assert mine.start() is None
+        assert "refused" in mine.message.content and given in mine.message.content  # still said after Start
+        run = app.class_runs.run_of(mine.tab)
+        assert wait_until(lambda: run.ended, 300), run.status()
+        viewer.send(_messages.GuiUpdateMessage(uuid=gui_uuid(viewer, "Your name"), updates={"value": "Ana phone"}))
+        assert wait_until(lambda: mine.name_note.content == "", 30)
+    finally:
+        viewer.close()
+        presenter.close()
+
+
+def test_the_presenters_board_controls_new_board_large_chart_and_grade_book(app):
+    """New board, Show the chart large and Download the class's runs: the presenter's alone (a viewer's
+    click does nothing); the CSV goes to the presenter's tab; the large chart to its own tab; a new
+    board leaves the earlier runs out of the table and the chart, the notebook keeps them."""
+    from app.classroom.gradebook import class_csv
+
+    presenter = tab_of(urllib.parse.unquote(app.presenter_url.split("websocket=")[1]))
+    viewer = tab_of(app.url)
+    try:
+        mine = session_of(app, viewer).my_run
+        assert app.class_runs.set_name(mine.tab, "Board Ada") is None
+        small(mine, generations=3)
+        assert mine.start() is None
+        run = app.class_runs.run_of(mine.tab)
+        assert wait_until(lambda: run.ended, 300), run.status()
+        assert wait_until(lambda: "Board Ada" in app.board.table.content, 30)
+        boards = app.class_runs.boards
+        for label in ("Download the class's runs (CSV)", "New board", "Show the chart large"):
+            viewer.click(label)
+        assert wait_until(lambda: sum("Notification" in m["type"] and "presenter" in str(m)
+                                      for _t, m in list(viewer.messages)) >= 3, 30)
+        time.sleep(0.5)
+        assert not any(m["type"] == "FileTransferStartDownload" for _t, m in list(viewer.messages))
+        assert app.class_runs.boards == boards and not any("1200 640" in str(m) for _t, m in list(viewer.messages))
+        # the grade book, to the presenter's tab
+        presenter.click("Download the class's runs (CSV)")
+        sent = presenter.wait_for(lambda m: m["type"] == "FileTransferStartDownload", 30)
+        assert sent["filename"].endswith(".csv") and sent["size_bytes"] == len(class_csv(app.class_runs.rows()))
+        # the large chart, in the presenter's own tab
+        presenter.click("Show the chart large")
+        presenter.wait_for(lambda m: 'viewBox="0 0 1200 640"' in str(m) and "Board Ada" in str(m), 30)
+        assert not any("1200 640" in str(m) for _t, m in list(viewer.messages))
+        # a new board: the run leaves the table and the chart (the large one too); the notebook keeps it
+        presenter.click("New board")
+        assert wait_until(lambda: app.class_runs.boards == boards + 1, 30)
+        assert wait_until(lambda: "Board Ada" not in app.board.table.content, 30)
+        assert "no finished run yet" in app.board.chart.content
+        assert wait_until(lambda: "no finished run yet" in app.board._big[presenter_id(app, presenter)][1].content, 30)
+        assert app.state.notebook.get(run.id)["student"] == "Board Ada"
+    finally:
+        viewer.close()
+        presenter.close()
+
+
+def presenter_id(app, probe) -> int:
+    return session_of(app, probe).client.client_id

@@ -24,6 +24,14 @@ a lesson's name is then refused with the folder it looked in). An unknown lesson
 name and changes nothing.
 
     python -m app.classroom.lesson --list [--url http://host:8080]   # each shipped lesson's link
+    python -m app.classroom.lesson --url http://host:8080 --presenter-token-file ~/.lab-token
+        # each lesson's two links: the students' (viewers') and the presenter's, which carries the token
+
+The presenter's link of a lesson is its students' link with the server's presenter token in front
+(`token=...;lesson=...`): opened by the teacher, the tab is a presenter and the lesson's settings are
+applied to the class's run; the students' link carries no token. The token comes from the file the
+server was started with (`python -m app --presenter-token-file`), or from the presenter link the
+server printed (`--presenter-link`, for a server that made a random token).
 """
 
 from __future__ import annotations
@@ -58,8 +66,10 @@ class Lesson:
     name: str
     params: dict
 
-    def link(self, page_url: str = DEFAULT_URL) -> str:
-        return lesson_link(page_url, {"lesson": self.name, **self.params})
+    def link(self, page_url: str = DEFAULT_URL, token: str | None = None) -> str:
+        """The lesson's link; with the server's presenter token, the presenter's (its tab a presenter:
+        app/classroom/access.py reads `token=` from the same query), else a viewer's."""
+        return lesson_link(page_url, {**({"token": token} if token else {}), "lesson": self.name, **self.params})
 
 
 def _load_lessons() -> dict:
@@ -171,20 +181,18 @@ def check_lesson(params: dict):
 
 def open_lesson(app, session, params: dict, client, presenter: bool) -> str | None:
     """What a tab that connected with `params` gets: a presenter's link sets the shared settings
-    (apply_lesson), a viewer is told that they are the presenter's; either tab gets the lesson's
-    text and views in its own panel. A message (and nothing changed) when refused; None when the
-    query holds no lesson."""
+    (apply_lesson); a viewer's tab gets the lesson's run in its own *My experiment* (unfolded, its
+    part on the first line: app/panels/my_run.py take_part), the shared settings staying the
+    presenter's, which is what a viewer's link means (nothing on the tab reads as a failure); either
+    tab gets the lesson's text and views in its own panel. A message (and nothing changed) when
+    refused; None when the query holds no lesson."""
     if not is_lesson(params):
         return None
     try:
         _, _, views, text = check_lesson(params)
     except ValueError as e:
         return _tell(client, f"refused: this lesson link does not make a run: {e}", error=True)
-    if presenter:
-        refused = apply_lesson(app, params, client)
-    else:
-        refused = _tell(client, "this lesson link's settings were not applied: the presenter controls the run "
-                                "(open the link on a lab of your own to train them)", error=True)
+    refused = apply_lesson(app, params, client) if presenter else None
     if session is not None:
         if views is not None:
             for view, attr in TAB_VIEWS.items():
@@ -382,15 +390,59 @@ def main(argv=None) -> int:
     p.add_argument("--url", default=DEFAULT_URL,
                    help=f"the lab's address (default {DEFAULT_URL}; a classroom server prints its own): "
                         "http:// or https://, a host, an optional port and path, no query")
+    token_from = p.add_mutually_exclusive_group()
+    token_from.add_argument("--presenter-token-file", default=None, metavar="PATH",
+                            help="the file the server's presenter token is in (python -m app --presenter-token-file): "
+                                 "each lesson's presenter link is printed too, beside the students' link")
+    token_from.add_argument("--presenter-link", default=None, metavar="LINK",
+                            help="the presenter link the server printed (a server with a random token): its token "
+                                 "goes into each lesson's presenter link")
     args = p.parse_args(argv)
     problem = page_url_problem(args.url)
     if problem:
         print(f"error: --url {args.url[:80]!r} {problem}", file=sys.stderr)
         return 2
+    token, problem = presenter_token_of(args.presenter_token_file, args.presenter_link)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
+    if token:
+        print("Each lesson's two links: the students' (viewers: give it to the class) and the presenter's (it "
+              "holds the presenter token: keep it to yourself, open it on the projector's machine).")
     for lesson in LESSONS.values():
         title = lesson_text(lesson.name)[0] if lesson.name in lesson_names() else "(no text found)"
-        print(f"{lesson.name}: {title}\n  {lesson.link(args.url)}")
+        if token:
+            print(f"{lesson.name}: {title}\n  students: {lesson.link(args.url)}\n"
+                  f"  presenter: {lesson.link(args.url, token)}")
+        else:
+            print(f"{lesson.name}: {title}\n  {lesson.link(args.url)}")
     return 0
+
+
+def presenter_token_of(token_file: str | None, presenter_link: str | None) -> tuple[str | None, str | None]:
+    """(the presenter token or None, None) from a token file (its first line) or the presenter link a
+    server printed; (None, why) when neither gives a token a server accepts."""
+    from app.classroom.access import read_token_file, token_problem
+    from app.viser_private import parse_query
+
+    if token_file is not None:
+        try:
+            token = read_token_file(token_file)
+        except ValueError as e:
+            return None, f"--presenter-token-file {e}"
+        source = "--presenter-token-file"
+    elif presenter_link is not None:
+        ws = parse_query(presenter_link).get("websocket", "")
+        token = parse_query(ws).get("token", "")
+        if not token:
+            return None, ("--presenter-link holds no presenter token (the link the server prints as "
+                          "'presenter link', with ?websocket=...token...)")
+        source = "--presenter-link"
+    else:
+        return None, None
+    if (why := token_problem(token)) is not None:
+        return None, f"{source}: {why}"
+    return token, None
 
 
 if __name__ == "__main__":

@@ -25,14 +25,19 @@ import robots
 from lab import methods
 
 from app.classroom.class_runs import ClassRuns, describe
+from app.classroom.lesson import LESSONS, is_lesson, lesson_configs
+from app.classroom.student_run import queue_wait, student_length, wait_words
 from app.panels.train import notify
+from app.tab.goals import START_HINT
 from app.tab.replay import _versions
 from app.tab.run_view import RunView
 from app.tab.scene import frame_workspace
 from app.training.live import decimate, sample
 from app.training.state import Shown
+from app.viser_private import client_query
 
 EMPTY = (np.array([1.0, 2.0]), np.full(2, np.nan))
+VIEWER_START = "**Start my run** (in *My experiment*) trains one of your own."
 MINE = "my run"  # the start of the source of what this tab's arms show from its run
 
 
@@ -45,37 +50,53 @@ class MyRunPanel:
         gui = client.gui
         arm = session.state.arm.name
         d = lab.TrainConfig.preset(robot=arm)
-        self.folder = gui.add_folder("My experiment (this tab)", order=order, expand_by_default=False)
+        length = student_length(arm, d.method)
+        try:  # a lesson link opens the folder: the student's part of it is its first line
+            lesson = is_lesson(client_query(client))
+        except Exception:  # noqa: BLE001 - a tab without a query is an ordinary tab
+            lesson = False
+        self.lesson: str | None = None  # the lesson link this tab opened (its runs are grouped under it)
+        self.folder = gui.add_folder("My experiment (this tab)", order=order, expand_by_default=lesson)
         with self.folder:
+            self.part = gui.add_markdown("")  # a lesson's part for this tab (take_part)
             gui.add_markdown("Your own run, trained on the server beside the class's: only this tab sees it "
                              "(and the Class tab lists it for everyone).")
             self.name = gui.add_text("Your name", runs.name_of(self.tab),
                                      hint="a short label on the Class board (letters, digits, spaces, . ' _ -)")
+            self.name_note = gui.add_markdown("")  # a refused name: why, and the name the runs carry instead
             self.robot = gui.add_dropdown("Robot", robots.names(), initial_value=arm)
             self.method = gui.add_dropdown("Method", tuple(m.label for m in methods.all_methods()),
                                            initial_value=methods.get(d.method).label)
             self.population = gui.add_number("Population", float(d.population), step=1)
             self.hidden = gui.add_number("Hidden units", float(d.hidden), step=1)
             self.goals = gui.add_number("Goals", float(d.targets), step=1, hint="training goals")
-            self.generations = gui.add_number("Generations", 200.0, step=1)
-            self.budget = gui.add_number("Time budget (s)", 0.0, step=1,
+            self.generations = gui.add_number("Generations", float(length["generations"] or d.generations), step=1,
+                                              hint="the run's length when it has no time budget (sized to show "
+                                                   "learning in 5-20 s: docs/results/class.md)")
+            self.budget = gui.add_number("Time budget (s)", float(length["seconds"] or 0.0), step=1,
                                          hint="0: none (the generations end the run); else it ends after this "
                                               "many seconds of optimizer time")
             self.seed = gui.add_number("Seed", float(d.seed), step=1)
+            # the status and any refusal right above Start: a click shows its answer where the student looks
+            self.status = gui.add_markdown("No run yet.")
+            self.message = gui.add_markdown("")
             self.start_button = gui.add_button("Start my run", icon=viser.Icon.PLAYER_PLAY)
             self.stop_button = gui.add_button("Stop my run", icon=viser.Icon.PLAYER_STOP, disabled=True)
             self.show_on_arm = gui.add_checkbox("Show my run on my arm", True,
                                                 hint="on the arm the class sees, this tab's arms show its best "
                                                      "network; on another robot, that robot is drawn beside the "
                                                      "class's arm (off: the class's network alone)")
-            self.status = gui.add_markdown("No run yet.")
-            self.message = gui.add_markdown("")
             self.plot = gui.add_uplot(
                 data=EMPTY, series=(viser.uplot.Series(label="generation"),
                                     viser.uplot.Series(label="my best MSE", stroke="#d62728", width=2)),
                 scales={"x": viser.uplot.Scale(time=False), "y": viser.uplot.Scale(distr=3, log=10)},
                 aspect=2.0)
         self._defaults_for = (self.robot.value, self.method.value)  # the fields hold their defaults
+        # the tab's intro names the button a viewer has (the shared Start is the presenter's)
+        session.start_hint = VIEWER_START
+        intro = getattr(session, "intro", None)
+        if intro is not None and START_HINT in intro.content:
+            intro.content = intro.content.replace(START_HINT, VIEWER_START)
         self.name.on_update(lambda e: self._rename())
         self.robot.on_update(lambda e: self._defaults())
         self.method.on_update(lambda e: self._defaults())
@@ -99,12 +120,17 @@ class MyRunPanel:
     def _rename(self) -> None:
         if self.name.value == self.runs.name_of(self.tab):  # its name (our own write-back too)
             return
-        why = self.runs.set_name(self.tab, self.name.value)
+        typed = self.name.value
+        why = self.runs.set_name(self.tab, typed)
         if why is not None:
             self._tell(why)
             self.name.value = self.runs.name_of(self.tab)  # back to the name it has
+            # said in the folder until a name is taken: the runs carry the name it has, not the typed one
+            self.name_note.content = (f"Your name {str(typed)[:40]!r} was {why} Your runs show on the Class "
+                                      f"board as **{self.runs.name_of(self.tab)}** until you type another.")
         else:
             self.message.content = ""
+            self.name_note.content = ""
             if self.name.value != self.runs.name_of(self.tab):
                 self.name.value = self.runs.name_of(self.tab)  # as cleaned
 
@@ -123,6 +149,9 @@ class MyRunPanel:
             self._tell(f"refused: {e}")
             return
         self.population.value, self.hidden.value, self.goals.value = float(d.population), float(d.hidden), float(d.targets)
+        length = student_length(self.robot.value, self._method_name())
+        self.generations.value = float(length["generations"] or d.generations)
+        self.budget.value = float(length["seconds"] or 0.0)
 
     def config(self) -> lab.TrainConfig:
         """The run of the fields; ValueError naming the field that is wrong."""
@@ -145,10 +174,10 @@ class MyRunPanel:
             config = self.config()
         except ValueError as e:
             return self._tell(f"refused: {e}")
-        why = self.runs.submit(self.tab, config)
+        why = self.runs.submit(self.tab, config, lesson=self.lesson)
         if why is not None:
             return self._tell(why)
-        self.message.content = ""  # the status says where it stands
+        self.message.content = self.name_note.content  # the status says where it stands (a refused name stays said)
         self.refresh()
         return None
 
@@ -160,37 +189,56 @@ class MyRunPanel:
         return None
 
     def take_part(self, params: dict) -> str | None:
-        """A lesson that makes the class a search (its link's `class_hidden=2.3.4...`): this tab's fields
-        get the lesson's run with the hidden units of its seat (app/classroom/class_runs.ClassRuns.
-        lesson_seat: the N-th tab to open the lesson gets the N-th value, and seed N // len(values)
-        once the list is used up). None when done or the link asks for nothing; the refusal, said in
-        the tab, when the list is not whole numbers within the server's limits."""
+        """A lesson link's run for this tab, said on the folder's first line (the folder opens unfolded
+        on a lesson link). A lesson that makes the class a search (its link's `class_hidden=2.3.4...`)
+        gives the hidden units of the tab's seat (app/classroom/class_runs.ClassRuns.lesson_seat: the
+        N-th tab to open the lesson gets the N-th value, and seed N // len(values) once the list is
+        used up); any other lesson its own run's settings (robot, method, population, generations,
+        hidden units, seed; a race's first run). The tab's runs are then grouped under the lesson on
+        the Class board. None when done or the query holds no lesson; the refusal, said in the
+        folder, when the link does not make a run or its list is not whole numbers."""
         text = params.get("class_hidden")
-        if not text:
+        if not is_lesson(params) and not text:
             return None
+        self.lesson = params.get("lesson") or "1"
         try:
-            values = [int(v) for v in text.split(".")]
-            if not values or min(values) < 0:
-                raise ValueError
-        except ValueError:
-            return self._tell(f"refused: class_hidden= is whole numbers joined by dots, got {text[:40]!r}")
-        seat = self.runs.lesson_seat(params.get("lesson", "1"), self.tab)
-        hidden, seed = values[seat % len(values)], seat // len(values)
-        try:
-            base = lab.TrainConfig.preset(robot=params.get("robot", self.robot.value),
-                                          method=params.get("method", self._method_name()))
-            population = int(params.get("population", base.population))
-            generations = int(params.get("generations", base.generations))
+            main, _partner = lesson_configs(params)
         except ValueError as e:
-            return self._tell(f"refused: {e}")
-        self.robot.value, self.method.value = base.robot, methods.get(base.method).label
+            return self._refuse_part(f"refused: this lesson link does not make a run: {e}")
+        hidden, seed = main.hidden, main.seed
+        if text:
+            try:
+                values = [int(v) for v in text.split(".")]
+                if not values or min(values) < 0:
+                    raise ValueError
+            except ValueError:
+                return self._refuse_part(f"refused: class_hidden= is whole numbers joined by dots, got {text[:40]!r}")
+            seat = self.runs.lesson_seat(self.lesson, self.tab)
+            hidden, seed = values[seat % len(values)], seat // len(values)
+        self.robot.value, self.method.value = main.robot, methods.get(main.method).label
         self._defaults_for = (self.robot.value, self.method.value)  # their callbacks keep the fields below
-        self.population.value, self.goals.value = float(population), float(base.targets)
-        self.generations.value, self.budget.value = float(generations), 0.0
+        self.population.value, self.goals.value = float(main.population), float(main.targets)
+        self.generations.value, self.budget.value = float(main.generations), 0.0
         self.hidden.value, self.seed.value = float(hidden), float(seed)
-        self._tell(f"Your part of the class's search: {hidden} hidden units, seed {seed}. Press **Start my run**.",
-                   error=False)
+        title = self.lesson if self.lesson in LESSONS else "this lesson"
+        if text:
+            part = (f"**Your part of the class's search: {hidden} hidden units, seed {seed}** ({main.robot}, "
+                    f"{methods.get(main.method).label}, population {main.population}, {main.generations:,} "
+                    f"generations). Press **Start my run**; the Class tab's chart gathers the class's runs.")
+        else:
+            part = (f"**Your run in this lesson** ({title}): {main.robot}, {methods.get(main.method).label}, "
+                    f"population {main.population}, {main.hidden} hidden units, {main.generations:,} generations, "
+                    f"seed {seed}; the presenter runs it on the class's arm. Press **Start my run** to train "
+                    f"your own, or change a setting first.")
+        if getattr(main, "goal", "position") == "pose":
+            part += " (Your run reaches for positions; the presenter's run shows the pose goals.)"
+        self.part.content = part
+        notify(self.client, "My experiment", part.replace("**", ""), error=False)
         return None
+
+    def _refuse_part(self, why: str) -> str:
+        self.part.content = why
+        return self._tell(why)
 
     # ------------------------------------------------------------------ the render loop
     def refresh(self) -> None:
@@ -202,9 +250,12 @@ class MyRunPanel:
         going = not run.ended
         if self.start_button.disabled != going:
             self.start_button.disabled = going
-        if self.stop_button.disabled == going:
-            self.stop_button.disabled = not going
+        stoppable = going and not run.stopping  # its Stop under way: another press would do nothing
+        if self.stop_button.disabled == stoppable:
+            self.stop_button.disabled = not stoppable
         status = run.status()
+        if run.state == "queued":  # who is ahead, and the wait from their budgets and this server's pace
+            status = f"{status}: {wait_words(*queue_wait(self.runs, run))}"
         drawn = (run.id, run.generation, run.state, status)
         if drawn != self._drawn:
             self._drawn = drawn

@@ -49,6 +49,7 @@ from app.tab.scene import ArmView, frame_workspace, to_world
 from app.viser_private import set_pose
 
 MAX_GOALS = 8
+START_HINT = "**Start** trains a new one."  # a viewer's tab says its own button instead (app/panels/my_run.py)
 INTRO = "**Drag the arrows** to move the goal: the arm follows a neural network. **Start** trains a new one."
 INTRO_POSE = "**Drag the arrows and rings**: the tool follows a neural network. **Start** trains a new one."
 # the page shows the lab once this element, first in the tab's intro, is there (app/server.py PAGE_HEAD)
@@ -363,6 +364,7 @@ class TabSession(TabExtras):
             self.goal_kind = self.state.shown.goal  # "position" or "pose": the goals' kind
             self.ws = frame_workspace(self.arm)
             intro = READY + (INTRO_TREE if self.arm.is_tree else INTRO_POSE if self.goal_kind == "pose" else INTRO)
+            intro = intro.replace(START_HINT, getattr(self, "start_hint", START_HINT))  # a viewer's: Start my run
             if self.intro.content != intro:
                 self.intro.content = intro
             self.write_about()
