@@ -20,11 +20,13 @@ first (tcp, tool, end effector, tip), the link before the gripper last.
 from __future__ import annotations
 
 import difflib
+import functools
 import hashlib
 import logging
 import os
 import re
 import threading
+import time
 from dataclasses import dataclass
 from typing import NamedTuple, Sequence
 
@@ -138,6 +140,7 @@ def origin_of(source: str) -> Origin:
     raise _unknown(source)
 
 
+@functools.cache
 def _erd_origin(name: str) -> Origin:
     import example_robot_data as erd
 
@@ -261,6 +264,23 @@ def file_sha256(path: str) -> str:
         return hashlib.sha256(f.read()).hexdigest()
 
 
+_hashed: dict[str, tuple[tuple[int, int, int], str]] = {}  # path -> ((inode, mtime_ns, size), sha256)
+
+
+def _sha_now(path: str) -> str:
+    """file_sha256, read again unless the file's inode, modification time and size are those of a
+    reading made more than 2 s after that modification (file times tick coarsely: a change within the
+    same tick keeps the time)."""
+    st = os.stat(path)
+    stamp = (st.st_ino, st.st_mtime_ns, st.st_size)
+    if path in _hashed and _hashed[path][0] == stamp:
+        return _hashed[path][1]
+    sha = file_sha256(path)
+    if time.time_ns() - st.st_mtime_ns > 2_000_000_000:
+        _hashed[path] = (stamp, sha)
+    return sha
+
+
 def _frames_of(ee, robot) -> tuple[str, ...] | None:
     if ee is None:
         return None
@@ -296,7 +316,7 @@ def load(robot, ee: str | Sequence[str] | None = None) -> Arm:
     frames = frames or given
     origin = origin_of(source)
     with _lock:
-        sha = file_sha256(origin.urdf)
+        sha = _sha_now(origin.urdf)
         if frames is None:
             if origin.registered is not None:
                 frames = _registered_frames(origin.registered)
