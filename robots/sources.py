@@ -333,11 +333,27 @@ def load(robot, ee: str | Sequence[str] | None = None) -> Arm:
             if origin.registered is not None and registry.SPECS[origin.registered].kind in ("paper", "snake"):
                 raise ValueError(f"robot {robot!r}: the paper's arms and the snakes have one tool frame, "
                                  f"{_registered_frames(origin.registered)[0]!r}")
+            _check_frames(robot, origin, frames)
             _arms[(name, sha)] = from_urdf(
                 origin.urdf, frames if len(frames) > 1 else frames[0], name=name, task_axes=origin.task_axes,
                 package_dirs=origin.package_dirs, xml_replace=origin.xml_replace, srdf=origin.srdf,
                 posture=dict(origin.posture) or None, source=name)
         return _arms[(name, sha)]
+
+
+def _check_frames(robot: str, origin: Origin, frames: tuple[str, ...]) -> None:
+    """ValueError for a frame the URDF lacks, naming the closest names and the candidate frames by chain."""
+    try:
+        tree = UrdfTree.parse(origin.xml())
+    except ValueError:
+        return  # from_urdf names what is wrong with the file
+    known = set(tree.links) | set(tree.joints)
+    for f in frames:
+        if f not in known:
+            close = difflib.get_close_matches(f, sorted(known), n=4, cutoff=0.6)
+            hint = f"; did you mean {', '.join(close)}?" if close else ""
+            raise ValueError(f"{robot}: end-effector frame {f!r} not found in {origin.urdf}{hint}; candidate tool "
+                             f"frames by chain: {candidates_text(chains(origin, tree))}")
 
 
 def source_status(source: str, sha256: str) -> str:

@@ -251,3 +251,17 @@ def test_a_link_named_as_a_joint_is_read_again_renamed():
 def test_a_robot_finger_is_one_chain_not_a_gripper():
     arm = robots.load("erd:finger_edu")
     assert arm.nq == 3 and arm.ee_frame == "finger_tip_link"
+
+
+def test_a_frame_not_in_the_urdf_is_named_with_close_names_and_the_candidates():
+    with pytest.raises(ValueError, match=r"end-effector frame 'tool_0' not found .*did you mean tool0.*candidate tool "
+                                         r"frames by chain: 6 joints \(shoulder_pan_joint .. wrist_3_joint\): tool0"):
+        robots.load("erd:ur10", ee="tool_0")
+
+
+def test_a_registered_arm_takes_another_frame_under_a_name_of_its_own():
+    arm = robots.load("ur5", ee="wrist_3_link")
+    assert arm.name == "ur5#wrist_3_link" and arm.nq == 6 and robots.kind(arm.name) == "custom"
+    assert robots.load("ur5#wrist_3_link") is arm and arm is not robots.load("ur5")
+    with pytest.raises(ValueError, match="the paper's arms and the snakes have one tool frame, 'ee'"):
+        robots.load("planar", ee="link2")
