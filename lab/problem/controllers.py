@@ -506,6 +506,10 @@ def check_made_for(controller, arm) -> None:
     if getattr(enc, "goal", "position") != "pose" and tuple(enc.task_axes) != tuple(arm.task_axes):
         raise ValueError(f"{arm.name}: this controller takes goals on task axes {tuple(enc.task_axes)}, the "
                          f"arm's are {tuple(arm.task_axes)}")
+    chain = next((c for c in (getattr(controller, "chain", None), getattr(enc, "chain", None)) if c is not None), None)
+    if chain is not None and not arm.is_tree and not all(  # the kinematics it carries (heads, turn, pose)
+            np.shape(a) == np.shape(b) and np.allclose(a, b) for a, b in zip(chain, arm.chain.arrays)):
+        raise ValueError(f"{arm.name}: this controller carries another arm's kinematics (its links differ)")
 
 
 def _from_dict(d: dict) -> Controller:
