@@ -123,11 +123,19 @@ $(STAMP): pyproject.toml
 	@$(call QUIET_PIP,Neuro-IK Lab,-e ".[dev]")
 	@touch $(STAMP)
 
-# numba's kernels compiled once (the first page of the app needs few of them, so make app does not wait:
-# the app compiles the rest in the background); make test compiles them first, with a line per step
+# numba's kernels compiled once: make test compiles them all first, with a line per step; make app only
+# those of the first Start (the default method on the planar arm: about 20 s on 2 quiet cores, once),
+# so a fresh clone's first Start trains at once; the app compiles the rest in the background
+# (lab/running/warmup.py, docs/app.md). numba's cache is for this machine's CPU, where it was built.
+APPWARM := $(VENV)/.app-warm-stamp
 $(WARM): $(STAMP)
 	$(PY) -m lab.running.warmup
-	@touch $(WARM)
+	@touch $(WARM) $(APPWARM)
+
+$(APPWARM): $(STAMP)
+	@echo "compiling the training kernels of a first Start (once: later starts load them from numba's cache)"
+	$(PY) -m lab.running.warmup --first
+	@touch $(APPWARM)
 
 install: $(STAMP)
 	@$(CHECK_VENV)
@@ -145,7 +153,7 @@ browser:
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends chromium >/dev/null; }
 
-app: install
+app: install $(APPWARM)
 	$(PY) -m app $(ARGS)
 
 test: install browser $(WARM)

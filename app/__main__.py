@@ -313,8 +313,8 @@ class WarmupLines:
         if warmup.done:
             line = f"  training kernels ready ({warmup.seconds:.0f} s, once: later starts load them)"
         elif warmup.steps:
-            line = (f"  preparing the training kernels: step {warmup.index} of {warmup.steps}, {warmup.label} "
-                    f"(about {warmup.expected:.0f} s)")
+            about = "no estimate yet" if warmup.expected is None else f"about {warmup.expected:.0f} s"
+            line = f"  preparing the training kernels: step {warmup.index} of {warmup.steps}, {warmup.label} ({about})"
         else:
             line = None
         with self._lock:

@@ -17,10 +17,13 @@ goes away stops its run and exits.
 
 prestart() keeps one worker started and warmed up (modules imported, numba kernels loaded)
 for the next start(), so a click on Start trains at once instead of after ~2 s. A worker warms up
-before its run (lab/running/warmup.py: on a cold cache about a minute of compiling, the method the
-page opens with first; a spare does every step, a worker with its run waiting only the steps that run
-needs) and tells each step through a pipe of its own: `warmup_status()`, `ProcessRunner.preparing` and
-`on_warmup(callback)` say what a run waits for. A warming worker whose parent goes away exits at once.
+before its run (lab/running/warmup.py: on a cold cache about a minute of compiling, the opened
+robot's kernels for the method the page opens with first; a spare does every step, a worker with its
+run waiting only the steps that run needs) and tells each step through a pipe of its own:
+`warmup_status()`, `ProcessRunner.preparing` and `on_warmup(callback)` say what a run waits for. A
+spare that is compiling a step the run does not need when Start comes is ended, and the run goes to a
+fresh worker (it loads what the spare finished from numba's cache): a run never waits for kernels it
+does not call. A warming worker whose parent goes away exits at once.
 """
 
 from __future__ import annotations
@@ -52,7 +55,7 @@ log = logging.getLogger(__name__)
 _spare: subprocess.Popen | None = None  # a started worker waiting for its run (see prestart)
 _keep_spare = False
 _spare_lock = threading.Lock()
-_first_kind = "arm"  # the kind of robot ("arm", "tree") whose kernels a spare compiles first (prestart)
+_first_robot = "planar"  # the robot whose kernels a spare compiles first (prestart)
 
 
 class Warmup:
@@ -62,7 +65,8 @@ class Warmup:
         self.pid = pid
         self.index = self.steps = 0
         self.label = ""
-        self.expected = 0.0  # s the step in progress is expected to take
+        self.key = ""  # the step's kernels (lab.running.warmup.Step.key)
+        self.expected: float | None = 0.0  # s the step in progress is expected to take (None: no estimate yet)
         self.since = time.monotonic()  # when it began
         self.started = time.monotonic()
         self.done = False
@@ -76,8 +80,12 @@ class Warmup:
         if self.done or not self.compiling or not self.steps:
             return None
         spent = time.monotonic() - self.since
-        when = (f"about {self.expected - spent:.0f} s" if spent < self.expected - 0.5 else
-                f"{spent:.0f} s so far (about {self.expected:.0f} s expected)")
+        if self.expected is None:  # nothing measured on this machine yet
+            when = f"{spent:.0f} s so far (the first on this machine: no estimate yet)"
+        elif spent < self.expected - 0.5:
+            when = f"about {self.expected - spent:.0f} s"
+        else:
+            when = f"{spent:.0f} s so far (about {self.expected:.0f} s expected)"
         return f"step {self.index} of {self.steps} ({self.label}), {when}"
 
 
@@ -107,8 +115,8 @@ def _tell(warmup: Warmup) -> None:
 
 
 def _follow(fd: int, warmup: Warmup) -> None:
-    """Read a worker's progress pipe: "step INDEX STEPS EXPECTED_S LABEL" lines, "compiling" (numba
-    missed its cache), "done SECONDS"."""
+    """Read a worker's progress pipe: "step INDEX STEPS EXPECTED_S KEY LABEL" lines (EXPECTED_S "-":
+    no estimate), "compiling" (numba missed its cache), "done SECONDS"."""
     with os.fdopen(fd, "r", encoding="utf-8", errors="replace") as f:
         for line in f:
             kind, _, rest = line.rstrip("\n").partition(" ")
@@ -116,8 +124,9 @@ def _follow(fd: int, warmup: Warmup) -> None:
                 warmup.compiling = True
                 _tell(warmup)
             elif kind == "step":
-                index, steps, expected, label = rest.split(" ", 3)
-                warmup.index, warmup.steps, warmup.expected, warmup.label = int(index), int(steps), float(expected), label
+                index, steps, expected, key, label = rest.split(" ", 4)
+                warmup.index, warmup.steps, warmup.key, warmup.label = int(index), int(steps), key, label
+                warmup.expected = None if expected == "-" else float(expected)
                 warmup.since = time.monotonic()
                 _tell(warmup)
             elif kind == "done":
@@ -161,7 +170,7 @@ class ProcessRunner(RemoteRunBase):
     def start(self) -> "ProcessRunner":
         """Hand the run to a worker process; returns at once."""
         self._claim()
-        self._proc = _take_worker() if self.use_spare else _spawn(spare=False)
+        self._proc = _take_worker(self.config) if self.use_spare else _spawn(spare=False)
         self._command("run", self.config, self.run_id, self.blas_threads, self.history_limit)
         self._sent_at_start()
         threading.Thread(target=self._read, name=f"lab-worker-{self.run_id}", daemon=True).start()
@@ -245,31 +254,45 @@ class ProcessRunner(RemoteRunBase):
 
 def prestart(robot: str | None = None) -> None:
     """Keep a warmed-up worker ready for the next start(), now and after every run. robot: the one the
-    next run is likely on (the app's first), whose kind of kernels its warm-up compiles first."""
-    global _spare, _keep_spare, _first_kind
+    next run is likely on (the app's first), whose kernels its warm-up compiles first."""
+    global _spare, _keep_spare, _first_robot
     with _spare_lock:
         _keep_spare = True
         if robot is not None:
-            from lab.running.warmup import kind_of
-
-            _first_kind = kind_of(robot)
+            _first_robot = robot
         if _spare is None or _spare.poll() is not None:
             _spare = _spawn(spare=True)
 
 
-def _take_worker() -> subprocess.Popen:
+def _take_worker(config: TrainConfig | None = None) -> subprocess.Popen:
+    """The spare for a run of `config`; a fresh worker when there is none, or when the spare is
+    compiling kernels that run does not call (it is ended: the run would wait for its step)."""
     global _spare
     with _spare_lock:
         proc, _spare = _spare, None
     if proc is not None and proc.poll() is None:
-        return proc
+        if config is None or not _busy_elsewhere(proc.warmup, config):
+            return proc
+        log.info("the spare worker compiles %s, which this run does not call: a fresh worker instead",
+                 proc.warmup.label)
+        proc.kill()  # its finished steps stay in numba's cache; the next spare compiles the rest
+        threading.Thread(target=proc.wait, daemon=True).start()
     return _spawn(spare=False)
+
+
+def _busy_elsewhere(warmup: Warmup, config: TrainConfig) -> bool:
+    """Whether a warm-up is compiling (not loading) a step a run of `config` does not need."""
+    if warmup.done or not warmup.compiling or not warmup.key:
+        return False
+    from lab.running.warmup import Step, run_key
+
+    return not Step(0, 0, "", warmup.key, lambda: None).needed_by(run_key(config))
 
 
 def _spawn(spare: bool) -> subprocess.Popen:
     read, write = os.pipe()  # the warm-up's progress (Warmup)
     try:
-        proc = pipes.start("lab.running.worker", "--progress", str(write), "--first-kind", _first_kind,
+        proc = pipes.start("lab.running.worker", "--progress", str(write), "--first-robot", _first_robot,
                            *(["--spare"] if spare else []), pass_fds=(write,))
     except BaseException:
         os.close(read)
@@ -282,11 +305,11 @@ def _spawn(spare: bool) -> subprocess.Popen:
     return proc
 
 
-def _warm_up(stream, progress_fd: int | None, spare: bool, first_kind: str = "arm"):
+def _warm_up(stream, progress_fd: int | None, spare: bool, first_robot: str = "planar"):
     """In the worker: compile the kernels (lab/running/warmup.py) before the run, each step told on
-    progress_fd. A spare compiles every step, CMA-ES for `first_kind` first, until its run arrives;
-    from then on (and in a worker started with its run) only the steps that run needs: the kinematics
-    and its method for its kind of robot. Returns the first batch of messages (None: the parent went
+    progress_fd. A spare compiles every step, `first_robot`'s for the default method first, until its
+    run arrives; from then on (and in a worker started with its run) only the steps that run needs:
+    the kinematics and its own kernels. Returns the first batch of messages (None: the parent went
     away)."""
     from lab.running import warmup
 
@@ -313,51 +336,44 @@ def _warm_up(stream, progress_fd: int | None, spare: bool, first_kind: str = "ar
                 pass
 
     threading.Thread(target=watch, name="lab-worker-parent", daemon=True).start()
-    _on_first_compile(lambda: say("compiling"))
+    compiles = warmup.CompileWatch(lambda: say("compiling"))
     t = time.perf_counter()
-    first, wanted = None, None  # the run's first messages; its (method, kind of robot) once known
+    first, done = None, set()  # the run's first messages; the keys of the steps done
     estimate = warmup.Estimate()
     try:
-        for step in warmup.plan(first_kind=first_kind):
+        try:
+            steps = warmup.plan(robot=first_robot)
+        except Exception:  # noqa: BLE001 - an unknown robot: the run itself says so
+            log.exception("cannot plan the warm-up for %s", first_robot)
+            steps = []
+        while steps:
             if first is None and (not spare or pending()):
                 first = next(stream, None)
                 if first is None:
                     return None
-                config = first[0][1]
-                wanted = (config.method, warmup.kind_of(config.robot))
-            if wanted is not None and not step.needed_by(*wanted):
+                try:
+                    steps = warmup.for_run(steps, done, first[0][1])
+                except Exception:  # noqa: BLE001 - a config that cannot run: the run itself says so
+                    log.exception("cannot plan the warm-up for this run")
+                    break
                 continue
-            say(f"step {step.index} {step.steps} {estimate.seconds(step):.1f} {step.label}")
-            t_step = time.perf_counter()
+            step, steps = steps[0], steps[1:]
+            expected = estimate.seconds(step)
+            say(f"step {step.index} {step.steps} {'-' if expected is None else f'{expected:.1f}'} {step.key} "
+                f"{step.label}")
+            count, t_step = compiles.count, time.perf_counter()
             try:
                 step.work()
             except Exception:  # noqa: BLE001 - the run itself reports what fails
                 log.exception("warm-up step %s failed", step.label)
-            estimate.finished(step, time.perf_counter() - t_step)
+            estimate.finished(step, time.perf_counter() - t_step, compiles.count > count)
+            done.add(step.key)
     finally:
         say(f"done {time.perf_counter() - t:.1f}")
         warmed.set()
         if progress_fd is not None:
             os.close(progress_fd)
     return first if first is not None else next(stream, None)
-
-
-def _on_first_compile(callback) -> None:
-    """callback() once, when numba first compiles a kernel here (a cache miss; loads say nothing)."""
-    from numba.core import event
-
-    class FirstCompile(event.Listener):
-        told = False
-
-        def on_start(self, _event) -> None:
-            if not self.told:
-                self.told = True
-                callback()
-
-        def on_end(self, _event) -> None:
-            pass
-
-    event.register("numba:compile", FirstCompile())
 
 
 # ---------------------------------------------------------------------- the worker process
@@ -369,8 +385,8 @@ def main(argv: list[str]) -> int:
     from lab.running.runner import Runner
 
     stream = pipes.messages(sys.stdin.fileno())
-    first_kind = argv[argv.index("--first-kind") + 1] if "--first-kind" in argv else "arm"
-    first = _warm_up(stream, progress_fd, spare="--spare" in argv, first_kind=first_kind)
+    first_robot = argv[argv.index("--first-robot") + 1] if "--first-robot" in argv else "planar"
+    first = _warm_up(stream, progress_fd, spare="--spare" in argv, first_robot=first_robot)
     if not first:
         return 0  # a spare whose parent ended without using it
     (_, config, run_id, blas_threads, *more), pending = first[0], first[1:]
