@@ -103,9 +103,32 @@ def test_a_phone_shows_the_arm_with_the_panel_folded_to_a_bar_that_opens(lab_app
             assert page.evaluate(f"document.elementFromPoint({x}, {y}).tagName") == "CANVAS", (x, y)
         bar.tap()
         sync_api.expect(start).to_be_visible(timeout=10_000)
+        page.wait_for_timeout(500)  # the sheet's height settles
         shot(page, tmp_path, "phone-390x844-open")
+        # the opened sheet stops short of the arm, which the camera frames above it (app/tab/phone.py)
+        from app.tab.phone import SHEET
+
+        sheet_top = bar.bounding_box()["y"]
+        assert sheet_top >= (1 - SHEET) * 844 - 2, sheet_top
+        cam = session.client.camera
+        x, y = _pixel(cam, session.ws["center"], 390, 844)
+        assert 0 < x < 390 and 0 < y < sheet_top - 40, (x, y, sheet_top)  # the arm's base well above the sheet
+        assert page.evaluate(f"document.elementFromPoint({x}, {y}).tagName") == "CANVAS", (x, y)
     finally:
         page.close()
+
+
+def _pixel(camera, point, width: int, height: int) -> tuple[int, int]:
+    """Where a world point is drawn on a page of this size, through a tab's camera."""
+    position, look_at = np.asarray(camera.position), np.asarray(camera.look_at)
+    forward = (look_at - position) / np.linalg.norm(look_at - position)
+    right = np.cross(forward, camera.up_direction)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    rel, t = np.asarray(point) - position, np.tan(0.5 * camera.fov)
+    depth = rel @ forward
+    nx, ny = (rel @ right) / (depth * t * width / height), (rel @ up) / (depth * t)
+    return int((nx + 1) / 2 * width), int((1 - ny) / 2 * height)
 
 
 def test_a_wide_page_keeps_its_panel_open_and_its_camera(lab_app, browser):
