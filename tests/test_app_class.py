@@ -373,7 +373,7 @@ def red_notifications(probe) -> list:
 
 @pytest.mark.parametrize("name", ["class-as-a-search", "position-or-pose"])
 def test_a_lesson_link_opens_my_experiment_unfolded_with_the_students_part_first_and_no_failure(app, name):
-    """Issue 57: a viewer's lesson link did what the lesson meant (the shared settings stay the
+    """A viewer's lesson link did what the lesson meant (the shared settings stay the
     presenter's), yet its tab read "this lesson link's settings were not applied" and the student's part
     sat in a folded folder. Now the folder opens, its first line is the student's part, nothing is red;
     the tab's runs are grouped under the lesson."""
@@ -403,7 +403,7 @@ def test_a_lesson_link_opens_my_experiment_unfolded_with_the_students_part_first
 
 
 def test_a_viewers_hint_names_start_my_run_and_a_refused_name_is_said_in_the_folder(app):
-    """Issue 57: "Ana (phone)" silently became "student 6"; the viewer's hint named the presenter's Start."""
+    """Before, "Ana (phone)" silently became "student 6"; the viewer's hint named the presenter's Start."""
     presenter = tab_of(urllib.parse.unquote(app.presenter_url.split("websocket=")[1]))
     viewer = tab_of(app.url)
     try:

@@ -1,4 +1,4 @@
-"""The Class board a lesson can use, without a server (issue 57): a new board hides the earlier runs
+"""The Class board a lesson can use, without a server: a new board hides the earlier runs
 from the table and the chart while the notebook keeps them; the chart compares only runs that differ
 in the setting it plots and says how many it left out; the large chart has a grid, axis labels and
 each student's name on hover; the grade book's CSV has a row per run with every setting and outcome;

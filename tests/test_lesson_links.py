@@ -56,7 +56,7 @@ def _links(out: str, name: str) -> tuple[str, str]:
 
 
 def test_a_token_file_gives_each_lesson_a_presenter_link_and_the_students_link_stays_without(tmp_path, capsys):
-    """Issue 57: `--url` printed only viewer links; a teacher had to add `token=...;` by hand."""
+    """Before, `--url` printed only viewer links; a teacher had to add `token=...;` by hand."""
     token_file = tmp_path / "token"
     token_file.write_text(TOKEN + "\n")
     assert main(["--url", "http://teacher-pc:8080", "--presenter-token-file", str(token_file)]) == 0

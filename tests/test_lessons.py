@@ -83,7 +83,9 @@ def test_a_viewer_gets_the_lessons_text_and_views_but_not_its_settings(tmp_path)
             viewer.wait_for(lambda m: m["type"] == "GuiPanelMessage")  # the lesson's column
             viewer.wait_for(lambda m: m["type"] == "GuiMarkdownMessage"
                             and m["props"]["_markdown"] == f"### {lesson_text(lesson.name)[0]}")
-            viewer.wait_for(lambda m: m["type"] == "NotificationShowMessage" and "presenter controls" in str(m))
+            # told, not as a failure, that the shared run is the presenter's and the lesson's run is its own to start
+            told = viewer.wait_for(lambda m: m["type"] == "NotificationShowMessage" and "presenter runs it" in str(m))
+            assert told["props"]["color"] == "green" and "Start my run" in str(told)
             assert wait_until(lambda: any(s.faint_arms.value for s in app.sessions.values()), 5)  # its own views
             time.sleep(0.3)
             assert lesson_params(app.panel) == before and app.state.arm.name == "planar"

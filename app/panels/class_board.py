@@ -129,7 +129,7 @@ class ClassBoard:
             self.big_button = gui.add_button("Show the chart large", hint="the chart in your own tab, large, for the "
                                                                           "projector (a point's student on hover)")
             self.csv_button = gui.add_button("Download the class's runs (CSV)",
-                                             hint="every run of this session, a row each: name, lesson, board, every "
+                                             hint="every run since the server started, a row each: name, lesson, board, every "
                                                   "setting, state, generations, errors, seconds, recording")
             self.board_message = gui.add_markdown("")
         with gui.add_folder("Presenter: show a run to the class", expand_by_default=False):
