@@ -195,7 +195,7 @@ def solve(controller, arm, goals, *, q0=None, steps: int | None = None, tol: flo
     args = (controller, arm, steps, tol, angle_tol, seconds, seed, sweep, is_pose)
     n = len(goals)
     if 0 < n <= CHUNK:  # one chunk (a drag's one pose): no copies, no progress line
-        with _compile_notice(is_pose):
+        with _compile_notice(is_pose, controller):
             return _chunk(*args, goals, extra, 0, t0)
     if n == 0:
         return _empty(controller, arm, extra, tol, angle_tol, is_pose, t0)
@@ -203,7 +203,7 @@ def solve(controller, arm, goals, *, q0=None, steps: int | None = None, tol: flo
     try:
         for a in range(0, n, CHUNK):
             b = min(a + CHUNK, n)
-            with _compile_notice(is_pose):
+            with _compile_notice(is_pose, controller):
                 parts.append(_chunk(*args, goals[a:b], None if extra is None else extra[:, a:b], a, t0))
             bar.advance(b - a)
     finally:
@@ -320,30 +320,44 @@ COMPILE_NOTICE = "lab.solve: compiling the pose solver (once; cached afterwards)
 _solved_once = threading.Event()  # set once a pose solve has returned in this process
 
 
-def _solver_cached() -> bool | None:
-    """Whether numba's on-disk cache holds robots.pose_solve's kernel for its current source (then a first
-    solve loads it in a moment); None where the cache cannot be read (numba's private API)."""
+def _pose_kernels(controller) -> list:
+    """The compiled kernels a pose solve calls: the solver's and the tool frame's, and a pose network's
+    (its inputs, outputs and closed form) when it has one."""
+    kernels = [pose_solve.descend_many, pose._pose_kernel]
+    if getattr(getattr(controller, "encoding", None), "goal", None) == "pose":
+        from lab.problem import kernels as network, pose_kernels
+
+        kernels += [pose_kernels.finish_joints_errors, network.mlp_offset_outputs, network.polar_inputs]
+    return kernels
+
+
+def _solver_cached(kernels) -> bool | None:
+    """Whether numba's on-disk cache holds each of these kernels (not loaded yet) for its current source
+    (then a first solve loads them in a moment); None where the cache cannot be read (numba's private API)."""
     try:
-        return bool(pose_solve.descend_many._cache._cache_file._load_index())
+        return all(bool(k._cache._cache_file._load_index()) for k in kernels)
     except Exception:  # noqa: BLE001 - another numba: the timer decides
         return None
 
 
 @contextlib.contextmanager
-def _compile_notice(active: bool = True):
-    """Around a pose solve (active): the first in this process, where robots.pose_solve's kernel is neither
-    loaded nor cached on disk (numba then compiles the pose kernels: 16-40 s), prints COMPILE_NOTICE on stderr
-    first; where the cache cannot be read, when the solve has not returned after COMPILE_NOTICE_AFTER s
-    and the kernel is not loaded by then. Later solves, and a first one that loads a cache, say nothing."""
-    if not active or _solved_once.is_set() or pose_solve.descend_many.signatures:
+def _compile_notice(active: bool = True, controller=None):
+    """Around a pose solve (active): the first in this process, where a kernel it calls (_pose_kernels) is
+    neither loaded nor cached on disk (numba then compiles: 16-40 s for the solver, as long again for a pose
+    network's), prints COMPILE_NOTICE on stderr first; where the cache cannot be read, when the solve
+    has not returned after COMPILE_NOTICE_AFTER s and a kernel is not loaded by then. Later solves, and a
+    first one that loads its kernels from the cache, say nothing."""
+    kernels = _pose_kernels(controller) if active and not _solved_once.is_set() else []
+    waiting = [k for k in kernels if not k.signatures]
+    if not waiting:
         yield
         return
-    cached = _solver_cached()
+    cached = _solver_cached(waiting)
     if cached is False:
         print(COMPILE_NOTICE, file=sys.stderr, flush=True)
 
-    def say() -> None:  # unless the solver's kernel is loaded by then (a long batch, not a compile)
-        if not pose_solve.descend_many.signatures:
+    def say() -> None:  # unless the kernels are loaded by then (a long batch, not a compile)
+        if any(not k.signatures for k in waiting):
             print(COMPILE_NOTICE, file=sys.stderr, flush=True)
 
     timer = threading.Timer(COMPILE_NOTICE_AFTER, say) if cached is None else None

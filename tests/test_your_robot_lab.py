@@ -1,4 +1,4 @@
-"""A robot the registry does not name, on the lab's side (issue 56): lab.evolve, lab.solve,
+"""A robot the registry does not name, on the lab's side: lab.evolve, lab.solve,
 lab.controller_from_dict, TrainConfig and `python -m lab train|solve|export` take its string
 (erd:NAME, a URDF path) or the Arm itself; its defaults are a registered real arm's of its size;
 lab.solve's default on pose goals is the compiled solver on TRAC-IK's terms; lab.pretrained returns
@@ -120,11 +120,11 @@ def test_the_first_pose_solve_that_compiles_says_so(monkeypatch, capsys, ur3):
         time.sleep(0.05)
         return real.solve_pose(*args, **kwargs)
 
-    monkeypatch.setattr(solver, "pose_solve", SimpleNamespace(descend_many=SimpleNamespace(signatures=[]),
-                                                              solve_pose=slow))
+    monkeypatch.setattr(solver, "pose_solve", SimpleNamespace(solve_pose=slow))
+    monkeypatch.setattr(solver, "_pose_kernels", lambda controller: [SimpleNamespace(signatures=[])])
     for cached, says in ((False, True), (True, False), (None, True)):
         monkeypatch.setattr(solver, "_solved_once", threading.Event())
-        monkeypatch.setattr(solver, "_solver_cached", lambda cached=cached: cached)
+        monkeypatch.setattr(solver, "_solver_cached", lambda kernels, cached=cached: cached)
         monkeypatch.setattr(solver, "COMPILE_NOTICE_AFTER", 0.01)
         lab.solve(None, ur3, poses)
         assert (solver.COMPILE_NOTICE in capsys.readouterr().err) == says, cached
