@@ -50,7 +50,9 @@ _PER_METHOD = ("generations", "population", "targets", "features", "margin", "hi
 @dataclass(frozen=True, init=False)
 class TrainConfig:
     """One training run's settings. TrainConfig(robot=..., method=..., sigma0=...): shared fields
-    by name, the method's options by name too (or as `options`, an Options or a dict)."""
+    by name, the method's options by name too (or as `options`, an Options or a dict). robot: a
+    registered name, erd:NAME, a URDF path or a robots.Arm, with ee= its tool frame (not a field): the
+    field holds the arm's canonical string (lab/problem/robot.py), which robots.load rebuilds."""
 
     robot: str = "planar"  # a registered name, erd:NAME or a URDF path (lab/problem/robot.py; an Arm: its name)
     method: str = methods.DEFAULT_METHOD
