@@ -56,7 +56,12 @@ def kind_of(robot: str) -> str:
     import robots
 
     try:
-        return "tree" if robots.kind(robot) == "tree" else "arm"
+        kind = robots.kind(robot)
+        if kind not in ("paper", "snake", "real", "tree"):  # erd:NAME or a URDF: the arm says (robots.load caches it)
+            from lab.problem.robot import arm_kind, load_arm
+
+            kind = arm_kind(load_arm(robot))
+        return "tree" if kind == "tree" else "arm"
     except Exception:  # noqa: BLE001 - the run itself says what is wrong with its robot
         return "arm"
 
