@@ -43,7 +43,7 @@ from app.panels.views import error_map, has_map, map_grid, map_key, map_legend, 
 from app.tab.goals import MORE, READY_ID, REDRAW_PERIOD, TabSession, fmt_len
 from app.tab.phone import fold_on_phone, follow_portrait
 from app.tab.replay import TabReplay
-from app.tab.scene import frame_workspace
+from app.tab.scene import frame_workspace, shown_goals
 from app.training.notebook import DEFAULT_PATH, Notebook
 from app.training.state import LabState
 from app.viser_private import client_host, client_query, install_loop_safe_wakeups, install_message_gate
@@ -295,12 +295,13 @@ class LabApp:
         size = ws["size"]
         scene.add_grid("/floor", width=1.6 * size, height=1.6 * size, cell_size=ws["cell"],
                        section_size=10 * ws["cell"], position=(ws["center"][0], ws["center"][1], ws["floor_z"]))
-        goals = self.training_goals()
-        # a tree's goals are a point per effector each (4 x 600 on a humanoid): smaller, so the robot shows;
-        # beyond the paper's 70 goals (300 on a real arm) smaller too, down to half
+        goals = shown_goals(self.training_goals(), arm.n_effectors)  # a run trains on all; a few hundred drawn
+        # a tree's goals are a point per effector each: smaller, so the robot shows; beyond the paper's
+        # 70 goals (300 on a real arm) smaller too, down to half
         shrink = max(0.5, math.sqrt(70 / max(70, len(goals) // arm.n_effectors)))
-        scene.add_point_cloud("/training_goals", points=goals.astype(np.float32), colors=(200, 30, 30),
-                              point_size=(0.004 if arm.is_tree else 0.008) * shrink * size, point_shape="circle")
+        self.goal_dots = scene.add_point_cloud(
+            "/training_goals", points=goals.astype(np.float32), colors=(200, 30, 30),
+            point_size=(0.004 if arm.is_tree else 0.008) * shrink * size, point_shape="circle")
         self._map_z = -0.05 * size  # just under the planar arm (its visuals reach z = -0.04 size)
         self._floor_z = ws["floor_z"] + 0.002 * size  # a spatial arm's map lies on the floor
         if self._drawn[1] is not arm:  # each arm opens with its own default

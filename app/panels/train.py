@@ -492,6 +492,19 @@ class TrainingPanel:
         self.status.content = self.status_line(p)
         self.watching.refresh_live(force)
 
+    def pace(self, p: dict) -> str:
+        """What a run's pace is when it is not the Speed menu's: ", 3.1 generations/s: all this robot
+        allows here" (a run slower than its cap), or the budget's full speed; else nothing."""
+        rate = p.get("generations_per_s") or 0.0
+        if p["state"] not in ("running", "paused") or p["generation"] < 3 or rate <= 0:
+            return ""
+        speed = self.state.speed
+        if p["budget"]:
+            return f", {rate:.1f} generations/s (a run with a time budget goes as fast as the robot allows, whatever Speed says)"
+        if speed is not None and rate < 0.8 * speed:
+            return f", {rate:.1f} generations/s: all {self.state.arm.name} allows here (Speed caps at {speed:g})"
+        return ""
+
     def status_line(self, p: dict) -> str:
         """The status (markdown): the run's state (Running, Paused, Finished, Stopped, Failed and why)
         with its generation, time and best MSE; what a run waits for before its first generation; the
@@ -512,7 +525,7 @@ class TrainingPanel:
                       "the run starts the moment they are ready")
         else:
             status = (f"**{p['state'].capitalize()}**: generation {n}{total}{left}, "
-                      f"best MSE {best_s}, {p['evals_per_s']:,.0f} evaluations/s")
+                      f"best MSE {best_s}, {p['evals_per_s']:,.0f} evaluations/s{self.pace(p)}")
         if p["state"] == "failed" and p.get("error"):
             status += f"  \nIt failed: {p['error']}"
         status += rec

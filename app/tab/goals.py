@@ -45,7 +45,7 @@ from app.tab import posegoal
 from app.tab.extras import GoalExtras, TabExtras
 from app.training.live import swatch
 from app.tab.ikworker import IK_WORKER
-from app.tab.scene import ArmView, frame_workspace, to_world
+from app.tab.scene import MAX_GOAL_DOTS, ArmView, frame_workspace, to_world
 from app.viser_private import set_pose
 
 MAX_GOALS = 8
@@ -73,8 +73,10 @@ def about(arm: robots.Arm, config) -> str:
     else:
         maps = f"a goal to the arm's {arm.nq} joint angles"
     unit = "mm" if robots.in_metres(arm.name) else "the paper's units"
+    shown = max(1, MAX_GOAL_DOTS // arm.n_effectors)
+    red = "red" if config.targets <= shown else f"{shown:,} of them in red"  # app/tab/scene.py shown_goals
     return (f"{network} maps {maps}, never shown a right answer: its fitness "
-            f"is the {'robot' if arm.is_tree else 'arm'}'s error over {config.targets:,} fixed goals (red), through "
+            f"is the {'robot' if arm.is_tree else 'arm'}'s error over {config.targets:,} fixed goals ({red}), through "
             f"forward kinematics. Lengths in {unit}.")
 
 

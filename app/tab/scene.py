@@ -14,7 +14,8 @@ tab's queue into the creation alone, and its client, given a mesh again under a 
 itself given again, drew the mesh away from its arm (after the planar arm, the g1's pelvis on the
 floor below its feet).
 
-`frame_workspace` gives the camera, floor grid and marker limits of an arm.
+`frame_workspace` gives the camera, floor grid and marker limits of an arm; `shown_goals` the
+training goals the scene draws (a run trains on all of them).
 """
 
 from __future__ import annotations
@@ -30,6 +31,22 @@ from app.viser_private import set_pose
 from robots.visual import se3_pose, visual_geometry
 
 _VIEWS = itertools.count()  # each ArmView's number, in its geometries' names
+# red dots the scene draws of the training goals at most (a tree's goal is a dot per effector): a
+# humanoid's 600 goals x 4 effectors crowd the robot out of view; the eye reads a cloud's extent
+# from a few hundred. More goals: an even sample of them, every effector's dot of each kept goal
+MAX_GOAL_DOTS = 400
+
+
+def shown_goals(points: np.ndarray, effectors: int = 1, limit: int = MAX_GOAL_DOTS) -> np.ndarray:
+    """The dots drawn of the training goals (points: (goals x effectors, 3), goal by goal, each
+    goal's effectors together): all of them up to `limit`, else evenly spaced goals whose dots
+    number at most `limit` (at least one goal)."""
+    points = np.asarray(points).reshape(-1, effectors, 3)
+    n = len(points)
+    keep = max(1, limit // effectors)
+    if n > keep:
+        points = points[np.unique(np.linspace(0, n - 1, keep).round().astype(int))]
+    return points.reshape(-1, 3)
 
 
 class ArmView:

@@ -129,6 +129,7 @@ class LabState:
         self.replayed_population = None  # the population a replayed recording logged at its generation
         self._startup = startup
         self._startups, self._opened = startups, {}  # robot name -> (controller, note) it opened with
+        self._replaced = None  # (controller, source) a tree's run replaced on the arms (kept_the_better)
         self._version = 0
         self._shown = Shown(robots.load(robot), None, "none", 0)
         self._clear_history()
@@ -164,6 +165,8 @@ class LabState:
                 state=r.state if r else "idle", best=best, median=median, generations=gens + 1,
                 evals_per_s=self._evals / self._seconds if self._seconds > 0 else 0.0,
                 recording=self.recording, run_id=r.run_id if r else None,
+                # generations a second of optimizer time: what the robot allows here (Speed only caps it)
+                generations_per_s=len(self._history) / self._seconds if self._seconds > 0 else 0.0,
                 seconds=self._seconds, budget=r.config.seconds if r else None,  # optimizer s so far; the time budget
                 # what the run waits for before its first generation (the training kernels compiling:
                 # "step 2 of 7 (...), about 12 s"), None when nothing; why a failed run failed
@@ -296,6 +299,9 @@ class LabState:
             self.track = RunTrack(lab.methods.get(config.method))
             self.partner = None
             if partner is not None:
+            shown = self._shown  # a tree's run ends no worse than what it replaces (kept_the_better)
+            self._replaced = (shown.controller, shown.source) if shown.arm.is_tree and shown.controller is not None \
+                and shown.arm.name == config.robot and self.goal == goal and not self.replaying else None
                 self.partner = Partner(runners[1], recordings[1], RunTrack(lab.methods.get(partner.method)))
             for r, rec, is_partner in zip(runners, recordings, (False, True)):
                 r.subscribe(_Tap(self, r, rec, partner=is_partner))
@@ -450,3 +456,34 @@ class LabState:
             log.exception("could not write the notebook entry of run %s", summary.run_id)
 
 
+        self.kept_the_better(runner, summary)
+
+    def kept_the_better(self, runner, summary) -> bool:
+        """A tree's run that ends worse than the controller it replaced on the arms (a humanoid's
+        shipped network, which 30 s of training do not match): that controller is shown again, and
+        `notice` says so; the run stays in the notebook. Both are measured on the run's own held-out
+        goals (lab.running.runner.build_problem: what its summary's test_mse is). Whether it kept it."""
+        with self._lock:
+            replaced = self._replaced if runner is self.runner else None
+        if replaced is None or summary.controller is None or summary.state == "failed":
+            return False
+        controller, source = replaced
+        try:
+            from lab.running.runner import build_problem
+
+            problem = build_problem(summary.config)
+            before = float(problem.controller_mse(controller, problem.test_goals))
+        except Exception:  # noqa: BLE001 - the run's own controller stays shown
+            log.exception("cannot compare run %s with the controller it replaced", summary.run_id)
+            return False
+        after = float(summary.test_mse)
+        if not after > before:
+            return False
+        with self._lock:
+            if runner is not self.runner or self.replaying or self._shown.arm.name != summary.config.robot:
+                return False  # reset, replaced or replaying since: leave the arms alone
+            self.show(controller, source)
+            self.notice = (f"The run ended at held-out MSE {after:.3g}, worse than the controller it replaced "
+                           f"({before:.3g}): the robot shows that one again ({source}). The run is in the "
+                           "notebook (Runs), where it can be shown.")
+        return True
