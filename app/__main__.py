@@ -43,12 +43,13 @@ def presenter_token(args) -> tuple[str | None, str | None]:
     if args.presenter_token is not None and args.presenter_token_file is not None:
         return None, "error: --presenter-token and --presenter-token-file contradict each other; give one"
     if args.presenter_token_file is not None:
+        from app.classroom.access import read_token_file
+
         source = "--presenter-token-file"
-        try:
-            with open(args.presenter_token_file, encoding="utf-8") as f:
-                token = f.readline().strip()
-        except (OSError, UnicodeDecodeError) as e:
-            return None, f"error: --presenter-token-file {args.presenter_token_file}: {getattr(e, 'strerror', None) or e}"
+        try:  # a pipe, a device, a folder or a file over 4 KiB is refused before anything blocks
+            token = read_token_file(args.presenter_token_file)
+        except ValueError as e:
+            return None, f"error: --presenter-token-file {e}"
     elif args.presenter_token is not None:
         source, token = "--presenter-token", args.presenter_token
         print("warning: --presenter-token shows the token to every user of this machine (`ps`); "
@@ -219,16 +220,20 @@ def main(argv=None) -> int:
     try:
         _serve(args, app, t0)
         stopping.wait()
-        print("stopping: the run (if any) is stopped, noted in the notebook and its recording closed", flush=True)
+        print("stopping: the runs going are stopped, their recordings closed and their entries noted (in the "
+              "notebook, or in its journal when it cannot be written: the log says so)", flush=True)
     finally:
         stopping.close()
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             signal.signal(sig, _already_stopping)
-        app.stop()
-        if args.ray is not None:  # after every student run has ended; a local instance ends with it
-            import ray
+        try:
+            app.stop()
+            if args.ray is not None:  # after every student run has ended; a local instance ends with it
+                import ray
 
-            ray.shutdown()
+                ray.shutdown()
+        finally:  # the entries not written yet (a locked notebook, a full disk) go to its journal: the
+            notebook.close()  # exit below skips atexit, so this is their last chance; the log names them
     return 0
 
 
@@ -338,7 +343,7 @@ if __name__ == "__main__":
     code = main()
     sys.stdout.flush()
     sys.stderr.flush()
-    # everything is closed (the run noted, the notebook committed, the recordings' writers finish on
-    # their own): the interpreter's teardown of a gigabyte of modules, seconds of CPU on a loaded
-    # machine, would only delay the exit that Ctrl-C asked for (docs/faults.md)
+    # everything is closed (the run noted, the notebook committed or its journal written, the
+    # recordings' writers finish on their own): the interpreter's teardown of a gigabyte of modules,
+    # seconds of CPU on a loaded machine, would only delay the exit that Ctrl-C asked for (docs/faults.md)
     os._exit(code)

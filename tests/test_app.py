@@ -500,8 +500,10 @@ def test_a_run_that_ends_while_another_program_locks_the_notebook_is_kept_and_sa
     assert Notebook(str(path)).get(run_id)["generations"] == 5
     assert not [r for r in caplog.records if r.exc_info or r.levelname == "ERROR"]  # no traceback
     said = [r.getMessage() for r in caplog.records if r.name == "app.training.notebook"]
-    assert said == [f"notebook {path}: 1 run not saved yet (database is locked): listed, kept in memory and retried "
-                    "until written", f"notebook {path}: the runs not saved (database is locked) are saved now"]
+    assert said == [f"notebook {path}: 1 run not saved yet (database is locked): listed and tried again while the app "
+                    f"runs; in the journal {path}.journal ({run_id}), which the next opening of the notebook imports",
+                    f"notebook {path}: the runs not saved (database is locked) are saved now"]
+    assert not os.path.exists(f"{path}.journal")  # written: out of the journal
 
 
 def test_a_run_that_ends_on_a_full_disk_is_kept_and_saved_when_space_returns(tmp_path):

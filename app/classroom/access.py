@@ -43,9 +43,11 @@ import threading
 import time
 
 from app import viser_private
+from app.classroom.files import FileRefused, read_small
 
 log = logging.getLogger(__name__)
 MIN_TOKEN = 16  # characters of a presenter token the user gives
+MAX_TOKEN_FILE = 4096  # bytes of a token file read at most (a larger file is refused, not read)
 MAX_WRONG, WRONG_WINDOW = 5, 60.0  # wrong tries per address logged one by one in this many seconds, then summed
 
 VIEWER_LINE = ("**Viewer.** The presenter controls the run and the shared settings; your goal markers, "
@@ -62,6 +64,24 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
+
+
+def read_token_file(path: str) -> str:
+    """The presenter token in a token file: its first line, stripped. The file is read for at most
+    MAX_TOKEN_FILE bytes; ValueError, its message naming the path and why (a pipe, a device, a
+    folder, a larger file: refused before anything blocks, app/classroom/files.py; missing, no
+    permission, not UTF-8)."""
+    try:
+        data = read_small(path, MAX_TOKEN_FILE)
+    except FileRefused as e:
+        raise ValueError(f"{e} (a token file holds one line)") from None
+    except OSError as e:
+        raise ValueError(f"{path}: {e.strerror or e}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    return text.split("\n", 1)[0].strip()
 
 
 def token_problem(token: str) -> str | None:

@@ -17,12 +17,15 @@ named it, never a path of the server (`save_upload` puts the name in place of it
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import tempfile
 import threading
 import time
 from collections import deque
+
+from app.classroom.files import kind_of, not_a_file
 
 MAX_UPLOAD = 200 * 2**20  # bytes, one file
 PART = 512 * 2**10  # bytes: viser's browser client sends a file in parts of this size (UploadButton.tsx)
@@ -60,6 +63,14 @@ def safe_name(name: str) -> str:
     return (stem or "upload") + ".rrd"
 
 
+def not_a_recording_file(path: str) -> str | None:
+    """Why a recording to open is not a regular file ("x.rrd is a named pipe (FIFO), not a file"),
+    naming it by its base name (a tab is never told where the server keeps files); None when it is
+    one. Reading a pipe with no writer would block for good, a device read without end."""
+    why = not_a_file(path)
+    return None if why is None else why.replace(path, os.path.basename(path), 1)
+
+
 def hide_paths(text: str, path: str, name: str) -> str:
     """text with `path` (and any other absolute path in it, e.g. a salvage copy's) shown as the
     user's file name / a base name: a tab is never told where the server keeps files."""
@@ -76,7 +87,12 @@ def save_upload(folder: str, name: str, content: bytes, check=None) -> str:
     """Write content under folder as safe_name(name), or name-2.rrd, name-3.rrd, ... when taken
     (never replacing a file); check(path), if given, is called on the written file before it gets
     its name (an exception leaves nothing behind; one from check comes back as UploadRefused, its
-    message naming the file as `name` does, not the temporary path). Returns the path."""
+    message naming the file as `name` does, not the temporary path). Returns the path. A folder
+    path that holds something else (a file, a pipe, a device) is an OSError saying what, never the
+    path (the tab sees it)."""
+    if os.path.lexists(folder) and not os.path.isdir(folder):
+        what = kind_of(os.stat(folder).st_mode) if os.path.exists(folder) else "a broken link"
+        raise OSError(errno.ENOTDIR, f"the server's upload folder is {what or 'a file'}, not a folder")
     os.makedirs(folder, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=folder, prefix=".upload-", suffix=".part")
     try:

@@ -22,7 +22,7 @@ import lab
 import robots
 
 from app import viser_private
-from app.classroom.uploads import MAX_UPLOAD, UploadGuard, save_upload
+from app.classroom.uploads import MAX_UPLOAD, UploadGuard, not_a_recording_file, save_upload
 from app.panels.train import notify
 from app.startup import made_for
 from app.training.notebook import label
@@ -137,6 +137,8 @@ class RunsPanel:
     def open_file(self, path: str, client=None, entry: dict | None = None) -> str | None:
         from lab.recording.replay import read_recording
 
+        if (why := not_a_recording_file(path)) is not None:  # a pipe would block, a device read without end
+            return self.refuse(client, f"refused: {why}")
         try:
             rec = read_recording(path)
             doc = rec.controller_doc()

@@ -33,9 +33,18 @@ row whose JSON raises anything else (nested too deeply: a RecursionError).
 
 A write that fails while the app runs (another program holds the file locked past the busy
 timeout, `timeout`; a full disk; an I/O error) loses nothing: the entry is kept in memory and
-listed, `not_saved()` says how many wait and why (the Runs panel shows it), and a thread writes
-them once it can, trying again after 0.5 s, 1 s, 2 s, ... 30 s. Reads take no lock: in WAL mode
-they go on while another program writes.
+listed, `not_saved()` says how many wait and why (the Runs panel shows it), a thread writes
+them once it can, trying again after 0.5 s, 1 s, 2 s, ... 30 s, and meanwhile the entry is in the
+journal beside the notebook (`<notebook>.journal`, app/training/journal.py), so that a process
+killed (or stopped) before they are written loses nothing. At the app's stop `close()` tries once
+more for CLOSE_WAIT s and leaves what is still not written in the journal; the log names the journal
+and the runs in it (or, should the journal not be writable either, a full disk, the runs lost). The
+next opening of the notebook imports the journal's entries, and removes them from the journal only
+once they are committed. Reads take no lock: in WAL mode they go on while another program writes.
+
+A notebook path (or its journal) that is not a regular file (a folder, a named pipe, a device, a
+socket) is refused at once, naming what it is, before anything opens it: a pipe with no writer would
+block an open forever, a device give bytes without end.
 """
 
 from __future__ import annotations
@@ -46,10 +55,14 @@ import logging
 import math
 import os
 import sqlite3
+import stat
 import threading
 import time
 import weakref
 from pathlib import Path
+
+from app.classroom.files import kind_of
+from app.training.journal import Journal
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +80,7 @@ _LEAVE = "it was left as it is: move it away or give another path"
 BUSY_TIMEOUT = 30.0  # s a write waits for another program's lock on the file (SQLite's busy timeout)
 READ_TIMEOUT = 5.0  # s a read waits at most (a WAL notebook's readers wait only for a checkpoint or recovery)
 RETRY_FIRST, RETRY_MAX = 0.5, 30.0  # s between tries of a failed write: doubled after each failure, up to the max
+CLOSE_WAIT = 1.0  # s close() (the app's stop) waits for a lock before the entries not written go to the journal
 
 
 class NotebookError(ValueError):
@@ -101,6 +115,10 @@ class Notebook:
         # the runs listed but not in the file: a read-only notebook's (added since it was opened), or a
         # writable one's whose write failed (locked past the timeout, a full disk), retried until written
         self._unsaved: dict[str, dict] = {}
+        self.journal = Journal(self.path + ".journal")  # the entries not written yet, beside the notebook
+        self._journal_lock = threading.Lock()  # one change of the journal at a time from this notebook
+        self._journaled: dict[str, str] = {}  # run_id -> the JSON this notebook put in the journal
+        self.closed = False
         self.read_only: str | None = None
         self._check(self.path, sqlite=True)
         self._inspect()  # refuses what is not a lab notebook, writing nothing
@@ -115,6 +133,10 @@ class Notebook:
                 self.read_only = f"SQLite: {e}"
             except sqlite3.DatabaseError as e:
                 raise NotebookError(f"notebook {self.path} is not a lab notebook ({e}); {_LEAVE}") from e
+        if self.read_only is None:
+            self._import_journal()
+        else:
+            self._list_journal()
         if self.read_only is not None:
             if entries is not None and self._select("SELECT value FROM meta WHERE key = 'imported'") == []:
                 self._unsaved = {e["run_id"]: e for e in entries if _is_run(e)}  # listed, not imported
@@ -228,9 +250,19 @@ class Notebook:
                                         timeout=self.timeout))
 
     def _check(self, path: str, sqlite: bool) -> None:
-        if os.path.isdir(path):
+        """Refuse a path that is not a regular file (a folder, a pipe, a device) or, for the database,
+        a file that is not SQLite; a missing file passes (a new notebook)."""
+        try:
+            mode = os.stat(path).st_mode
+        except FileNotFoundError:
+            return
+        except OSError as e:
+            raise NotebookError(f"notebook {path} cannot be read ({e.strerror or e}); {_LEAVE}") from e
+        if stat.S_ISDIR(mode):
             raise NotebookError(f"notebook {path} is a folder; give the path of a file")
-        if sqlite and os.path.isfile(path) and os.path.getsize(path) > 0:
+        if (what := kind_of(mode)) is not None:  # opening a pipe with no writer would block for good
+            raise NotebookError(f"notebook {path} is {what}, not a file; {_LEAVE}")
+        if sqlite and os.path.getsize(path) > 0:
             with open(path, "rb") as f:
                 head = f.read(len(SQLITE_MAGIC))
             if head != SQLITE_MAGIC:
@@ -314,8 +346,10 @@ class Notebook:
         A read-only notebook keeps it in memory (listed until the app stops; said once, when opened).
         A write that fails (the file locked by another program past `timeout` s, default the
         notebook's; a full disk; an I/O error) loses nothing: the entry is kept in memory, listed,
-        and written by a thread that tries again (after 0.5 s, 1 s, 2 s, ... RETRY_MAX s) until it is;
-        not_saved() says how many wait and why, and the log says it once."""
+        put in the journal, and written by a thread that tries again (after 0.5 s, 1 s, 2 s, ...
+        RETRY_MAX s) while the process runs; not_saved() says how many wait and why, and the log says
+        it once. While an earlier write is failing, a new entry does not wait for the lock: it goes
+        to the retrier and the journal at once (a stop that ends many runs is not slowed per run)."""
         if not _is_run(entry):
             raise ValueError(f"a notebook entry needs a text run_id, robot and method, got {entry!r:.200}")
         text = json.dumps(entry)  # an entry that is not JSON is refused here, not retried
@@ -324,8 +358,13 @@ class Notebook:
             self._unsaved[entry["run_id"]] = entry
             if self.read_only is None:
                 self._texts[entry["run_id"]] = text
+            failing = self._failure is not None
         if self.read_only is None:
-            self._save(self.timeout if timeout is None else timeout)
+            if not self._save(0.0 if failing else self.timeout if timeout is None else timeout):
+                with self._lock:  # another write under way held it past the wait: the retrier writes it
+                    if entry["run_id"] in self._unsaved:
+                        self._start_retrier()
+                self._journal_unsaved()  # and the journal has it meanwhile
 
     def not_saved(self) -> tuple[int, str | None]:
         """How many runs of a writable notebook are listed but not written yet, and why (the last
@@ -363,15 +402,16 @@ class Notebook:
                 why = str(err) or type(err).__name__
                 with self._lock:
                     said, self._failure = self._failure, why
-                    n = len(self._unsaved)
-                    if self._retrier is None:
-                        self._retrier = threading.Thread(target=self._retry, name="notebook-retry", daemon=True)
-                        self._retrier.start()
-                        _waiting.add(self)
+                    self._start_retrier()
+                kept, lost, error = self._journal_unsaved()
                 if said is None:
-                    log.warning("notebook %s: %d run%s not saved yet (%s): listed, kept in memory and retried "
-                                "until written", self.path, n, "" if n == 1 else "s", why)
+                    n = len(kept) + len(lost)
+                    where = self._where(kept, lost, error, "lost if the app stops before they are written")
+                    (log.error if lost else log.warning)(
+                        "notebook %s: %d run%s not saved yet (%s): listed and tried again while the app runs; %s",
+                        self.path, n, "" if n == 1 else "s", why, where)
                 return False
+            self._unjournal({run_id: text for run_id, _e, text in batch})  # committed: out of the journal
             with self._lock:
                 for run_id, e, _text in batch:
                     if self._unsaved.get(run_id) is e:  # not replaced by a later add meanwhile
@@ -386,15 +426,155 @@ class Notebook:
         finally:
             self._writing.release()
 
+    def _start_retrier(self) -> None:
+        """(self._lock held) The retrier, unless it runs."""
+        if self._retrier is None:
+            self._retrier = threading.Thread(target=self._retry, name="notebook-retry", daemon=True)
+            self._retrier.start()
+            _waiting.add(self)
+
+    # ------------------------------------------------------------------ the journal
+    def _journal_unsaved(self) -> tuple[list[str], list[str], str | None]:
+        """Put every entry not written yet in the journal (those already there as they are: nothing
+        to do): all in one rewrite, else (a full disk) one by one, so that what fits is kept. Returns
+        (the run ids the journal holds, those it could not take, why)."""
+        error = None
+        with self._journal_lock:
+            with self._lock:
+                pending = {run_id: self._texts[run_id] for run_id in self._unsaved if run_id in self._texts}
+            new = {run_id: text for run_id, text in pending.items() if self._journaled.get(run_id) != text}
+            for batch in [] if not new else [new] if len(new) == 1 else [new, *({k: v} for k, v in new.items())]:
+                try:
+                    self.journal.change(add=batch)
+                except OSError as e:  # a full disk (ENOSPC, EFBIG), a read-only folder, a pipe at its path
+                    error = e.strerror or str(e) or type(e).__name__
+                    continue
+                self._journaled.update(batch)
+                if batch is new:
+                    break
+            kept = [run_id for run_id, text in pending.items() if self._journaled.get(run_id) == text]
+            return kept, [run_id for run_id in pending if run_id not in kept], error
+
+    def _where(self, kept: list[str], lost: list[str], error: str | None, fate: str) -> str:
+        """Where the runs not written are, in words: the journal (by run id), and those it could not take."""
+        said = []
+        if kept:
+            said.append(f"in the journal {self.journal.path} ({', '.join(kept)}), which the next opening of the "
+                        "notebook imports")
+        if lost:
+            said.append(f"{'the journal ' + self.journal.path if not kept else 'it'} could not take "
+                        f"{', '.join(lost)} ({error}): {fate}")
+        return "; ".join(said)
+
+    def _unjournal(self, committed: dict[str, str]) -> None:
+        """Drop from the journal the entries this notebook put there that are now committed."""
+        with self._journal_lock:
+            done = {run_id: text for run_id, text in committed.items() if self._journaled.get(run_id) == text}
+            if not done:
+                return
+            try:
+                self.journal.change(drop=done)
+            except OSError as e:  # they stay in it: imported again, the same, at the next opening
+                log.warning("notebook %s: runs written, but the journal %s could not be rewritten (%s): its copies "
+                            "of them (%s) are imported again, unchanged, at the next opening", self.path,
+                            self.journal.path, e.strerror or e, ", ".join(done))
+            for run_id in done:
+                del self._journaled[run_id]
+
+    def _import_journal(self) -> None:
+        """At opening: the journal's entries written into the notebook (one transaction), then removed
+        from the journal; its lines that are not entries set aside (<journal>.unreadable). Entries that
+        cannot be written now stay in the journal, listed and retried."""
+        try:
+            entries, bad = self.journal.read()
+        except OSError as e:
+            log.warning("notebook %s: its journal cannot be read (%s); it was left as it is", self.path, e.strerror or e)
+            return
+        left = entries
+        if entries:
+            ids = ", ".join(entries)
+            try:
+                with self._connect() as db:
+                    for run_id, text in entries.items():
+                        db.execute("INSERT INTO runs (run_id, entry) VALUES (?, ?) "
+                                   "ON CONFLICT (run_id) DO UPDATE SET entry = excluded.entry", (run_id, text))
+            except (sqlite3.Error, OSError) as err:
+                why = str(err) or type(err).__name__
+                with self._lock:
+                    for run_id, text in entries.items():
+                        self._unsaved[run_id], self._texts[run_id] = json.loads(text), text
+                    self._journaled.update(entries)
+                    self._failure = why
+                    self._start_retrier()
+                log.warning("notebook %s: the %d run%s of its journal %s could not be written into it (%s): listed, "
+                            "tried again while the app runs, kept in the journal until written (%s)", self.path,
+                            len(entries), "" if len(entries) == 1 else "s", self.journal.path, why, ids)
+                return
+            try:
+                with self._journal_lock:
+                    left = self.journal.change(drop=entries)
+                gone = "the journal removed" if not left and not bad else "removed from the journal"
+            except OSError as e:
+                gone = f"left in it, as the journal could not be rewritten ({e.strerror or e}): imported again next time"
+            log.warning("notebook %s: %d run%s imported from its journal %s (%s) and %s", self.path, len(entries),
+                        "" if len(entries) == 1 else "s", self.journal.path, ids, gone)
+        if bad and not left:
+            try:
+                aside = self.journal.set_aside()
+            except OSError as e:
+                aside = f"{self.journal.path} ({e.strerror or e})"
+            log.warning("notebook %s: its journal had %d line%s that %s not a run (%s): kept in %s", self.path,
+                        len(bad), "" if len(bad) == 1 else "s", "is" if len(bad) == 1 else "are",
+                        "; ".join(line[:60] for line in bad[:5]), aside)
+
+    def _list_journal(self) -> None:
+        """A read-only notebook: the journal's entries listed (not written; imported when it is writable)."""
+        try:
+            entries, _bad = self.journal.read()
+        except OSError:
+            return
+        if entries:
+            self._unsaved.update({run_id: json.loads(text) for run_id, text in entries.items()})
+            log.warning("notebook %s: its journal %s holds %d run%s not in it (%s): listed; imported once the "
+                        "notebook can be written", self.path, self.journal.path, len(entries),
+                        "" if len(entries) == 1 else "s", ", ".join(entries))
+
+    def close(self, wait: float = CLOSE_WAIT) -> list[str]:
+        """At the app's stop: write the entries not written yet, waiting `wait` s at most for a lock;
+        those still not written stay in the journal, and the log names it and them (or, when the
+        journal cannot be written either, says they are lost and names them). Returns the run ids
+        not written into the notebook."""
+        self.closed = True
+        with self._lock:
+            ids = list(self._unsaved)
+        if not ids:
+            return []
+        if self.read_only is not None:
+            log.warning("notebook %s is read-only (%s): the %d run%s added since it was opened are not written: %s",
+                        self.path, self.read_only, len(ids), "" if len(ids) == 1 else "s", ", ".join(ids))
+            return ids
+        self._save(wait)
+        with self._lock:
+            why = self._failure or "another write of them still under way"
+        kept, lost, error = self._journal_unsaved()
+        if not kept and not lost:
+            return []
+        n = len(kept) + len(lost)
+        (log.error if lost else log.warning)(
+            "notebook %s: %d run%s could not be written before the app stopped (%s): %s", self.path, n,
+            "" if n == 1 else "s", why, self._where(kept, lost, error, "lost"))
+        return kept + lost
+
     def _retry(self) -> None:
         """The retrier: writes the unsaved entries, waiting longer after each failure, until none is
-        left (add and flush write them too, at once)."""
+        left or the notebook is closed (add and flush write them too, at once)."""
         delay = RETRY_FIRST
         while True:
             time.sleep(delay)
-            self._save(self.timeout)
+            if not self.closed:  # after close() the journal holds them, or the log said they are lost
+                self._save(self.timeout)
             with self._lock:
-                if not self._unsaved:
+                if not self._unsaved or self.closed:
                     self._retrier = None
                     _waiting.discard(self)
                     return
@@ -406,17 +586,14 @@ _waiting: "weakref.WeakSet[Notebook]" = weakref.WeakSet()  # notebooks with runs
 
 @atexit.register
 def _last_try() -> None:
-    """At exit: one more try to write the runs not saved yet; those still not written are named."""
+    """At an interpreter's exit (a program using the notebook without closing it; `python -m app`
+    closes its own): close() each notebook with runs not written yet."""
     for nb in list(_waiting):
-        try:
-            left = nb.flush(timeout=1.0)
-        except Exception:  # noqa: BLE001 - said below
-            left = nb.not_saved()[0]
-        if left:
-            with nb._lock:
-                names = ", ".join(list(nb._unsaved)[:20])
-            log.error("notebook %s: %d run%s could not be saved (%s) and are lost: %s", nb.path, left,
-                      "" if left == 1 else "s", nb._failure, names)
+        if not nb.closed:
+            try:
+                nb.close()
+            except Exception:  # noqa: BLE001 - the exit goes on; the journal holds what it could
+                log.exception("notebook %s: closing it failed", nb.path)
 
 
 class _Closing:
@@ -485,11 +662,22 @@ def entry_from_summary(summary, started: float, recording: str | None) -> dict:
         "run_id": summary.run_id,
         "started": time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(started)),
         "robot": cfg.robot, "method": cfg.method, "seed": cfg.seed, "settings": cfg.to_dict(),
+        # the robot's identity is its string and its URDF's bytes (a replay says when the file changed or went)
+        "urdf_sha256": _urdf_sha256(cfg.robot),
         **numbers, "seconds": round(float(numbers["seconds"]), 3),
         "train_mse": finite(numbers["train_mse"]), "test_mse": finite(numbers["test_mse"]),
         "recording": str(recording) if recording else None,
         "controller": summary.controller.to_dict() if summary.controller is not None else None,
     }
+
+
+def _urdf_sha256(robot: str) -> str | None:
+    import robots
+
+    try:
+        return robots.load(robot).urdf_sha256
+    except Exception:  # noqa: BLE001 - the entry is kept whatever its robot
+        return None
 
 
 def label(entry: dict) -> str:
