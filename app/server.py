@@ -35,6 +35,7 @@ from app.classroom.access import Access, is_loopback
 from app.classroom.class_runs import ClassRuns
 from app.classroom.lesson import lesson_link, lesson_params, open_lesson
 from app.classroom.limits import limits_for
+from app.failures import FailureLog
 from app.panels.class_board import ClassBoard
 from app.panels.my_run import MyRunPanel
 from app.panels.runs import RunsPanel
@@ -81,6 +82,9 @@ HALL_TABS = 25
 # the tabs): a server up for a day of classes grew by about 1 MB a run (benchmarks/bench_app.py --soak),
 # flat once it hands that back, which it does this often
 TRIM_PERIOD = 30.0  # s
+# A tab whose redraw fails in the render loop is reset (its goals back to the defaults, its scene rebuilt)
+# at most this often: the loop serves the other tabs, and the log has the first traceback, then a count
+TAB_RESET_PERIOD = 5.0  # s
 
 
 def release_freed_memory() -> bool:
@@ -178,6 +182,8 @@ class LabApp:
         self._gone: set[int] = set()  # ids of closed tabs (ids are never reused)
         self.latency: deque = deque(maxlen=100_000)  # (tab, callback start, pose flushed) of marker updates
         self._stop = threading.Event()
+        self.failures = FailureLog(log)  # the render loop's: a traceback once per tab, then a count a minute
+        self.passes = 0  # render loop passes done
         gui = self.server.gui
         # a classroom shows no "share" button (a public tunnel; only a presenter could use it anyway)
         gui.configure_theme(control_width="large", show_share_button=not self.access.restricted)
@@ -262,7 +268,10 @@ class LabApp:
         """Each tab's lesson link for the panel's current settings (at the address that tab used)."""
         params = lesson_params(self.panel)
         for s in sessions:
-            s.show_lesson(lesson_link(s.page_url, params), params)
+            try:
+                s.show_lesson(lesson_link(s.page_url, params), params)
+            except Exception:  # noqa: BLE001 - one tab's failure never stops the others'
+                self._tab_failed(s, "lesson link")
 
     def _disconnect(self, client: viser.ClientHandle) -> None:
         with self._sessions_lock:
@@ -404,8 +413,9 @@ class LabApp:
                 if t0 - last_trim > TRIM_PERIOD:
                     last_trim = t0
                     release_freed_memory()
-            except Exception:  # the loop must survive anything one frame does
-                log.exception("render loop")
+            except Exception:  # the loop must survive anything one frame does: a traceback once, then a count
+                self.failures.failed("loop", "render loop")
+            self.passes += 1
             self._stop.wait(max(0.0, period - (time.perf_counter() - t0)))
 
     def _refresh_class(self, sessions: list) -> None:
@@ -416,15 +426,42 @@ class LabApp:
                 try:
                     s.my_run.refresh()
                 except Exception:  # noqa: BLE001 - one tab's panel never stops the others'
-                    log.exception("my run panel of tab %s", s.client.client_id)
+                    self._tab_failed(s, "My experiment panel")
 
-    @staticmethod
-    def _sync_replays(sessions: list) -> None:
+    def _sync_replays(self, sessions: list) -> None:
         """Each viewer tab's own replay (a method: no loop variable of the render loop keeps the last
         tab, its client and its scene alive after it has closed)."""
         for s in sessions:
             if getattr(s, "replay", None) is not None:
-                s.replay.sync()
+                try:
+                    s.replay.sync()
+                except Exception:  # noqa: BLE001 - one tab's failure never stops the others'
+                    self._tab_failed(s, "replay")
+
+    def _refresh_tab(self, s) -> bool:
+        """s.refresh(); a failure is the tab's alone: logged once (then counted), the tab reset."""
+        try:
+            return s.refresh()
+        except Exception:  # noqa: BLE001 - whatever one tab holds, the loop serves the others
+            self._tab_failed(s, "redraw")
+            return False
+
+    def _tab_failed(self, s, what: str) -> None:
+        """Call in an `except` block of the render loop for tab s: the first failure's traceback (later
+        ones counted, app/failures.py); the tab reset (its goals back to the defaults, its scene rebuilt:
+        TabSession.build) and told, at most every TAB_RESET_PERIOD."""
+        cid = s.client.client_id
+        self.failures.failed(("tab", cid, what), f"render loop: tab {cid}'s {what}")
+        now = time.monotonic()
+        if now - getattr(s, "reset_at", -math.inf) < TAB_RESET_PERIOD or s.closed:
+            return
+        s.reset_at = now
+        try:
+            s.build()
+            s.version = -1  # the next pass redraws it all
+            notify(s.client, "Reset", f"This tab's {what} failed; its goals are back at their defaults.")
+        except Exception:  # noqa: BLE001 - a tab that cannot be rebuilt is left as it is, logged once
+            self.failures.failed(("reset", cid), f"render loop: reset of tab {cid}")
 
     def _refresh_tabs(self, sessions: list, turn: int) -> int:
         """Refresh every presenter tab of a restricted server (a classroom's), and the other tabs in
@@ -437,7 +474,7 @@ class LabApp:
         hall = max(REDRAW_PERIOD, len(viewers) / HALL_REDRAWS)
         for s in sessions:
             if s.presenter and restricted:
-                s.refresh()
+                self._refresh_tab(s)
         for s in viewers:
             s.period = hall
         if not viewers:
@@ -446,7 +483,7 @@ class LabApp:
         turn %= n
         for k in range(n):
             s = viewers[(turn + k) % n]
-            if s.refresh():
+            if self._refresh_tab(s):
                 budget -= 1
                 if budget == 0:
                     return (turn + k + 1) % n

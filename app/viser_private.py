@@ -208,10 +208,16 @@ def _message_buffer_class():
 # (GuiApi._handle_gui_updates: `type(current)(value)`, `assert hasattr(state, prop)`) in a task of its
 # event loop that nobody awaits: a slider sent "abc", a checkbox sent an unknown property, raises,
 # and asyncio prints an 8-line "Task exception was never retrieved" per message; NaN, a string to a
-# checkbox (bool("abc") is True) or an out-of-list dropdown value are even applied. The gate checks
-# every GuiUpdateMessage against its element (shared or per-tab) before viser sees it, drops a bad
-# one, and catches whatever a tab's message still raises in any handler: one log line per tab per
-# BAD_LOG_PERIOD seconds, the count of the others in the next line, never a traceback.
+# checkbox (bool("abc") is True) or an out-of-list dropdown value are even applied (the last raised
+# in the lab's callbacks: StopIteration, KeyError, a render loop failing on every pass, issue #55).
+# A gizmo's TransformControlsUpdateMessage is applied as it comes (SceneApi._handle_transform_controls_
+# updates): an orientation (NaN, 0, 0, 0) or (0, 0, 0, 0) became the goal's and raised in every redraw.
+# The gate checks every value a tab sends against its element before viser applies it (a GUI value:
+# its type, a dropdown's options, a slider's or number's min and max, an RGB's 0..255; a gizmo: a
+# finite nonzero quaternion, normalised, and a finite position; a camera: finite numbers), drops a bad
+# one before any callback, and catches whatever a tab's message still raises in any handler: one log
+# line per tab per BAD_LOG_PERIOD seconds, the count of the others in the next line, never a
+# traceback, and the same line to the tab as a notification (at most one a BAD_LOG_PERIOD).
 # A frame that is not a viser message at all (not msgpack, no known type, a text frame) ends the tab's
 # connection in viser's reader (viser.infra._infra._message_consumer), which is right, but the error
 # escapes viser's connection handler and websockets logs a 13-line "connection handler failed"
@@ -220,38 +226,113 @@ def _message_buffer_class():
 # of a server with the count of the others, never a traceback.
 BAD_LOG_PERIOD = 60.0  # s: at most one log line per tab in this while
 MAX_TEXT = 10_000  # characters of a text value a tab may send
+MAX_COORD = 1e6  # a gizmo's or camera's coordinate beyond this is no place in any workspace here
 _bad_log: dict = {}  # (event loop id, client id) -> [time of the last line, messages dropped since]
 _bad_lock = threading.Lock()
+_option_sets: dict = {}  # id(options tuple) -> (that tuple, its frozenset): a dropdown's check is O(1)
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _in_options(value: str, options) -> bool:
+    """value in options, by a set made once per options tuple (a runs list can be long)."""
+    entry = _option_sets.get(id(options))
+    if entry is None or entry[0] is not options:
+        if len(_option_sets) > 1000:  # options replaced over a long day: forget the old ones
+            _option_sets.clear()
+        entry = _option_sets[id(options)] = (options, frozenset(options))  # keeps the tuple: its id stays its own
+    return value in entry[1]
+
+
+def _bound(limit, k: int):
+    """The k-th entry of a min or max (a number for every entry, a tuple of one each, or None)."""
+    if isinstance(limit, (tuple, list)):
+        return limit[k] if k < len(limit) else None
+    return limit
+
+
+def _within(v, lo, hi) -> bool:
+    span = (hi - lo) if _number(lo) and _number(hi) else 1.0
+    eps = 1e-9 * max(1.0, abs(span))  # a slider's steps as floats
+    return (not _number(lo) or v >= lo - eps) and (not _number(hi) or v <= hi + eps)
 
 
 def gui_update_problem(state, updates) -> str | None:
     """Why a tab's GuiUpdateMessage `updates` may not be applied to an element whose state is `state`
-    (viser's _GuiHandleState), or None. A browser only ever sends {"value": ...} of the element's type."""
+    (viser's _GuiHandleState: value, props), or None. A browser only ever sends {"value": ...} of the
+    element's type: one of a dropdown's (or button group's) options, a number within the element's min
+    and max (where it has them), an RGB colour's 0..255."""
     if not isinstance(updates, dict) or set(updates) != {"value"}:
         return f"properties {sorted(map(str, updates))[:5] if isinstance(updates, dict) else updates!r:.40} (only value may be sent)"
     value, current = updates["value"], getattr(state, "value", None)
-
-    def number(v) -> bool:
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
+    props = getattr(state, "props", state)
+    lo, hi = getattr(props, "min", None), getattr(props, "max", None)
+    if lo is None and hi is None and "Rgb" in type(props).__name__:
+        lo, hi = 0, 255
+    why = "for a {} element"
     if getattr(state, "is_button", False) and isinstance(current, bool):
         ok = value is True
     elif isinstance(current, bool):
         ok = isinstance(value, bool)
     elif isinstance(current, (int, float)):
-        ok = number(value)
+        ok = _number(value)
+        if ok and not _within(value, lo, hi):
+            ok, why = False, f"outside {lo}..{hi} of its {{}} element"
     elif isinstance(current, str):
         ok = isinstance(value, str) and len(value) <= MAX_TEXT
-        options = getattr(state, "options", None)
-        if ok and isinstance(options, (tuple, list)) and options and all(isinstance(o, str) for o in options):
-            ok = value in options
+        options = getattr(props, "options", None)
+        if ok and isinstance(options, tuple) and options and not _in_options(value, options):
+            ok, why = False, "not one of its {} element's options"
     elif isinstance(current, tuple):
         ok = (isinstance(value, (list, tuple)) and len(value) == len(current)
-              and all(number(v) if isinstance(c, (int, float)) and not isinstance(c, bool) else type(v) is type(c)
+              and all(_number(v) if isinstance(c, (int, float)) and not isinstance(c, bool) else type(v) is type(c)
                       for v, c in zip(value, current)))
+        if ok and not all(_within(v, _bound(lo, k), _bound(hi, k)) for k, v in enumerate(value) if _number(v)):
+            ok, why = False, f"outside {lo}..{hi} of its {{}} element"
     else:  # an upload's file, a value the browser never sends
         ok = False
-    return None if ok else f"value {value!r:.40} for a {type(current).__name__} element"
+    return None if ok else f"value {value!r:.40} " + why.format(type(current).__name__)
+
+
+_NUMBER_TYPES = frozenset((int, float))  # bool is neither
+
+
+def _finite(values, n: int) -> bool:
+    """values: n numbers (not bools), each finite and within MAX_COORD."""
+    return (type(values) in (tuple, list) and len(values) == n and {type(v) for v in values} <= _NUMBER_TYPES
+            and max(map(abs, values)) <= MAX_COORD)  # NaN compares False: max is NaN or not <= MAX_COORD
+
+
+def transform_problem(message) -> str | None:
+    """Why a tab's TransformControlsUpdateMessage may not move its gizmo, or None: its orientation must
+    be a finite nonzero quaternion (w, x, y, z) and its position finite. A good one's quaternion is
+    normalised in place (a browser's float32 one is off by ~1e-7; the goal is a rotation)."""
+    q, p = getattr(message, "wxyz", None), getattr(message, "position", None)
+    if not _finite(q, 4):
+        return f"gizmo orientation {q!r:.60} (not a finite quaternion)"
+    w, x, y, z = q
+    norm2 = w * w + x * x + y * y + z * z
+    if norm2 < 1e-12:
+        return f"gizmo orientation {tuple(q)!r:.60} (a zero quaternion is no rotation)"
+    if not _finite(p, 3):
+        return f"gizmo position {p!r:.60} (not a finite point)"
+    if abs(norm2 - 1.0) > 1e-12:
+        norm = math.sqrt(norm2)
+        message.wxyz = (w / norm, x / norm, y / norm, z / norm)
+    return None
+
+
+def camera_problem(message) -> str | None:
+    """Why a tab's ViewerCameraMessage may not be applied (a number that is not finite), or None."""
+    for name, n in (("wxyz", 4), ("position", 3), ("look_at", 3), ("up_direction", 3)):
+        if not _finite(getattr(message, name, None), n):
+            return f"camera {name} {getattr(message, name, None)!r:.60} (not finite)"
+    for name in ("fov", "near", "far", "image_height", "image_width"):
+        if not _number(getattr(message, name, None)):
+            return f"camera {name} {getattr(message, name, None)!r:.40} (not a finite number)"
+    return None
 
 
 def _quiet_since(key) -> int | None:
@@ -277,8 +358,9 @@ def _loop_id():
         return None
 
 
-def report_bad_message(client_id, what: str) -> None:
-    """Log a tab's dropped message: one line per tab per BAD_LOG_PERIOD (per server: its event loop)."""
+def report_bad_message(client_id, what: str, tell=None) -> None:
+    """Log a tab's dropped message: one line per tab per BAD_LOG_PERIOD (per server: its event loop);
+    tell(text), when given, says the same to the tab (a notification) when the line is logged."""
     dropped = _quiet_since((_loop_id(), client_id))
     if dropped is None:
         return
@@ -286,6 +368,31 @@ def report_bad_message(client_id, what: str) -> None:
     logging.getLogger("app.viser").warning(
         "tab %s sent an invalid message, dropped: %s%s; further ones are logged at most once a minute",
         client_id, what, more)
+    if tell is not None:
+        try:
+            tell(f"Not applied: {what}. Further invalid values from this tab are dropped without a word "
+                 f"for a minute.")
+        except Exception:  # noqa: BLE001 - the tab has gone: nobody to tell
+            pass
+
+
+def _teller(owner, client_id):
+    """tell(text): a notification in tab client_id, for a GuiApi's or SceneApi's owner (a ViserServer or
+    the tab's ClientHandle)."""
+    def tell(text: str) -> None:
+        client = owner.get_clients().get(client_id) if hasattr(owner, "get_clients") else owner
+        if client is not None:
+            client.add_notification("Not applied", text, auto_close_seconds=8.0, color="red")
+    return tell
+
+
+def _tell_connection(connection, text: str) -> None:
+    """A notification in the tab of a viser WebsockClientConnection (what ClientHandle.add_notification queues)."""
+    from viser import _messages
+
+    props = _messages.NotificationProps(title="Not applied", body=text, loading=False, with_close_button=True,
+                                        auto_close_seconds=8.0, color="red")
+    connection.queue_message(_messages.NotificationShowMessage(uuid=f"lab-gate-{time.monotonic_ns()}", props=props))
 
 
 def report_unreadable_frame(address, what: str) -> None:
@@ -327,19 +434,23 @@ def install_message_gate() -> None:
     for every ViserServer and tab created from now on (call it before creating the server); idempotent.
     ViserChanged, naming it, when what it wraps is gone."""
     try:
+        from viser import _messages
         from viser._gui_api import GuiApi
+        from viser._scene_api import SceneApi
         from viser.infra import _infra
         from viser.infra._infra import WebsockMessageHandler
     except ImportError as e:
         raise ViserChanged(f"viser changed: {e}; bad messages cannot be dropped") from e
     if not inspect.iscoroutinefunction(getattr(_infra, "_message_consumer", None)):
         raise ViserChanged("viser changed: viser.infra._infra._message_consumer is not a coroutine function any more")
-    for cls, name in ((GuiApi, "_handle_gui_updates"), (WebsockMessageHandler, "_handle_incoming_message")):
+    for cls, name in ((GuiApi, "_handle_gui_updates"), (WebsockMessageHandler, "_handle_incoming_message"),
+                      (SceneApi, "_handle_transform_controls_updates")):
         if not inspect.iscoroutinefunction(getattr(cls, name, None)):
             raise ViserChanged(f"viser changed: {cls.__name__}.{name} is not a coroutine function any more")
     if getattr(GuiApi, "_lab_gated", False):
         return
     apply_update, dispatch = GuiApi._handle_gui_updates, WebsockMessageHandler._handle_incoming_message
+    move_gizmo = SceneApi._handle_transform_controls_updates
 
     async def _handle_gui_updates(self, client_id, message):
         handle = self._gui_input_handle_from_uuid.get(message.uuid)
@@ -347,17 +458,33 @@ def install_message_gate() -> None:
             problem = gui_update_problem(handle._impl, message.updates)
             if problem is not None:
                 label = getattr(getattr(handle._impl, "props", None), "label", None)  # viser 1.1: props.label
-                report_bad_message(client_id, f"{label if isinstance(label, str) else '?'!r:.40}: {problem}")
+                report_bad_message(client_id, f"{label if isinstance(label, str) else '?'!r:.40}: {problem}",
+                                   _teller(self._owner, client_id))
                 return
         await apply_update(self, client_id, message)
 
+    async def _handle_transform_controls_updates(self, client_id, message):
+        # runs only in the scope (server or tab) whose owner the message names: one report per message
+        problem = transform_problem(message)
+        if problem is not None:
+            report_bad_message(client_id, problem, _teller(self._owner, client_id))
+            return
+        await move_gizmo(self, client_id, message)
+
     async def _handle_incoming_message(self, client_id, message):
+        if type(message) is camera and type(message) in self._incoming_handlers:  # the tab's connection
+            problem = camera_problem(message)
+            if problem is not None:
+                report_bad_message(client_id, problem, lambda text: _tell_connection(self, text))
+                return
         try:
             await dispatch(self, client_id, message)
         except Exception as e:  # noqa: BLE001 - a tab's message: dropped, told once a minute
             report_bad_message(client_id, f"{type(message).__name__} raised {type(e).__name__}: {e!s:.80}")
 
+    camera = _messages.ViewerCameraMessage
     GuiApi._handle_gui_updates = _handle_gui_updates
+    SceneApi._handle_transform_controls_updates = _handle_transform_controls_updates
     WebsockMessageHandler._handle_incoming_message = _handle_incoming_message
     _infra._message_consumer = _read_messages  # looked up by name in viser's connection handler, per tab
     GuiApi._lab_gated = True

@@ -241,5 +241,43 @@ def test_the_message_gate_checks_each_value_against_its_element():
     assert problem(S(value=False, is_button=True), {"value": True}) is None
     assert problem(S(value=False, is_button=True), {"value": False}) is not None
     assert problem(number, "not a dict") is not None
+    # viser keeps an element's options, min and max in its props: a dropdown's value must be one of its
+    # options, a slider's (a number's, a vector's) within min..max, a colour's 0..255 (issue #55)
+    dropdown = S(value="CMA-ES", props=S(options=("CMA-ES", "NEAT")))
+    assert problem(dropdown, {"value": "NEAT"}) is None
+    for bad in ("No such", "warp", "", 5, None):
+        assert problem(dropdown, {"value": bad}) is not None, bad
+    assert "options" in problem(dropdown, {"value": "No such"})
+    slider = S(value=0.0, props=S(min=0, max=10, step=1))
+    assert problem(slider, {"value": 10}) is None and problem(slider, {"value": 0}) is None
+    for bad in (-1, 10.5, 1e300, -1e300, float("nan")):
+        assert problem(slider, {"value": bad}) is not None, bad
+    vector = S(value=(0.0, 0.0), props=S(min=(0.0, -1.0), max=(1.0, 1.0)))
+    assert problem(vector, {"value": [1, -1]}) is None and problem(vector, {"value": [1, -2]}) is not None
+    rgb = S(value=(10, 20, 30), props=type("GuiRgbProps", (), {})())
+    assert problem(rgb, {"value": [0, 255, 9]}) is None and problem(rgb, {"value": [0, 256, 9]}) is not None
+    free = S(value=50.0, props=S(min=None, max=None))  # a number without bounds: any finite one
+    assert problem(free, {"value": 1e9}) is None and problem(free, {"value": float("inf")}) is not None
     viser_private.install_message_gate()
     viser_private.install_message_gate()  # idempotent
+
+
+def test_the_gate_takes_a_gizmo_s_pose_only_as_a_finite_rotation_and_point():
+    """transform_problem: a gizmo's orientation must be a finite nonzero quaternion (normalised in place,
+    as the goal is a rotation), its position a finite point (issue #55: (NaN, 0, 0, 0) broke the render
+    loop); camera_problem: a camera's numbers finite."""
+    from types import SimpleNamespace as S
+
+    nan, inf = float("nan"), float("inf")
+    for wxyz in ((nan, 0, 0, 0), (0, 0, 0, 0), (inf, 0, 0, 0), (1, 0, 0), (1e300, 1e300, 0, 0), ("a", 0, 0, 0), None):
+        assert viser_private.transform_problem(S(wxyz=wxyz, position=(0.0, 0.0, 0.0))) is not None, wxyz
+    for position in ((nan, 0, 0), (0, inf, 0), (0, 0), (1e300, 0, 0), None, (True, 0, 0)):
+        assert viser_private.transform_problem(S(wxyz=(1.0, 0, 0, 0), position=position)) is not None, position
+    good = S(wxyz=(2.0, 0.0, 0.0, 2.0), position=(0.1, -0.2, 0.3))
+    assert viser_private.transform_problem(good) is None
+    assert good.wxyz == pytest.approx((2 ** -0.5, 0.0, 0.0, 2 ** -0.5), abs=1e-15)
+    camera = dict(wxyz=(1.0, 0.0, 0.0, 0.0), position=(0.0, -3.0, 2.0), fov=1.0, near=0.01, far=1000.0,
+                  image_height=800, image_width=1280, look_at=(0.0, 0.0, 0.0), up_direction=(0.0, 0.0, 1.0))
+    assert viser_private.camera_problem(S(**camera)) is None
+    for name, bad in (("wxyz", (nan, 0, 0, 0)), ("position", (0, inf, 0)), ("fov", nan), ("image_width", None)):
+        assert viser_private.camera_problem(S(**{**camera, name: bad})) is not None, name

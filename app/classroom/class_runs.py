@@ -25,7 +25,7 @@ is whole.
 
 Names are labels, not identities: at most NAME_MAX characters, letters, digits, spaces and . _ ' -
 (anything else is refused, naming the characters), unique per server among the open tabs (compared
-without case). A tab without one is "student N".
+after NFKC and case folding, name_key: a fullwidth "ＡＤＡ" is the "Ada" it looks like). A tab without one is "student N".
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ import logging
 import os
 import threading
 import time
+import unicodedata
 import uuid
 from collections import deque
 
@@ -84,6 +85,12 @@ def clean_name(text) -> tuple[str | None, str | None]:
     return name, None
 
 
+def name_key(name: str) -> str:
+    """What two names are compared by: NFKC folding (fullwidth, ligatures, compatibility forms) and
+    case folding, NFKC again after it (Unicode's NFKC_Casefold, near enough): "ＡＤＡ", "ada" and "Ada" are one."""
+    return unicodedata.normalize("NFKC", unicodedata.normalize("NFKC", name).casefold())
+
+
 def describe(config: lab.TrainConfig) -> str:
     """A run's settings in a few words ("planar, CMA-ES, pop 20, 16 hidden, 70 goals, 20 gen, seed 0")."""
     length = f"{config.seconds:g} s" if config.seconds is not None else f"{config.generations:,} gen"
@@ -104,6 +111,7 @@ class StudentRun:
         self.track = RunTrack(lab.methods.get(config.method))
         self.summary = None
         self.note: str | None = None  # why it stopped or failed, when not by its own end
+        self.stopping = False  # a Stop is under way (one thread waits for its worker: ClassRuns.stop)
         self.submitted = time.time()
         self.started: float | None = None
         self.ended_at: float | None = None  # time.time() of its end (ClassRuns._ended)
@@ -174,7 +182,8 @@ class ClassRuns:
         self._numbers = itertools.count(1)
         self.closed = False
         self.version = 0  # bumped at every change of a run's state (the board redraws)
-        self._seats: dict[str, dict[int, int]] = {}  # a lesson -> {tab: its seat} (lesson_seat)
+        self._seats: dict[str, dict[int, int]] = {}  # a lesson -> {open tab: its seat} (lesson_seat)
+        self._next_seat: dict[str, int] = {}  # a lesson -> the seat its next tab gets
         self.board_since = 0.0  # time.time() of the presenter's "New board": earlier runs leave the board
         self.boards = 1  # the board's number (1 until the presenter's first New board)
 
@@ -190,8 +199,8 @@ class ClassRuns:
             return name
 
     def _taken(self, name: str, tab: int) -> bool:
-        key = name.casefold()
-        return any(n.casefold() == key for t, n in self._names.items() if t != tab)
+        key = name_key(name)
+        return any(name_key(n) == key for t, n in self._names.items() if t != tab)
 
     def set_name(self, tab: int, text) -> str | None:
         """Give the tab this name (None) or refuse, saying why (cleaned as clean_name; taken)."""
@@ -214,7 +223,10 @@ class ClassRuns:
         seat's part."""
         with self._lock:
             seats = self._seats.setdefault(lesson, {})
-            return seats.setdefault(tab, len(seats))
+            if tab not in seats:
+                seats[tab] = self._next_seat.get(lesson, 0)
+                self._next_seat[lesson] = seats[tab] + 1
+            return seats[tab]
 
     # ------------------------------------------------------------------ runs
     def run_of(self, tab: int) -> StudentRun | None:
@@ -317,20 +329,23 @@ class ClassRuns:
     def stop(self, run_id: str, note: str | None = None, wait: bool = False) -> str | None:
         """Stop a run: a queued one leaves the queue (stopped, never started), a running one ends after
         its generation in flight (its worker killed if it has not stop_grace s later). Refused when
-        there is no such run or it has ended."""
+        there is no such run or it has ended; a run already stopping is left to the Stop under way."""
         with self._lock:
             run = self.runs.get(run_id)
             if run is None:
                 return "refused: no such run"
             if run.ended:
                 return f"refused: this run has already {run.state}"
+            if run.stopping:  # its Stop is under way: one thread a run, however often Stop is pressed
+                return None
             run.note = note
             if run.state == "queued":
                 self._queue.remove(run)
                 run.state = "stopped"
                 self.version += 1
                 return None
-            runner = run.runner
+            runner, run.stopping = run.runner, True
+            self.version += 1
         if wait:
             runner.stop_or_kill(self.stop_grace)
         else:
@@ -352,6 +367,10 @@ class ClassRuns:
             self.stop(run.id, "its tab closed")
         with self._lock:
             self._names.pop(tab, None)
+            for lesson in [k for k, seats in self._seats.items() if tab in seats]:  # a closed tab holds no seat
+                del self._seats[lesson][tab]
+                if not self._seats[lesson]:  # the lesson's last tab: it starts again from seat 0
+                    del self._seats[lesson], self._next_seat[lesson]
 
     def shutdown(self) -> None:
         """The server stops: every queued run ends stopped (its notebook entry written, 0 generations)

@@ -21,6 +21,26 @@ LAB = {"population": config_mod.LIMITS["population"], "hidden": config_mod.LIMIT
        "goals": config_mod.LIMITS["goals"], "generations": 10**9, "seconds": 10**9}
 
 
+# what a tab calls each setting (the labels of My experiment's and the Train panel's fields), by --limit
+# name and by TrainConfig field: a refusal a student or presenter reads names the field they see; the
+# Python API's own errors (lab.TrainConfig's) keep the API's names
+LABELS = {"population": "Population", "hidden": "Hidden units", "goals": "Goals", "targets": "Goals",
+          "generations": "Generations", "seconds": "Time budget (s)", "seed": "Seed"}
+
+
+def in_labels(text: str) -> str:
+    """A refusal in the lab's words ("targets must be an integer in 1..1,000,000, got 0") in the tab's
+    ("Goals must be an integer in 1..1,000,000, got 0"): its first word, when that is a field, as its label."""
+    name, sep, rest = text.partition(" ")
+    return f"{LABELS[name]} {rest}" if sep and name in LABELS else text
+
+
+def refused(why: str) -> str:
+    """"refused: why", saying it once: a reason passed on that already says it (an access refusal) is
+    not prefixed again."""
+    return why if why.startswith("refused") else f"refused: {why}"
+
+
 def _shown(text: str, most: int = 40) -> str:
     """text as a message shows it: its repr, cut to `most` characters (a value may be megabytes)."""
     return repr(text) if len(text) <= most else f"{text[:most]!r}... ({len(text):,} characters)"
@@ -66,7 +86,7 @@ def refusal(config, limits: dict[str, int] | None) -> str | None:
             continue
         value = getattr(config, FIELD[name], None)
         if value is not None and value > most:
-            label = {"goals": "training goals", "seconds": "a time budget (seconds)"}.get(name, name)
+            label = LABELS[name]
             shown = f"{value:,}" if isinstance(value, int) else f"{value:g}"
             return (f"{label} must be at most {most:,} on this shared server, got {shown} "
                     f"(start it with --limit {name}=N to raise it)")

@@ -25,6 +25,8 @@ import threading
 import time
 from collections import deque
 
+from app.classroom.limits import refused
+
 from app.classroom.files import kind_of, not_a_file
 
 MAX_UPLOAD = 200 * 2**20  # bytes, one file
@@ -142,7 +144,7 @@ class UploadGuard:
         """Whether viser may receive this upload of `parts` parts (a refusal is told to the tab)."""
         reason = self.refusal(client_id, filename, size, transfer_id, parts)
         if reason is not None:
-            self._tell(client_id, f"refused: {reason}")
+            self._tell(client_id, refused(reason))  # once: an access refusal already says it
             return False
         return True
 

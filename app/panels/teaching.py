@@ -142,7 +142,13 @@ class RaceFields:
         self.method.on_update(lambda _e: self._fill_defaults())
 
     def _method_name(self) -> str:
-        return next(m.name for m in methods.all_methods() if m.label == self.method.value)
+        """The registry's name of the chosen method; ValueError naming the value if it is none of them
+        (the message gate keeps a tab's dropdown within its options: app/viser_private.py)."""
+        name = next((m.name for m in methods.all_methods() if m.label == self.method.value), None)
+        if name is None:
+            raise ValueError(f"method {self.method.value!r:.40} is not one of "
+                             f"{', '.join(m.label for m in methods.all_methods())}")
+        return name
 
     def _fill_defaults(self) -> None:
         d = lab.TrainConfig.preset(robot=self.panel.robot.value, method=self._method_name())

@@ -20,6 +20,22 @@ import robots
 from lab.problem.checks import shown
 
 
+def check_robot(robot) -> None:
+    """ValueError, naming the robot and the known ones, unless `robot` is an Arm or a string whose source
+    robots.load can read (a registered name, erd:NAME of example-robot-data, a URDF file): checked
+    without building the arm, before any work."""
+    if isinstance(robot, robots.Arm):
+        return
+    if not isinstance(robot, str) or not robot:
+        load_arm(robot)  # the message of a robot that is no string
+    from robots import sources
+
+    try:
+        sources.origin_of(sources.split(robot)[0])
+    except OSError as e:
+        raise ValueError(f"unknown robot {robot!r}: {e}") from None
+
+
 def load_arm(robot, ee: str | None = None) -> robots.Arm:
     """The Arm of `robot` (an Arm as it is; a string as robots.load builds it, with the tool frame `ee`
     where given). ValueError naming the robot, and what robots.load said, otherwise."""

@@ -31,7 +31,7 @@ from lab.problem.checks import flag, real, shown, whole
 from lab.problem.controllers import MAX_HEADS
 from lab.problem.encoding import FEATURES
 from lab.problem.pose_encoding import can_reach, check_goal, check_pose_robot, default_reach
-from lab.problem.robot import load_arm, robot_name
+from lab.problem.robot import check_robot, load_arm, robot_name
 
 # upper bounds that keep a run within this machine's memory and time (a population of 10^9 would
 # hang in pycma's or neat's setup; hidden 256 is a CMA-ES search space of about 2,300 weights)
@@ -98,8 +98,7 @@ class TrainConfig:
 
     def __post_init__(self):
         method = methods.get(self.method)
-        if not isinstance(self.robot, str):
-            load_arm(self.robot)  # unknown robot ..., by name
+        check_robot(self.robot)  # unknown robot ..., by name, before any work
         check_goal(self.goal)
         self._check(method)  # what was given, before any arm is loaded
         arm = load_arm(self.robot)  # a registered name, erd:NAME or a URDF path (robots.load)
