@@ -21,11 +21,11 @@ def test_every_arms_defaults_fit_the_classroom_bounds(method):
 def test_the_largest_lab_settings_are_refused_by_a_shared_server():
     big = lab.TrainConfig.preset(robot="planar", population=10_000, hidden=256)
     why = refusal(big, limits_for(False))
-    assert "population must be at most 200" in why and "--limit population=N" in why
+    assert "Population must be at most 200" in why and "--limit population=N" in why
     assert refusal(big, limits_for(True)) is None  # loopback: the lab's own bounds
     assert refusal(big, limits_for(False, {"population": 10_000, "hidden": 256})) is None
-    assert "training goals" in refusal(lab.TrainConfig.preset(robot="planar", targets=5000), CLASSROOM)
-    assert "generations" in refusal(lab.TrainConfig.preset(robot="planar", generations=10**6), CLASSROOM)
+    assert "Goals must be at most 3,000" in refusal(lab.TrainConfig.preset(robot="planar", targets=5000), CLASSROOM)
+    assert "Generations" in refusal(lab.TrainConfig.preset(robot="planar", generations=10**6), CLASSROOM)
 
 
 @pytest.mark.parametrize("text,why", [("population", "NAME=N"), ("speed=3", "NAME=N"), ("hidden=x", "whole number"),
@@ -48,7 +48,7 @@ def test_a_shared_server_refuses_settings_beyond_its_bounds_in_the_panel_and_at_
         app.panel.hidden.value = 65.0
         assert app.panel.hidden.value == 5 and "at most 64" in app.panel.message.content
         msg = app.state.start(lab.TrainConfig.preset(robot="planar", population=101, generations=5))
-        assert msg and "population must be at most 100" in msg and not app.state.running
+        assert msg and "Population must be at most 100" in msg and not app.state.running
     finally:
         app.stop()
 
@@ -140,7 +140,7 @@ def test_the_time_budget_field_cannot_be_pushed_past_the_servers_limit_over_the_
         assert wait_until(lambda: not app.state.running, 60)
         # the start path checks it too (a budget the field never showed)
         msg = app.state.start(lab.TrainConfig.preset(robot="planar", seconds=601.0))
-        assert msg and "time budget (seconds) must be at most 600" in msg and not app.state.running
+        assert msg and "Time budget (s) must be at most 600" in msg and not app.state.running
         assert "Traceback" not in caplog.text, caplog.text[-3000:]
     finally:
         for probe in tabs:

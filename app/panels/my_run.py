@@ -25,6 +25,7 @@ import robots
 from lab import methods
 
 from app.classroom.class_runs import ClassRuns, describe
+from app.classroom.limits import in_labels
 from app.classroom.lesson import LESSONS, is_lesson, lesson_configs
 from app.classroom.student_run import queue_wait, student_length, wait_words
 from app.panels.train import notify
@@ -166,13 +167,16 @@ class MyRunPanel:
                             ("generations", self.generations), ("seed", self.seed), ("seconds", self.budget)):
             v = handle.value
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v) or not float(v).is_integer():
-                raise ValueError(f"{handle.label.lower()} must be a whole number, got {v!r}")
+                raise ValueError(f"{handle.label} must be a whole number, got {v!r}")
             values[key] = int(v)
         seconds = values.pop("seconds")
         if seconds < 0:
-            raise ValueError(f"time budget (s) must be 0 (none) or a positive number of seconds, got {seconds}")
-        return lab.TrainConfig.preset(robot=self.robot.value, method=self._method_name(),
-                                      seconds=float(seconds) if seconds else None, **values)
+            raise ValueError(f"{self.budget.label} must be 0 (none) or a positive number of seconds, got {seconds}")
+        try:
+            return lab.TrainConfig.preset(robot=self.robot.value, method=self._method_name(),
+                                          seconds=float(seconds) if seconds else None, **values)
+        except ValueError as e:  # the lab names its fields ("targets"); the student reads their labels ("Goals")
+            raise ValueError(in_labels(str(e))) from None
 
     def start(self) -> str | None:
         """Queue this tab's run; refused (said in the tab) beyond the limits, while its run goes, ..."""
