@@ -302,7 +302,7 @@ _NUMBER_TYPES = frozenset((int, float))  # bool is neither
 def _finite(values, n: int) -> bool:
     """values: n numbers (not bools), each finite and within MAX_COORD."""
     return (type(values) in (tuple, list) and len(values) == n and {type(v) for v in values} <= _NUMBER_TYPES
-            and max(map(abs, values)) <= MAX_COORD)  # NaN compares False: max is NaN or not <= MAX_COORD
+            and all(map(math.isfinite, values)) and max(map(abs, values)) <= MAX_COORD)
 
 
 def transform_problem(message) -> str | None:

@@ -269,9 +269,10 @@ def test_the_gate_takes_a_gizmo_s_pose_only_as_a_finite_rotation_and_point():
     from types import SimpleNamespace as S
 
     nan, inf = float("nan"), float("inf")
-    for wxyz in ((nan, 0, 0, 0), (0, 0, 0, 0), (inf, 0, 0, 0), (1, 0, 0), (1e300, 1e300, 0, 0), ("a", 0, 0, 0), None):
+    for wxyz in ((nan, 0, 0, 0), (1, nan, 0, 0), (0, 0, 0, nan), (0, 0, 0, 0), (inf, 0, 0, 0), (1, -inf, 0, 0), (1, 0, 0),
+                 (1e300, 1e300, 0, 0), ("a", 0, 0, 0), None):
         assert viser_private.transform_problem(S(wxyz=wxyz, position=(0.0, 0.0, 0.0))) is not None, wxyz
-    for position in ((nan, 0, 0), (0, inf, 0), (0, 0), (1e300, 0, 0), None, (True, 0, 0)):
+    for position in ((nan, 0, 0), (0, nan, 0), (0, 0, nan), (0, inf, 0), (0, 0), (1e300, 0, 0), None, (True, 0, 0)):
         assert viser_private.transform_problem(S(wxyz=(1.0, 0, 0, 0), position=position)) is not None, position
     good = S(wxyz=(2.0, 0.0, 0.0, 2.0), position=(0.1, -0.2, 0.3))
     assert viser_private.transform_problem(good) is None
