@@ -195,6 +195,9 @@ def test_a_full_disk_at_exit_keeps_what_the_journal_can_take_and_names_what_is_l
     assert line == (f"ERROR app.training.notebook: notebook {path}: 2 runs could not be written before the app "
                     f"stopped (disk I/O error): in the journal {journal} (fits1), which the next opening of the "
                     "notebook imports; it could not take huge1 (File too large): lost")
+    assert (f"notebook {path}: run huge1 not saved yet (disk I/O error): listed and tried again while the app runs; "
+            f"the journal {journal} could not take it (File too large): lost if the app stops before it is written"
+            in done.stderr)  # said as it happens, too: a process killed before its stop
     entries = {e["run_id"]: e for e in Notebook(str(path)).entries()}
     assert sorted(entries) == ["fits1", "small1"] and len(entries["fits1"]["controller"]["w"]) == 60_000
     assert not os.path.exists(journal)

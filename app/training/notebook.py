@@ -118,6 +118,7 @@ class Notebook:
         self.journal = Journal(self.path + ".journal")  # the entries not written yet, beside the notebook
         self._journal_lock = threading.Lock()  # one change of the journal at a time from this notebook
         self._journaled: dict[str, str] = {}  # run_id -> the JSON this notebook put in the journal
+        self._said_lost: set[str] = set()  # run ids the log has said the journal could not take
         self.closed = False
         self.read_only: str | None = None
         self._check(self.path, sqlite=True)
@@ -364,7 +365,12 @@ class Notebook:
                 with self._lock:  # another write under way held it past the wait: the retrier writes it
                     if entry["run_id"] in self._unsaved:
                         self._start_retrier()
-                self._journal_unsaved()  # and the journal has it meanwhile
+                kept, lost, error = self._journal_unsaved()  # and the journal has it meanwhile
+                if entry["run_id"] in lost and entry["run_id"] not in self._said_lost:  # (the first failure's
+                    self._said_lost.add(entry["run_id"])  # line, or an earlier one, may have named it)
+                    log.error("notebook %s: run %s not saved yet (%s): listed and tried again while the app runs; "
+                              "the journal %s could not take it (%s): lost if the app stops before it is written",
+                              self.path, entry["run_id"], self._failure, self.journal.path, error)
 
     def not_saved(self) -> tuple[int, str | None]:
         """How many runs of a writable notebook are listed but not written yet, and why (the last
@@ -405,6 +411,7 @@ class Notebook:
                     self._start_retrier()
                 kept, lost, error = self._journal_unsaved()
                 if said is None:
+                    self._said_lost.update(lost)
                     n = len(kept) + len(lost)
                     where = self._where(kept, lost, error, "lost if the app stops before they are written")
                     (log.error if lost else log.warning)(
