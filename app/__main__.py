@@ -3,6 +3,7 @@
     python -m app                         # http://127.0.0.1:8080 (the next free port if taken)
     python -m app --host 0.0.0.0          # a classroom network: every machine that can reach this one
     python -m app --port 9000 --robot ur5
+    python -m app --robot erd:ur3         # any example-robot-data robot, or a URDF: --robot my_arm.urdf --ee tool0
     python -m app --host 0.0.0.0 --open   # every tab may change the run (on purpose)
     python -m app --host 0.0.0.0 --presenter-token-file ~/.lab-token   # a token of your own, not in `ps`
     python -m app --host 0.0.0.0 --ray HOST:6379   # students' runs on a Ray cluster ("local": one started here)
@@ -70,7 +71,10 @@ def parse(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m app", description="Neuro-IK Lab in the browser (viser).")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
     p.add_argument("--port", type=int, default=8080, help="port; viser takes the next free one when taken")
-    p.add_argument("--robot", default="planar", help="the arm (or tree of several end effectors: g1, allegro, ...) shown first")
+    p.add_argument("--robot", default="planar", help="the arm (or tree of several end effectors: g1, allegro, ...) shown first: "
+                   "a registered name, erd:NAME (any example-robot-data robot) or a URDF file's path (docs/robots.md)")
+    p.add_argument("--ee", default=None, metavar="FRAME[,FRAME]",
+                   help="the tool frame of --robot (several, comma-separated: a tree); default: the end of its longest chain")
     p.add_argument("--goal", default="position", choices=("position", "pose"),
                    help="what a goal is: a position, or a pose (position and orientation of the tool; the real "
                         "arms: ur5 ur10 panda xarm7 kinova z1 so100 so101); the Train panel's Goal changes it")
@@ -140,9 +144,10 @@ def main(argv=None) -> int:
         return 2
     import robots
 
-    if args.robot not in robots.names():
-        print(f"error: unknown robot {args.robot!r}; known robots: {', '.join(robots.names())}",
-              file=sys.stderr)
+    try:  # any robot string (robots/sources.py): the canonical one names it from here on, in every process
+        args.robot = robots.load(args.robot, ee=args.ee.split(",") if args.ee else None).name
+    except Exception as e:  # noqa: BLE001 - an unknown name, a missing file, a frame it lacks, a joint refused
+        print(f"error: --robot {args.robot}{f' --ee {args.ee}' if args.ee else ''}: {e}", file=sys.stderr)
         return 2
     if args.goal == "pose":
         from app.tab.posegoal import pose_refusal

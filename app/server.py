@@ -18,6 +18,7 @@ import ctypes
 import itertools
 import logging
 import math
+import os
 import sys
 import threading
 import time
@@ -31,6 +32,7 @@ import viser
 import lab
 import lab.running.worker as lab_worker
 
+from app import any_robot
 from app.classroom.access import Access, is_loopback
 from app.classroom.class_runs import ClassRuns
 from app.classroom.lesson import lesson_link, lesson_params, open_lesson
@@ -288,7 +290,8 @@ class LabApp:
         msg = self.state.set_robot(name)
         if msg is None:
             self._build_shared()
-            self.panel.robot.value = name
+            self.panel.robot.options = any_robot.choices(self.state, more=True)  # a robot opened: in the menus
+            self.panel.robot.value = self.state.arm.name  # the canonical string (erd:ur3 -> erd:ur3#tool0)
         return msg
 
     def _build_shared(self) -> None:

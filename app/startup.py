@@ -98,7 +98,12 @@ def load_pretrained(robot: str, goal: str = "position"):
 def startup_controller(robot: str = "planar", goal: str = "position"):
     """(controller, description): the arm's shipped controller, else a quickly trained one. For pose
     goals the arm's shipped pose controller, else its position controller on the pose's position
-    (app/tab/posegoal.py PositionSeed: it ignores the turn; Start trains a pose controller)."""
+    (app/tab/posegoal.py PositionSeed: it ignores the turn; Start trains a pose controller). A robot
+    outside the registry (erd:NAME, a URDF) has none shipped: (None, app.any_robot.NO_NETWORK)."""
+    if robot not in robots.names():  # nothing shipped, and no quick run that would hold the page up
+        from app.any_robot import NO_NETWORK
+
+        return None, NO_NETWORK
     if goal == "pose":
         try:
             return load_pretrained(robot, "pose")

@@ -87,7 +87,7 @@ LESSONS = _load_lessons()
 
 def lesson_params(panel) -> dict:
     """The panel's settings as a lesson's parameters (values as text)."""
-    params = {"lesson": "1", "robot": panel.robot.value, "method": panel._method_name()}
+    params = {"lesson": "1", "robot": robot_to_link(panel.robot.value), "method": panel._method_name()}
     if getattr(panel.state, "goal", "position") == "pose":  # pose goals (app/tab/posegoal.py)
         params["goal"] = "pose"
     for name in ("population", "generations", "hidden", "seed"):
@@ -97,6 +97,26 @@ def lesson_params(panel) -> dict:
         params.update(partner=race._method_name(), partner_population=_whole(race.population.value),
                       partner_hidden=_whole(race.hidden.value), partner_seed=_whole(race.seed.value))
     return params
+
+
+def robot_to_link(robot: str) -> str:
+    """A robot string in a link's few characters (viser keeps [A-Za-z0-9._~-]): every other byte as ~XX
+    (erd:ur3#tool0 -> erd~3aur3~23tool0); registered names are as they are."""
+    return "".join(c if re.fullmatch(r"[A-Za-z0-9._-]", c) else "".join(f"~{b:02x}" for b in c.encode())
+                   for c in robot)
+
+
+def robot_from_link(text: str) -> str:
+    """robot_to_link's string back (a ~ not followed by two hex digits is kept as it is)."""
+    out, i = bytearray(), 0
+    while i < len(text):
+        if text[i] == "~" and re.fullmatch(r"[0-9a-fA-F]{2}", text[i + 1:i + 3]):
+            out.append(int(text[i + 1:i + 3], 16))
+            i += 3
+        else:
+            out += text[i].encode()
+            i += 1
+    return out.decode("utf-8", "replace")
 
 
 def lesson_link(page_url: str, params: dict) -> str:
@@ -151,6 +171,8 @@ def lesson_configs(params: dict) -> tuple[lab.TrainConfig, lab.TrainConfig | Non
         except ValueError:
             raise ValueError(f"lesson {name} must be a whole number, got {params[name]!r}") from None
 
+    if "robot" in params:  # any robot string, as a link carries it (robot_to_link)
+        params = {**params, "robot": robot_from_link(params["robot"])}
     goal = params.get("goal", "position")
     if goal not in ("position", "pose"):
         raise ValueError(f"lesson goal must be position or pose, got {goal[:40]!r}")

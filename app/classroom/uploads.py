@@ -30,6 +30,7 @@ from app.classroom.limits import refused
 from app.classroom.files import kind_of, not_a_file
 
 MAX_UPLOAD = 200 * 2**20  # bytes, one file
+MAX_URDF = 8 * 2**20  # bytes, an uploaded URDF (app/any_robot.py): one without meshes is tens of kB
 PART = 512 * 2**10  # bytes: viser's browser client sends a file in parts of this size (UploadButton.tsx)
 MAX_PARTS = -(-MAX_UPLOAD // PART)  # 400: the parts of the largest file allowed
 MAX_IN_FLIGHT = 2 * MAX_UPLOAD  # bytes declared by every upload under way, all tabs together
@@ -56,13 +57,13 @@ def folder_bytes(folder: str) -> int:
     return total
 
 
-def safe_name(name: str) -> str:
+def safe_name(name: str, suffix: str = ".rrd") -> str:
     """A file name for an upload: its base name, letters, digits and . _ - only (others become _),
-    no leading dot (never hidden), at most MAX_STEM characters before '.rrd'."""
+    no leading dot (never hidden), at most MAX_STEM characters before the suffix ('.rrd'; a URDF's '.urdf')."""
     base = os.path.basename(name.replace("\\", "/"))
-    stem = base[:-4] if base.lower().endswith(".rrd") else base
+    stem = base[:-len(suffix)] if base.lower().endswith(suffix) else base
     stem = re.sub(r"[^A-Za-z0-9._-]", "_", stem).lstrip(".")[:MAX_STEM].rstrip(".")
-    return (stem or "upload") + ".rrd"
+    return (stem or "upload") + suffix
 
 
 def not_a_recording_file(path: str) -> str | None:
@@ -85,7 +86,7 @@ class UploadRefused(ValueError):
     """An uploaded file failed its check (the message names it as the user did)."""
 
 
-def save_upload(folder: str, name: str, content: bytes, check=None) -> str:
+def save_upload(folder: str, name: str, content: bytes, check=None, suffix: str = ".rrd") -> str:
     """Write content under folder as safe_name(name), or name-2.rrd, name-3.rrd, ... when taken
     (never replacing a file); check(path), if given, is called on the written file before it gets
     its name (an exception leaves nothing behind; one from check comes back as UploadRefused, its
@@ -105,15 +106,15 @@ def save_upload(folder: str, name: str, content: bytes, check=None) -> str:
                 check(tmp)
             except Exception as e:  # noqa: BLE001 - said with the user's name, not the server's path
                 raise UploadRefused(hide_paths(str(e), tmp, name)) from None
-        stem = safe_name(name)[:-4]
+        stem = safe_name(name, suffix)[:-len(suffix)]
         for k in range(1, 10_000):
-            path = os.path.join(folder, f"{stem}.rrd" if k == 1 else f"{stem}-{k}.rrd")
+            path = os.path.join(folder, f"{stem}{suffix}" if k == 1 else f"{stem}-{k}{suffix}")
             try:
                 os.link(tmp, path)  # atomic, and fails if the name is taken
             except FileExistsError:
                 continue
             return path
-        raise OSError(f"no free name for {stem}.rrd in {folder}")
+        raise OSError(f"no free name for {stem}{suffix} in {folder}")
     finally:
         try:
             os.remove(tmp)
@@ -156,8 +157,10 @@ class UploadGuard:
         shown = (os.path.basename(filename.replace("\\", "/")) or "the upload")[:60]
         if self.allowed is not None and (reason := self.allowed(client_id)) is not None:
             return reason
-        if not filename.lower().endswith(".rrd"):
-            return f"{shown} is not a Rerun recording (.rrd)"
+        if not filename.lower().endswith((".rrd", ".urdf")):
+            return f"{shown} is not a Rerun recording (.rrd) nor a robot's URDF (.urdf)"
+        if filename.lower().endswith(".urdf") and size > MAX_URDF:  # app/any_robot.py: More robots…
+            return f"{shown} is {mib(size)}; a URDF may be at most {mib(MAX_URDF)} (its meshes are not needed)"
         if size <= 0:
             return f"{shown} is empty"
         if size > self.max_upload:

@@ -28,6 +28,7 @@ from app.classroom.class_runs import ClassRuns, describe
 from app.classroom.limits import in_labels
 from app.classroom.lesson import LESSONS, is_lesson, lesson_configs
 from app.classroom.student_run import queue_wait, student_length, wait_words
+from app import any_robot
 from app.panels.train import notify
 from app.tab.goals import START_HINT
 from app.tab.replay import _versions
@@ -65,7 +66,8 @@ class MyRunPanel:
             self.name = gui.add_text("Your name", runs.name_of(self.tab),
                                      hint="a short label on the Class board (letters, digits, spaces, . ' _ -)")
             self.name_note = gui.add_markdown("")  # a refused name: why, and the name the runs carry instead
-            self.robot = gui.add_dropdown("Robot", robots.names(), initial_value=arm)
+            # the registered robots and every robot the presenter opened this session (app/any_robot.py)
+            self.robot = gui.add_dropdown("Robot", any_robot.choices(session.state), initial_value=arm)
             self.method = gui.add_dropdown("Method", tuple(m.label for m in methods.all_methods()),
                                            initial_value=methods.get(d.method).label)
             self.population = gui.add_number("Population", float(d.population), step=1)
@@ -254,6 +256,8 @@ class MyRunPanel:
     def refresh(self) -> None:
         """Status, buttons, curve, and the tab's arms (on the shared arm) or the run's robot beside them;
         cheap when nothing changed."""
+        if len(self.robot.options) != len(choices := any_robot.choices(self.session.state)):
+            self.robot.options = choices  # the presenter opened another robot: a student may pick it
         run = self.runs.run_of(self.tab)
         if run is None:
             return

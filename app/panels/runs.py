@@ -22,6 +22,7 @@ import lab
 import robots
 
 from app import viser_private
+from app import any_robot
 from app.classroom.uploads import MAX_UPLOAD, UploadGuard, not_a_recording_file, save_upload
 from app.panels.train import notify
 from app.startup import made_for
@@ -127,7 +128,8 @@ class RunsPanel:
             controller = lab.controller_from_dict(entry["controller"])
         except Exception as e:
             return self.refuse(client, f"refused: the notebook's controller does not load: {e}")
-        msg = self._show(entry["robot"], controller, f"replay {entry['run_id'][:6]}, final controller", client)
+        msg = self._show(entry["robot"], controller, f"replay {entry['run_id'][:6]}, final controller", client,
+                         sha256=entry.get("urdf_sha256"))
         if msg is None:
             self.recording = None
             self.slider.disabled = True
@@ -149,7 +151,8 @@ class RunsPanel:
             why = str(e).replace(os.path.abspath(path), name).replace(str(path), name)
             return self.refuse(client, f"refused: {name} cannot be replayed: {why}")
         gen = int(doc["generation"])
-        msg = self._show(robot, controller, f"replay {os.path.basename(path)}, generation {gen + 1}", client)
+        msg = self._show(robot, controller, f"replay {os.path.basename(path)}, generation {gen + 1}", client,
+                         sha256=rec.protocol.get("urdf_sha256") or (entry or {}).get("urdf_sha256"))
         if msg is not None:
             return msg
         self.recording = rec
@@ -183,15 +186,24 @@ class RunsPanel:
             self.message.content = (said + "  \n" if said else "") + f"Saved as `uploads/{os.path.basename(path)}`."
         return msg
 
-    def _show(self, robot: str, controller, source: str, client) -> str | None:
+    def _show(self, robot: str, controller, source: str, client, sha256: str | None = None) -> str | None:
         """Show a replayed controller of `robot`: the lab switches to that arm first (said in the
         panel and to the tab); refused, nothing changed, while a run is going on another arm, or when
-        the controller was not made for the arm the run names."""
-        if not isinstance(robot, str) or robot not in robots.names():
+        the controller was not made for the arm the run names. sha256: the run's URDF's, when it
+        recorded one: a file that changed since is said, one gone refused by name (app/any_robot.py)."""
+        if not isinstance(robot, str) or not robot:
             return self.refuse(client, f"refused: unknown robot {str(robot)[:40]!r} in this run")
-        if not made_for(controller, robots.load(robot)):
+        changed = any_robot.replay_note(robot, sha256)
+        if changed is not None and " is gone " in changed:
+            return self.refuse(client, f"refused: {changed}; nothing was changed")
+        try:
+            arm = robots.load(robot)
+        except Exception as e:  # noqa: BLE001 - an unknown name, a file gone, a frame it lacks now
+            return self.refuse(client, f"refused: this run's robot {robot[:200]} cannot be loaded: {e}")
+        if not made_for(controller, arm):
             return self.refuse(client, f"refused: this run names the {robot} arm, but its controller was not made "
-                                       f"for it ({source}); nothing was changed")
+                                       f"for it ({source}){f'; {changed}' if changed else ''}; nothing was changed")
+        robot = arm.name
         before = self.state.arm.name
         if robot != before:
             msg = self.app.switch_robot(robot)

@@ -29,6 +29,7 @@ from lab.experiments import budgets
 from lab.problem.encodings import encoding_from_dict
 from lab.running.config import UNBOUNDED
 
+from app import any_robot
 from app.classroom.limits import refusal as limits_refusal
 from app.panels.teaching import RaceFields, Watching
 from app.startup import pretrained_path
@@ -45,7 +46,7 @@ REAL_ARM_BUDGET = 30.0
 def budget_for(robot: str) -> float:
     """The time budget field's value when `robot` is picked: REAL_ARM_BUDGET on a real arm or a tree
     (a real robot of several end effectors), else 0 (none)."""
-    return REAL_ARM_BUDGET if robots.kind(robot) in ("real", "tree") else 0.0
+    return REAL_ARM_BUDGET if robots.kind(robot) in ("real", "tree", "custom") else 0.0
 
 def expectation(robot: str, method: str, seconds: float | None, goal: str = "position") -> str:
     """What `method` is measured to reach on `robot` in `seconds` (lab.experiments.budgets), in words,
@@ -54,6 +55,11 @@ def expectation(robot: str, method: str, seconds: float | None, goal: str = "pos
     pose_expectation."""
     if goal == "pose":
         return pose_expectation(robot, method)
+    if not any_robot.registered(robot):  # nothing measured: what the lab made of it (frame, capsules)
+        try:
+            return any_robot.page_note(robots.load(robot))
+        except Exception:  # noqa: BLE001 - a field being typed: no line
+            return ""
     e = budgets.expected(robot, method, seconds)
     if e is None:
         return ""
@@ -114,7 +120,10 @@ class TrainingPanel:
         # what a presenter uses comes first, so that it is in view on a projector (1366 x 768): the
         # arm and method, the run controls, the speed, the progress and the convergence plot; the
         # numbers behind a run, the race and the method's views follow
-        self.robot = gui.add_dropdown("Robot", robots.names(), initial_value=state.arm.name)
+        self.robot = gui.add_dropdown("Robot", any_robot.choices(state, more=True), initial_value=state.arm.name,
+                                      hint="the registered robots, those opened this session, and More robots…: "
+                                           "any example-robot-data robot or a URDF of your own")
+        self.more = any_robot.MoreRobots(gui, lambda name: (self.on_robot or self.state.set_robot)(name), notify)
         # position or pose goals (app/tab/posegoal.py): a shared control, so the classroom gate covers it
         self.goal = gui.add_dropdown("Goal", tuple(GOAL_LABELS), initial_value=goal_label(state.goal),
                                      hint="Position: drag the goal; Pose (real arms): drag and turn it, the "
@@ -270,6 +279,14 @@ class TrainingPanel:
         if self._reverting:  # our own write-back of a refused value
             return
         handle = event.target
+        if handle is self.robot and self.robot.value == any_robot.MORE:  # not a robot: the folder to pick one
+            self._reverting = True
+            try:
+                self.robot.value = self.state.arm.name
+            finally:
+                self._reverting = False
+            self.more.show()
+            return
         if handle is self.method and self.method.value != self._valid[id(self.method)]:
             self._fill_defaults()  # each method's own defaults (its hidden size, its options)
             return

@@ -77,8 +77,33 @@ class ArmView:
                 scene.add_icosphere(node, radius=params[0], color=color, subdivisions=2, **kw)
             else:
                 scene.add_mesh_simple(node, params[0], params[1], color=color, **kw)
+        self._add_capsules(scene, name, view, opacity, tint)
         self.moving = {j: f for j, f in self.frames.items() if j > 0}  # joint 0 is the fixed base
         self.q = None
+
+    def _add_capsules(self, scene, name: str, view: int, opacity, tint) -> None:
+        """A capsule per chain link with nothing to draw (no visual, or a mesh that does not resolve: a URDF
+        of your own), from its joint to the next (app/any_robot.py capsules), named {name}/j{j}/c{k}-{view}."""
+        from app.any_robot import capsule_note, capsule_radius, capsules
+
+        segments = capsules(self.arm)
+        if not segments:
+            return
+        capsule_note(self.arm)  # the log says which, once
+        r = self.scale * capsule_radius(self.arm)
+        color = (150, 155, 165) if tint is None else tint
+        kw = dict(color=color, opacity=opacity, cast_shadow=opacity is None)
+        for k, (j, p0, p1) in enumerate(segments):
+            a, b = self.scale * p0, self.scale * p1
+            length = float(np.linalg.norm(b - a))
+            node = f"{name}/j{j}/c{k}-{view}"
+            scene.add_icosphere(f"{node}a", radius=r, subdivisions=2, position=a, **kw)
+            if length > 1e-9:  # a cylinder along z, turned onto the segment, and its far end's cap
+                z = (b - a) / length
+                wxyz = pin.Quaternion.FromTwoVectors(np.array([0.0, 0.0, 1.0]), z).coeffs()  # xyzw
+                scene.add_cylinder(f"{node}s", radius=r, height=length, position=0.5 * (a + b),
+                                   wxyz=(wxyz[3], wxyz[0], wxyz[1], wxyz[2]), **kw)
+                scene.add_icosphere(f"{node}b", radius=r, subdivisions=2, position=b, **kw)
 
     def set_q(self, q) -> None:
         """Move the drawn arm to joint values q (nq,): one pose message per joint."""

@@ -132,6 +132,7 @@ class LabState:
         self._replaced = None  # (controller, source) a tree's run replaced on the arms (kept_the_better)
         self._version = 0
         self._shown = Shown(robots.load(robot), None, "none", 0)
+        self.opened_robots = [self._shown.arm.name]  # every robot shown this session (the Robot menus: app/any_robot.py)
         self._clear_history()
         self._show_startup()
 
@@ -223,7 +224,9 @@ class LabState:
             start, note = self._opened[key]
         else:
             start, note = self._startup, "startup controller"
-        if start is None or not made_for(start, arm) or \
+        if start is None and key in self._opened:  # the arm has none: its own words (app/any_robot.py NO_NETWORK)
+            pass
+        elif start is None or not made_for(start, arm) or \
                 ("pose" if getattr(start, "goal", "position") == "pose" else "position") != self.goal:
             start, note = None, "none (train one)"
         self.show(start, note)
@@ -264,6 +267,8 @@ class LabState:
                 self.goal = "position"  # the arm takes no pose goals: the panel's Goal follows
             self.show(None, "none", arm)
             self._show_startup()
+            if arm.name not in self.opened_robots:
+                self.opened_robots.append(arm.name)
         return None
 
     # ------------------------------------------------------------------ training

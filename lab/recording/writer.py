@@ -213,6 +213,7 @@ class Writer:
         c, arm = self.config, self._geometry.arm
         protocol = {
             "format": FORMAT_VERSION, "run_id": header["run_id"], "robot": c["robot"], "method": c["method"],
+            "urdf_sha256": getattr(arm, "urdf_sha256", None),  # the robot's identity: its string and its file's bytes
             "seed": c["seed"], "joint_names": list(arm.joint_names), "lower": arm.lower.tolist(),
             "upper": arm.upper.tolist(), "task_axes": list(arm.task_axes), "goal_seed": header["goal_seed"],
             "train_goals": np.asarray(header["train_goals"]).tolist(),
