@@ -350,7 +350,7 @@ class Notebook:
         put in the journal, and written by a thread that tries again (after 0.5 s, 1 s, 2 s, ...
         RETRY_MAX s) while the process runs; not_saved() says how many wait and why, and the log says
         it once. While an earlier write is failing, a new entry does not wait for the lock: it goes
-        to the retrier and the journal at once (a stop that ends many runs is not slowed per run)."""
+        to the retrier and the journal at once."""
         if not _is_run(entry):
             raise ValueError(f"a notebook entry needs a text run_id, robot and method, got {entry!r:.200}")
         text = json.dumps(entry)  # an entry that is not JSON is refused here, not retried
