@@ -451,15 +451,15 @@ def test_the_presenters_board_controls_new_board_large_chart_and_grade_book(app)
                                       for _t, m in list(viewer.messages)) >= 3, 30)
         time.sleep(0.5)
         assert not any(m["type"] == "FileTransferStartDownload" for _t, m in list(viewer.messages))
-        assert app.class_runs.boards == boards and not any("1200 640" in str(m) for _t, m in list(viewer.messages))
+        assert app.class_runs.boards == boards and not any("1200 600" in str(m) for _t, m in list(viewer.messages))
         # the grade book, to the presenter's tab
         presenter.click("Download the class's runs (CSV)")
         sent = presenter.wait_for(lambda m: m["type"] == "FileTransferStartDownload", 30)
         assert sent["filename"].endswith(".csv") and sent["size_bytes"] == len(class_csv(app.class_runs.rows()))
         # the large chart, in the presenter's own tab
         presenter.click("Show the chart large")
-        presenter.wait_for(lambda m: 'viewBox="0 0 1200 640"' in str(m) and "Board Ada" in str(m), 30)
-        assert not any("1200 640" in str(m) for _t, m in list(viewer.messages))
+        presenter.wait_for(lambda m: 'viewBox="0 0 1200 600"' in str(m) and "Board Ada" in str(m), 30)
+        assert not any("1200 600" in str(m) for _t, m in list(viewer.messages))
         # a new board: the run leaves the table and the chart (the large one too); the notebook keeps it
         presenter.click("New board")
         assert wait_until(lambda: app.class_runs.boards == boards + 1, 30)

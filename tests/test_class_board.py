@@ -140,7 +140,7 @@ def test_the_chart_compares_only_runs_that_differ_in_the_plotted_setting_and_say
 def test_the_large_chart_has_a_grid_axis_labels_and_each_students_name_on_hover():
     runs = [fake("<b>Ada</b>", 0.12, hidden=4), fake("Grace", 0.4, hidden=8), fake("Alan", 2.5, hidden=16)]
     big = chart_svg(runs, "hidden units", big=True)
-    assert 'viewBox="0 0 1200 640"' in big and 'width="100%"' in big
+    assert 'viewBox="0 0 1200 600"' in big and "Held-out MSE against hidden units: 3 finished runs" in big and 'width="100%"' in big
     assert ">held-out MSE (log scale)</text>" in big and ">hidden units</text>" in big
     # a grid: a line at each decade from 0.1 to 10, fainter ones between
     decades = re.findall(r'font-size="24" text-anchor="end">([^<]+)</text>', big)

@@ -40,7 +40,7 @@ from app.training.live import decimate
 
 NONE = "(no run going)"
 NOTHING = "(no run with a network yet)"
-BIG_WIDTH = 900  # px: the large chart's column in the presenter's tab (the lab's panel beside it at 1366 px)
+BIG_WIDTH, BIG_HEIGHT = 940, 720  # px: the large chart's window in the presenter's tab (1366 x 768: the lab's panel beside it)
 ROWS = 60  # rows drawn at most (the newest); the notebook keeps every run
 
 
@@ -211,8 +211,7 @@ class ClassBoard:
         with column.add_tab("Class chart"):
             close = gui.add_button("Close the chart")
             shown = gui.add_html(chart_svg(self.runs.board_rows(going=False), axis, big=True))
-        column.dock_left()
-        column.set_width(BIG_WIDTH)
+        column.float(x=8, y=8, width=BIG_WIDTH, height=BIG_HEIGHT)  # over the scene (and a lesson's column)
         close.on_click(lambda _e, cid=client.client_id: self.close_big(cid))
         self._big[client.client_id] = (column, shown)
         return None

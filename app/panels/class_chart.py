@@ -86,9 +86,9 @@ def chart_svg(runs: list, axis: str, width: int = 330, height: int = 210, big: b
     """SVG (in a <div> with its caption): the plotted runs' held-out MSE on a log axis with a grid of
     decades, against `axis`; a numeric setting on a linear axis (a log one over a wide range of
     positive values) with a line through each value's median, a method one column each. big: sized
-    for a projector (1200 x 640, large type), scaled to its panel's width."""
+    for a projector (1200 x 600, large type), scaled to its panel's width."""
     if big:
-        width, height = 1200, 640
+        width, height = 1200, 600
     font = 24 if big else 9
     plotted, left, why = comparable(runs, axis)
     if not plotted:
@@ -150,6 +150,14 @@ def chart_svg(runs: list, axis: str, width: int = 330, height: int = 210, big: b
                + (f" {html.escape(why)}." if why else ""))
     size = (f'width="100%" viewBox="0 0 {width} {height}" preserveAspectRatio="xMidYMid meet"' if big
             else f'width="{width}" height="{height}"')
-    text = f'<div style="font-size:{22 if big else 11}px">{caption}</div>' if big else f"<small>{caption}</small>"
-    return (f"<div>{text}<svg {size} xmlns=\"http://www.w3.org/2000/svg\" font-family=\"sans-serif\">"
-            f"{''.join(grid)}{frame}{''.join(labels)}{curve}{dots}</svg></div>")
+    svg = (f"<svg {size} xmlns=\"http://www.w3.org/2000/svg\" font-family=\"sans-serif\">"
+           f"{''.join(grid)}{frame}{''.join(labels)}{curve}{dots}</svg>")
+    if not big:
+        return f"<div><small>{caption}</small>{svg}</div>"
+    # a projector's: a short title in large type, the chart, then what the line is and what was left out
+    title = f"Held-out MSE against {html.escape(axis)}: {n} finished run{'s' * (n != 1)}"
+    notes = (f"{'The line: the class median at each value. ' if curve else ''}"
+             f"{'Seeds are repeats. ' if axis != 'seed' and len({p[3] for p in points}) > 1 else ''}"
+             f"{html.escape(why) + '.' if why else ''}")
+    return (f'<div><div style="font-size:28px;font-weight:bold;margin:4px 0">{title}</div>{svg}'
+            f'<div style="font-size:16px">{notes}</div></div>')
