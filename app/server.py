@@ -41,7 +41,7 @@ from app.failures import FailureLog
 from app.panels.class_board import ClassBoard
 from app.panels.my_run import MyRunPanel
 from app.panels.runs import RunsPanel
-from app.panels.train import TrainingPanel, notify
+from app.panels.train import TrainingPanel, budget_for, notify
 from app.panels.views import error_map, has_map, map_grid, map_key, map_legend, network_svg
 from app.tab.goals import MORE, READY_ID, REDRAW_PERIOD, TabSession, fmt_len
 from app.tab.phone import fold_on_phone, follow_portrait
@@ -160,7 +160,8 @@ class LabApp:
             from app.startup import startup_controller
 
             startup, startups = None, startup_controller
-        lab_worker.prestart(robot)  # a warmed-up training process (its kernels for this robot first): Start trains at once
+        # a warmed-up training process, the kernels of this robot's Start (its time budget: budget_for) first
+        lab_worker.prestart(robot, first=lab.TrainConfig.preset(robot=robot, seconds=budget_for(robot) or None))
         self.state = LabState(robot, notebook, startup=startup, startups=startups,
                               recorder=rerun_recorder(recordings) if record else None,
                               limits=limits_for(is_loopback(host), limits), speed=speed, goal=goal)

@@ -110,3 +110,41 @@ def test_an_unreadable_figures_file_is_no_figure(cache, text):
     assert warmup.stored_figures() == {}
     warmup.store_figure(warmup.KINEMATICS, 3.0)  # and the next step writes a good one
     assert warmup.stored_figures() == {warmup.KINEMATICS: 3.0}
+
+
+def test_a_spare_started_for_other_kernels_than_the_pages_first_start_is_started_again(monkeypatch):
+    """python -m app starts the spare at once with the robot alone; the page's Start on a real arm has a
+    time budget, which can change its kernels: the spare is started again for those."""
+    spawned = []
+
+    class Proc:
+        def __init__(self):
+            self.killed = False
+
+        def poll(self):
+            return 1 if self.killed else None
+
+        def kill(self):
+            self.killed = True
+
+        def wait(self):
+            return 1
+
+    def spawn(spare):
+        spawned.append((lab_worker._first_robot, lab_worker._first_config))
+        return Proc()
+
+    monkeypatch.setattr(lab_worker, "_spawn", spawn)
+    monkeypatch.setattr(lab_worker, "_keep_spare", lab_worker._keep_spare)  # as it was, after
+    monkeypatch.setattr(lab_worker, "_spare", None)
+    monkeypatch.setattr(lab_worker, "_first_robot", "planar")
+    monkeypatch.setattr(lab_worker, "_first_config", None)
+    lab_worker.prestart("ur5")
+    first = lab_worker._spare
+    budget = lab.TrainConfig.preset(robot="ur5", seconds=30.0)  # one head: not the UR5's defaults' two
+    assert warmup.run_key(budget) != warmup.run_key(lab.TrainConfig.preset(robot="ur5"))
+    lab_worker.prestart("ur5", first=budget)
+    assert first.killed and lab_worker._spare is not first
+    assert spawned == [("ur5", None), ("ur5", budget.to_dict())]
+    lab_worker.prestart("ur5", first=budget)  # the same kernels: the spare stays
+    assert len(spawned) == 2

@@ -28,6 +28,7 @@ does not call. A warming worker whose parent goes away exits at once.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import select
@@ -56,6 +57,7 @@ _spare: subprocess.Popen | None = None  # a started worker waiting for its run (
 _keep_spare = False
 _spare_lock = threading.Lock()
 _first_robot = "planar"  # the robot whose kernels a spare compiles first (prestart)
+_first_config: dict | None = None  # the run a spare compiles for first (TrainConfig.to_dict(); None: the robot's defaults)
 
 
 class Warmup:
@@ -252,16 +254,36 @@ class ProcessRunner(RemoteRunBase):
         if _keep_spare:
             prestart()
 
-def prestart(robot: str | None = None) -> None:
+def prestart(robot: str | None = None, first: TrainConfig | None = None) -> None:
     """Keep a warmed-up worker ready for the next start(), now and after every run. robot: the one the
-    next run is likely on (the app's first), whose kernels its warm-up compiles first."""
-    global _spare, _keep_spare, _first_robot
+    next run is likely on (the app's first), whose kernels its warm-up compiles first; first: that
+    run's settings, when they are not the robot's defaults (the app's Start has a time budget on a
+    real arm, and a budget can change the heads: its kernels)."""
+    global _spare, _keep_spare, _first_robot, _first_config
     with _spare_lock:
         _keep_spare = True
-        if robot is not None:
-            _first_robot = robot
+        if first is not None:
+            before = _first_key()
+            _first_robot, _first_config = first.robot, first.to_dict()
+            if _spare is not None and _spare.poll() is None and _first_key() != before:
+                _spare.kill()  # started a moment ago for other kernels (python -m app's, before the page's settings)
+                threading.Thread(target=_spare.wait, daemon=True).start()
+                _spare = None
+        elif robot is not None and robot != _first_robot:
+            _first_robot, _first_config = robot, None
         if _spare is None or _spare.poll() is not None:
             _spare = _spawn(spare=True)
+
+
+def _first_key() -> str | None:
+    """The kernels a spare compiles first (lab.running.warmup.run_key); None when they cannot be told."""
+    from lab.running import warmup
+
+    try:
+        config = TrainConfig.from_dict(_first_config) if _first_config else warmup.default_config(_first_robot)
+        return warmup.run_key(config)
+    except ValueError:
+        return None
 
 
 def _take_worker(config: TrainConfig | None = None) -> subprocess.Popen:
@@ -292,7 +314,8 @@ def _busy_elsewhere(warmup: Warmup, config: TrainConfig) -> bool:
 def _spawn(spare: bool) -> subprocess.Popen:
     read, write = os.pipe()  # the warm-up's progress (Warmup)
     try:
-        proc = pipes.start("lab.running.worker", "--progress", str(write), "--first-robot", _first_robot,
+        first = ["--first-config", json.dumps(_first_config)] if _first_config is not None else []
+        proc = pipes.start("lab.running.worker", "--progress", str(write), "--first-robot", _first_robot, *first,
                            *(["--spare"] if spare else []), pass_fds=(write,))
     except BaseException:
         os.close(read)
@@ -305,9 +328,10 @@ def _spawn(spare: bool) -> subprocess.Popen:
     return proc
 
 
-def _warm_up(stream, progress_fd: int | None, spare: bool, first_robot: str = "planar"):
+def _warm_up(stream, progress_fd: int | None, spare: bool, first_robot: str = "planar", first_config=None):
     """In the worker: compile the kernels (lab/running/warmup.py) before the run, each step told on
-    progress_fd. A spare compiles every step, `first_robot`'s for the default method first, until its
+    progress_fd. A spare compiles every step, `first_robot`'s for the default method (or the run of
+    `first_config`, a TrainConfig.to_dict()) first, until its
     run arrives; from then on (and in a worker started with its run) only the steps that run needs:
     the kinematics and its own kernels. Returns the first batch of messages (None: the parent went
     away)."""
@@ -342,7 +366,7 @@ def _warm_up(stream, progress_fd: int | None, spare: bool, first_robot: str = "p
     estimate = warmup.Estimate()
     try:
         try:
-            steps = warmup.plan(robot=first_robot)
+            steps = warmup.plan(TrainConfig.from_dict(first_config) if first_config else None, robot=first_robot)
         except Exception:  # noqa: BLE001 - an unknown robot: the run itself says so
             log.exception("cannot plan the warm-up for %s", first_robot)
             steps = []
@@ -386,7 +410,8 @@ def main(argv: list[str]) -> int:
 
     stream = pipes.messages(sys.stdin.fileno())
     first_robot = argv[argv.index("--first-robot") + 1] if "--first-robot" in argv else "planar"
-    first = _warm_up(stream, progress_fd, spare="--spare" in argv, first_robot=first_robot)
+    first_config = json.loads(argv[argv.index("--first-config") + 1]) if "--first-config" in argv else None
+    first = _warm_up(stream, progress_fd, spare="--spare" in argv, first_robot=first_robot, first_config=first_config)
     if not first:
         return 0  # a spare whose parent ended without using it
     (_, config, run_id, blas_threads, *more), pending = first[0], first[1:]
