@@ -29,7 +29,8 @@ def tab(tab, app):  # conftest's tab and app
 
 
 def start(tab, name, size, parts):
-    button = tab.wait_for(lambda m: m["type"] == "GuiUploadButtonMessage")["uuid"]
+    button = tab.wait_for(lambda m: m["type"] == "GuiUploadButtonMessage"  # the Runs panel's, not More robots…'
+                          and m["props"]["label"].startswith("Upload a recording"))["uuid"]
     transfer = uuid.uuid4().hex
     tab.send(_messages.FileTransferStartUpload(source_component_uuid=button, transfer_uuid=transfer, filename=name,
                                                mime_type="application/octet-stream", part_count=parts, size_bytes=size))
