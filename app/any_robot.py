@@ -1,6 +1,6 @@
 """Robots outside the registry in the app: any string `robots.load` takes (erd:NAME, a URDF path).
 
-    choices(state)            # the Robot menus: the registered robots, then those opened this session
+    choices(state)            # the Robot menus: the registered robots, then those opened since the server started
     capsules(arm)             # what to draw where a chain link has nothing to draw (no visual, no mesh)
     page_note(arm)            # a line for the page: the frame picked, the links drawn as capsules
     identity(robot)           # {"robot": string, "urdf_sha256": ...}: a run's robot in the notebook
@@ -37,7 +37,7 @@ def registered(name: str) -> bool:
 
 
 def choices(state, more: bool = False) -> tuple[str, ...]:
-    """The Robot menu: the registered robots, then every robot opened this session (state.opened_robots),
+    """The Robot menu: the registered robots, then every robot opened since the server started (state.opened_robots),
     then MORE (the presenter's menu)."""
     names = list(robots.names())
     names += [n for n in getattr(state, "opened_robots", ()) if n not in names]

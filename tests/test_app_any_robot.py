@@ -1,4 +1,4 @@
-"""The app on a robot outside the registry (issue 56, item 3): a URDF of the tests' own and erd:ur3.
+"""The app on a robot outside the registry: a URDF of the tests' own and erd:ur3.
 
 Checked, through headless tabs (app/probe.py): an unknown arm opens at rest with no network and says so
 (and which frame was picked); its links without a drawing are capsules, named on the page; More

@@ -66,7 +66,7 @@ class MyRunPanel:
             self.name = gui.add_text("Your name", runs.name_of(self.tab),
                                      hint="a short label on the Class board (letters, digits, spaces, . ' _ -)")
             self.name_note = gui.add_markdown("")  # a refused name: why, and the name the runs carry instead
-            # the registered robots and every robot the presenter opened this session (app/any_robot.py)
+            # the registered robots and every robot the presenter opened since the server started (app/any_robot.py)
             self.robot = gui.add_dropdown("Robot", any_robot.choices(session.state), initial_value=arm)
             self.method = gui.add_dropdown("Method", tuple(m.label for m in methods.all_methods()),
                                            initial_value=methods.get(d.method).label)

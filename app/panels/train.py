@@ -121,7 +121,7 @@ class TrainingPanel:
         # arm and method, the run controls, the speed, the progress and the convergence plot; the
         # numbers behind a run, the race and the method's views follow
         self.robot = gui.add_dropdown("Robot", any_robot.choices(state, more=True), initial_value=state.arm.name,
-                                      hint="the registered robots, those opened this session, and More robots…: "
+                                      hint="the registered robots, those opened since the server started, and More robots…: "
                                            "any example-robot-data robot or a URDF of your own")
         self.more = any_robot.MoreRobots(gui, lambda name: (self.on_robot or self.state.set_robot)(name), notify)
         # position or pose goals (app/tab/posegoal.py): a shared control, so the classroom gate covers it

@@ -132,7 +132,7 @@ class LabState:
         self._replaced = None  # (controller, source) a tree's run replaced on the arms (kept_the_better)
         self._version = 0
         self._shown = Shown(robots.load(robot), None, "none", 0)
-        self.opened_robots = [self._shown.arm.name]  # every robot shown this session (the Robot menus: app/any_robot.py)
+        self.opened_robots = [self._shown.arm.name]  # every robot shown since the server started (the Robot menus: app/any_robot.py)
         self._clear_history()
         self._show_startup()
 
