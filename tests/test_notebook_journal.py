@@ -227,3 +227,50 @@ def test_a_notebook_that_cannot_take_an_entry_nor_its_journal_says_they_are_lost
         f"notebook {path}: 1 run could not be written before the app stopped (database is locked): the journal "
         f"{journal} could not take gone1 ({why}): lost"]
     assert [r.levelname for r in caplog.records if r.name == "app.training.notebook"] == ["ERROR", "ERROR"]
+
+
+def test_a_truly_full_disk_gives_the_journal_the_room_kept_for_it(tmp_path, monkeypatch, caplog):
+    """The notebook's filesystem is full (a 1 MiB tmpfs filled to the last block): neither the
+    notebook's WAL nor a journal beside it could grow, so the journal keeps room allocated while the
+    disk has it (`<notebook>.journal-reserve`), and gives it up to be written. The entry is in the
+    journal at close and in the notebook at the next opening, once there is room again (needs root to
+    mount the tmpfs; skipped elsewhere)."""
+    from app.training import journal as journal_module
+
+    tiny = tmp_path / "tiny"
+    tiny.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(tiny)], capture_output=True).returncode:
+        import pytest
+
+        pytest.skip("cannot mount a small tmpfs here (needs root)")
+    try:
+        monkeypatch.setattr(journal_module, "RESERVE", 256 * 1024)
+        path = tiny / "nb.db"
+        nb = Notebook(str(path), timeout=0.2)
+        nb.add(run("before1"))
+        assert os.path.getsize(f"{path}.journal-reserve") == 256 * 1024
+        fd = os.open(tiny / "filler", os.O_WRONLY | os.O_CREAT)  # the disk filled by another program
+        try:
+            while os.write(fd, b"\0" * 4096):
+                pass
+        except OSError:
+            pass  # ENOSPC: not one block left
+        finally:
+            os.close(fd)
+        entry = run("full1", controller={"w": "x" * 100_000})
+        with caplog.at_level("WARNING"):
+            nb.add(entry, timeout=0.2)
+            not_written = nb.close(wait=0.2)  # [] when the retrier wrote it in the room given up
+        assert not_written in ([], ["full1"])
+        said = [r.getMessage() for r in caplog.records if r.name == "app.training.notebook"]
+        assert any(f"in the journal {path}.journal (full1)" in line for line in said), said
+        assert not any("lost" in line or "could not take" in line for line in said), said
+        assert not os.path.exists(f"{path}.journal-reserve")  # given up for the journal
+        os.remove(tiny / "filler")
+        again = Notebook(str(path))
+        assert [e["run_id"] for e in again.entries()] == ["before1", "full1"]
+        assert again.get("full1") == entry
+        assert not (tiny / "nb.db.journal").exists()
+        assert os.path.getsize(f"{path}.journal-reserve") == 256 * 1024  # kept again, now there is room
+    finally:
+        subprocess.run(["umount", "-l", str(tiny)], capture_output=True)

@@ -11,10 +11,16 @@ over it (atomic), then the folder fsync'd; a write that fails (ENOSPC, EFBIG) le
 was. Processes that share a notebook take an flock on its folder around a change (read, merge, write),
 waited for LOCK_WAIT s at most. A line that is not an entry is kept as it is, never dropped silently.
 Only a regular file is read: a pipe or a device at the journal's path is refused (`JournalError`).
+
+A full disk: the notebook keeps `<notebook>.journal-reserve`, RESERVE bytes allocated on the disk
+while there was room (`keep_reserve`, at each opening). A journal write that fails for want of space
+(ENOSPC, EDQUOT) removes the reserve, which frees its blocks, and writes again; the next opening
+allocates it anew once there is room.
 """
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import json
 import os
@@ -25,6 +31,8 @@ from contextlib import contextmanager
 from app.classroom.files import kind_of
 
 LOCK_WAIT = 2.0  # s a change waits for another process's change of the same journal, then goes on
+RESERVE = 4 * 2**20  # bytes kept allocated beside the journal, given up for it when the disk is full
+_NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
 
 
 class JournalError(OSError):
@@ -34,6 +42,45 @@ class JournalError(OSError):
 class Journal:
     def __init__(self, path: str):
         self.path = path
+        self.reserve_path = path + "-reserve"
+
+    def keep_reserve(self, size: int | None = None) -> bool:
+        """Allocate the reserve (`size` bytes on the disk, default RESERVE) if it is missing or short;
+        False when the disk has no room for it now (then nothing is left behind). Never raises OSError."""
+        size = RESERVE if size is None else size
+        try:
+            st = os.stat(self.reserve_path)
+            if kind_of(st.st_mode) is None and st.st_size >= size and st.st_blocks * 512 >= size:
+                return True
+        except OSError:
+            pass
+        tmp = f"{self.reserve_path}.{os.getpid()}-{threading.get_ident()}.tmp"
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            try:
+                os.posix_fallocate(fd, 0, size)
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            os.replace(tmp, self.reserve_path)
+            return True
+        except OSError:
+            try:
+                os.remove(tmp)
+            except OSError:
+                pass
+            return False
+
+    def _free_reserve(self) -> bool:
+        """Give the reserve's blocks back to the disk; True if there was one."""
+        try:
+            if kind_of(os.lstat(self.reserve_path).st_mode) is not None:
+                return False
+            os.remove(self.reserve_path)
+        except OSError:
+            return False
+        _sync_folder(self.reserve_path)
+        return True
 
     def exists(self) -> bool:
         return os.path.lexists(self.path)
@@ -102,6 +149,14 @@ class Journal:
         raise OSError(f"no free name beside {self.path}")
 
     def _write(self, data: bytes) -> None:
+        try:
+            self._write_once(data)
+        except OSError as e:
+            if e.errno not in _NO_SPACE or not self._free_reserve():
+                raise
+            self._write_once(data)  # the reserve's room, given up for it
+
+    def _write_once(self, data: bytes) -> None:
         tmp = f"{self.path}.{os.getpid()}-{threading.get_ident()}.tmp"
         try:
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)

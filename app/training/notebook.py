@@ -135,6 +135,7 @@ class Notebook:
             except sqlite3.DatabaseError as e:
                 raise NotebookError(f"notebook {self.path} is not a lab notebook ({e}); {_LEAVE}") from e
         if self.read_only is None:
+            self.journal.keep_reserve()  # room for the journal, kept while the disk has it
             self._import_journal()
         else:
             self._list_journal()
