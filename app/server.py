@@ -203,6 +203,8 @@ class LabApp:
             self.map_legend = gui.add_markdown("")
         with tabs.add_tab("Runs", viser.Icon.LIST):
             self.runs = RunsPanel(gui, self)
+        # an uploaded URDF (the Train panel's More robots…) is kept beside the uploaded recordings, under their limits
+        self.panel.more.upload_folder, self.panel.more.guard = os.path.join(recordings, "uploads"), self.runs.uploads
         with tabs.add_tab("Class", viser.Icon.USERS):
             self.board = ClassBoard(gui, self.class_runs, show=self.runs._show, replay=self.runs.open_file)
         with tabs.add_tab("About", viser.Icon.INFO_CIRCLE):

@@ -35,6 +35,7 @@ import argparse  # noqa: E402
 import concurrent.futures as cf  # noqa: E402
 import logging  # noqa: E402
 import multiprocessing  # noqa: E402
+import re  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
@@ -90,7 +91,9 @@ def row(name: str, seconds: float, n_goals: int, n_poses: int) -> dict:
 
 
 def _one_line(e: BaseException) -> str:
-    return " ".join(f"{type(e).__name__}: {e}".split())[:300]
+    """The error in one line, a path into example-robot-data's share folder from the package's name on."""
+    text = re.sub(r"\S*/share/(example-robot-data/)", r"\1", f"{type(e).__name__}: {e}")
+    return " ".join(text.split())[:300]
 
 
 def table(rows: list[dict], seconds: float) -> str:

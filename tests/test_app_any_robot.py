@@ -172,9 +172,19 @@ def test_a_run_on_a_urdf_arm_is_noted_with_its_sha256_and_a_changed_or_gone_urdf
         assert wait_until(lambda: _protocol(entry["recording"]) is not None, timeout=60)
         protocol = _protocol(entry["recording"])
         assert protocol["robot"] == arm.name and protocol["urdf_sha256"] == arm.urdf_sha256
-        # the saved controller reopens on the arm (Runs panel, the notebook's final controller)
+        # the saved run reopens on the arm (Runs panel), downloads to a tab, and the download opens again
         app.runs.refresh(force=True)
         assert app.runs.open(label(entry)) is None and app.state.shown.controller is not None
+        tab = open_tab(app)
+        try:
+            app.runs.download(session_of(app, tab).client)
+            sent = tab.wait_for(lambda m: m["type"] == "FileTransferStartDownload", timeout=30)
+            assert sent["filename"] == os.path.basename(entry["recording"])
+        finally:
+            tab.close()
+        app.runs.live()
+        assert app.runs.open_upload("downloaded.rrd", Path(entry["recording"]).read_bytes()) is None
+        assert app.state.shown.controller is not None and app.state.arm.name == arm.name
         app.runs.live()
         # the file changes: said, the run still opens (its network fits the arm)
         urdf.write_text(urdf.read_text() + "\n<!-- edited -->\n")

@@ -37,6 +37,12 @@ class RunsPanel:
         self.upload = gui.add_upload_button("Upload a recording (.rrd)", icon="upload", mime_type="*/*")
         self.slider = gui.add_slider("Generation", min=0, max=1, step=1, initial_value=0, disabled=True)
         self.live_button = gui.add_button("Back to live", icon="player-play")
+        self.download_button = gui.add_button(
+            "Download this run", icon="download",
+            hint="the open run's recording (.rrd: Upload opens it again, on any robot the lab can load); a run "
+                 "whose recording is gone: its controller as JSON, with its robot string and URDF sha256")
+        self.download_button.on_click(lambda e: self.download(e.client))
+        self._entry = None  # the notebook entry of the run open (None: a file, or nothing)
         self.details = gui.add_markdown("")
         self.message = gui.add_markdown("")
         self.recording = None  # lab.recording.replay.Recording being replayed
@@ -131,7 +137,7 @@ class RunsPanel:
         msg = self._show(entry["robot"], controller, f"replay {entry['run_id'][:6]}, final controller", client,
                          sha256=entry.get("urdf_sha256"))
         if msg is None:
-            self.recording = None
+            self.recording, self._entry = None, entry
             self.slider.disabled = True
             self.details.content = _details(entry) + "  \n(recording missing: final controller only)"
         return msg
@@ -155,7 +161,7 @@ class RunsPanel:
                          sha256=rec.protocol.get("urdf_sha256") or (entry or {}).get("urdf_sha256"))
         if msg is not None:
             return msg
-        self.recording = rec
+        self.recording, self._entry = rec, entry
         self.state.replayed_population = rec.population_at(gen)
         first, last = rec.controllers[0][0], max(gen, rec.controllers[-1][0])
         self.slider.min, self.slider.max = first + 1, max(last + 1, first + 2)
@@ -226,6 +232,27 @@ class RunsPanel:
             notify(client, "Replay", text, error=False)
         else:
             self.message.content = ""
+        if changed is not None:  # shown, and said: the file is not the one the run trained on
+            self.message.content = (self.message.content + "  \n" if self.message.content else "") + f"**Note: {changed}.**"
+            notify(client, "Replay", changed, error=True)
+        return None
+
+    def download(self, client) -> str | None:
+        """Send the open run to the tab: its recording (.rrd, which Upload opens again), or, for a run whose
+        recording is gone, {"robot", "urdf_sha256", "settings", "controller"} as JSON
+        (lab.controller_from_dict(doc["controller"]) reads it back)."""
+        import json
+
+        rec, entry = self.recording, self._entry
+        if rec is not None and os.path.isfile(rec.path):
+            name, data = os.path.basename(rec.path), open(rec.path, "rb").read()
+        elif entry is not None and entry.get("controller"):
+            doc = {k: entry.get(k) for k in ("run_id", "robot", "urdf_sha256", "method", "settings", "controller")}
+            name, data = f"run-{entry['run_id'][:8]}.json", json.dumps(doc).encode()
+        else:
+            return self.refuse(client, "refused: open a run first (Run, then Open)")
+        if client is not None:
+            client.send_file_download(name, data, save_immediately=True)
         return None
 
     # ------------------------------------------------------------------ scrubbing
