@@ -119,7 +119,7 @@ def test_a_spare_started_for_other_kernels_than_the_pages_first_start_is_started
 
     class Proc:
         def __init__(self):
-            self.killed = False
+            self.killed, self.warmup = False, lab_worker.Warmup(pid=0)
 
         def poll(self):
             return 1 if self.killed else None
@@ -144,7 +144,33 @@ def test_a_spare_started_for_other_kernels_than_the_pages_first_start_is_started
     budget = lab.TrainConfig.preset(robot="ur5", seconds=30.0)  # one head: not the UR5's defaults' two
     assert warmup.run_key(budget) != warmup.run_key(lab.TrainConfig.preset(robot="ur5"))
     lab_worker.prestart("ur5", first=budget)
-    assert first.killed and lab_worker._spare is not first
+    assert first.killed and first.warmup.abandoned and lab_worker._spare is not first  # its end is not told
     assert spawned == [("ur5", None), ("ur5", budget.to_dict())]
     lab_worker.prestart("ur5", first=budget)  # the same kernels: the spare stays
     assert len(spawned) == 2
+
+
+def test_an_abandoned_spares_end_is_not_told_as_kernels_ready():
+    import os
+    import threading
+
+    told = []
+
+    def listen(w) -> None:
+        told.append((w.abandoned, w.done))
+
+    lab_worker.on_warmup(listen)
+    try:
+        for abandoned in (True, False):
+            read, write = os.pipe()
+            w = lab_worker.Warmup(pid=99)
+            w.abandoned = abandoned
+            t = threading.Thread(target=lab_worker._follow, args=(read, w))
+            t.start()
+            os.write(write, b"step 1 2 - kinematics forward kinematics\n")
+            os.close(write)  # killed: no "done" line
+            t.join(10)
+            assert w.done
+        assert [abandoned for abandoned, done in told if done] == [False]  # only the other one's end
+    finally:
+        lab_worker._listeners.remove(listen)

@@ -74,6 +74,7 @@ class Warmup:
         self.done = False
         self.seconds = 0.0  # s the whole warm-up took (when done)
         self.compiling = False  # numba compiles (a kernel missed the cache): the warm-up is worth telling
+        self.abandoned = False  # a spare ended by the parent (other kernels came first): its end is not told
 
     def describe(self) -> str | None:
         """"step 2 of 7 (CMA-ES for serial arms), about 12 s" while it compiles (past the
@@ -136,7 +137,8 @@ def _follow(fd: int, warmup: Warmup) -> None:
                 break
     warmup.seconds = warmup.seconds or time.monotonic() - warmup.started
     warmup.done = True  # also when the worker ended without saying so (killed)
-    _tell(warmup)
+    if not warmup.abandoned:  # ended by us for another: no "training kernels ready" of kernels it never finished
+        _tell(warmup)
 
 
 class ProcessRunner(RemoteRunBase):
@@ -266,6 +268,7 @@ def prestart(robot: str | None = None, first: TrainConfig | None = None) -> None
             before = _first_key()
             _first_robot, _first_config = first.robot, first.to_dict()
             if _spare is not None and _spare.poll() is None and _first_key() != before:
+                _spare.warmup.abandoned = True
                 _spare.kill()  # started a moment ago for other kernels (python -m app's, before the page's settings)
                 threading.Thread(target=_spare.wait, daemon=True).start()
                 _spare = None
@@ -297,6 +300,7 @@ def _take_worker(config: TrainConfig | None = None) -> subprocess.Popen:
             return proc
         log.info("the spare worker compiles %s, which this run does not call: a fresh worker instead",
                  proc.warmup.label)
+        proc.warmup.abandoned = True
         proc.kill()  # its finished steps stay in numba's cache; the next spare compiles the rest
         threading.Thread(target=proc.wait, daemon=True).start()
     return _spawn(spare=False)
