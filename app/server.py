@@ -427,12 +427,25 @@ class LabApp:
     def _refresh_class(self, sessions: list) -> None:
         """The class board and each viewer's own run (its status, curve and arm)."""
         self.board.refresh()
+        self._tell_lost(sessions)
         for s in sessions:
             if getattr(s, "my_run", None) is not None:
                 try:
                     s.my_run.refresh()
                 except Exception:  # noqa: BLE001 - one tab's panel never stops the others'
                     self._tab_failed(s, "My experiment panel")
+
+    def _tell_lost(self, sessions: list) -> None:
+        """Each presenter's tab told once when students' runs cannot go where they go (a Ray cluster
+        lost: ClassRuns.unavailable, probed at most every few seconds; a tab that connects meanwhile
+        too), once when they can again; the Class board says it meanwhile."""
+        lost = self.class_runs.unavailable()
+        for s in sessions:
+            if s.presenter and getattr(s, "told_lost", None) != lost:
+                s.told_lost = lost
+                notify(s.client, "Ray cluster lost" if lost else "Ray cluster back",
+                       f"{lost}; students' new runs are refused until it answers again" if lost
+                       else "It answers again: students' runs go to it.", error=lost is not None)
 
     def _sync_replays(self, sessions: list) -> None:
         """Each viewer tab's own replay (a method: no loop variable of the render loop keeps the last

@@ -173,6 +173,8 @@ class ClassRuns:
         subscribed to the runner (app.server.rerun_recorder), or None: no recordings."""
         self.notebook, self.limits, self.recorder = notebook, limits, recorder
         self.make_runner = runner or local_runner
+        # why runs cannot go where the runner sends them now (a lost Ray cluster: RayRunner.unavailable)
+        self._unavailable = getattr(self.make_runner, "unavailable", None)
         self.workers = max(1, int(workers)) if workers is not None else default_workers()
         self.stop_grace = stop_grace
         self._lock = threading.RLock()
@@ -249,6 +251,8 @@ class ClassRuns:
         server is stopping. lesson: the lesson link the tab opened (the board groups its runs)."""
         if (why := limits_refusal(config, self.limits)) is not None:
             return f"refused: {why}"
+        if (lost := self.unavailable()) is not None:  # refused, not run here instead: see docs/classroom.md
+            return f"refused: {lost}; no new run until it answers again"
         with self._lock:
             if self.closed:
                 return "refused: the server is stopping"
@@ -264,6 +268,11 @@ class ClassRuns:
             self._pump()
         return None
 
+    def unavailable(self) -> str | None:
+        """None, or why new runs are refused now, naming where they would go ("the local Ray instance at
+        HOST:PORT is lost: ..."); cheap (the runner's own watch, probed at most every few seconds)."""
+        return self._unavailable() if self._unavailable is not None else None
+
     def running(self) -> list[StudentRun]:
         with self._lock:
             return [r for r in self.runs.values() if r.state in ("running", "paused")]
@@ -272,6 +281,11 @@ class ClassRuns:
         """Start queued runs while a worker is free (under the lock)."""
         while self._queue and not self.closed and len(self.running()) < self.workers:
             run = self._queue.popleft()
+            if (lost := self.unavailable()) is not None:  # it would wait for a CPU none offers: it fails now
+                log.warning("student run %s not started: %s", run.id, lost)
+                run.state, run.note = "failed", f"it could not start: {lost}"
+                self.version += 1
+                continue
             try:
                 runner = self.make_runner(run.config, history_limit=HISTORY_POINTS)
                 runner.run_id = run.id

@@ -17,7 +17,11 @@ arm move live as for a local run. At the end it takes the actor's summary and en
 stop() ends the run after its generation in flight; stop_or_kill() kills the actor when it has not
 ended `grace` s later (the run then ends "stopped" with the generations received). An actor that dies
 on its own (its process killed, its node gone) fails the run: "its Ray worker was lost: ...". So does
-one that has not answered for LOST_AFTER s once started. Ray is imported only here and only when used:
+one that has not answered for LOST_AFTER s once started. A run whose actor has not been placed
+START_WAIT s after Start (no node had a CPU for it) fails, naming the cluster, and its actor is
+cancelled; so does one waiting when the cluster is found lost (lab/running/ray_watch.py: its GCS or this
+process's raylet not answering, no live node with a CPU), at once, and a run started while it is lost
+(`RayRunner.unavailable()` says why before one is made). Ray is imported only here and only when used:
 the lab and the app run without it.
 """
 
@@ -30,6 +34,7 @@ import time
 
 from lab.running import pipes
 from lab.running.config import TrainConfig
+from lab.running.ray_watch import WATCH
 from lab.running.runner import RemoteRunBase, RunSummary
 
 log = logging.getLogger(__name__)
@@ -37,6 +42,8 @@ log = logging.getLogger(__name__)
 READ_PERIOD = 0.05  # s between the reader's takes of the actor's events
 STOP_GRACE = 5.0  # s: how long stop_or_kill waits after Stop before it kills the actor
 LOST_AFTER = 60.0  # s: a started actor that has not answered a take this long is taken for lost
+START_WAIT = 60.0  # s: a run whose actor no node has taken (a CPU) this long after Start gives up
+WAIT_STEP = 1.0  # s between a waiting run's looks at the cluster's health (lab/running/ray_watch.py)
 OBJECT_STORE_BYTES = 100 * 1024 * 1024  # a local instance's object store: events and summaries are small
 INSTALL = 'pip install -e ".[ray]"'
 # every process of the cluster's workers: one BLAS thread, one fitness thread (as lab/experiments/executors.py)
@@ -62,6 +69,7 @@ def connect(address: str) -> str:
     RayMissing without Ray; ConnectionError (naming the address) when the cluster cannot be reached."""
     ray = _ray()
     _answers(address)
+    WATCH.joined(address)
     if not ray.is_initialized():
         kwargs = dict(runtime_env={"env_vars": ONE_THREAD}, log_to_driver=False, logging_level=logging.WARNING)
         try:
@@ -111,6 +119,22 @@ def _first_line(e: BaseException, most: int = 300) -> str:
     return text if len(text) <= most else text[:most - 3] + "..."
 
 
+def _actor_state(actor) -> str | None:
+    """The actor's state in the GCS ("PENDING_CREATION" until a node has taken it and its __init__
+    has returned, "ALIVE", "DEAD"), or None when it cannot be read (ray._private.state: no public
+    call reads it without the dashboard)."""
+    try:
+        from ray._private import state
+
+        return state.actors(actor._actor_id.hex()).get("State")
+    except Exception:  # noqa: BLE001 - an API of Ray's that moved: the plain bound applies
+        return None
+
+
+class _NotStarted(Exception):
+    """The run's actor will not start: why (naming the cluster)."""
+
+
 def _why_lost(e: BaseException) -> str:
     """A dead actor's error in a few words: "the actor died (it was killed by `ray.kill`)"."""
     text = str(e)
@@ -122,20 +146,26 @@ def _why_lost(e: BaseException) -> str:
 
 
 class RunActor:
-    """In a Ray worker: a lab Runner and the events it has published, encoded, not yet taken."""
+    """In a Ray worker: a lab Runner and the events it has published, encoded, not yet taken. Its
+    __init__ only keeps the arguments (the actor is "ALIVE" once a node has taken it: the server tells
+    a run that waits for a CPU from one whose worker is loading the lab); start() makes the Runner."""
 
     def __init__(self, config: TrainConfig, run_id: str, blas_threads: int | None, history_limit: int | None):
+        self._args = (config, run_id, blas_threads, history_limit)
+        self._lock = threading.Lock()
+        self._events: list = []
+        self._held: int | None = None
+        self._encode = pipes.EventEncoder()
+        self.runner = self.error = None
+
+    def _make(self) -> None:
+        config, run_id, blas_threads, history_limit = self._args
         os.environ.update(ONE_THREAD)  # before the lab's kernels load in this worker
         from threadpoolctl import threadpool_limits
 
         threadpool_limits(1, user_api="blas")
         from lab.running.runner import Runner
 
-        self._lock = threading.Lock()
-        self._events: list = []
-        self._held: int | None = None
-        self._encode = pipes.EventEncoder()
-        self.error = None
         try:
             self.runner = Runner(config, blas_threads=blas_threads, history_limit=history_limit)
         except Exception as e:  # noqa: BLE001 - told to the server as the run's failure
@@ -158,6 +188,7 @@ class RunActor:
         """Start the run (unless it could not be made); where it runs."""
         import ray
 
+        self._make()
         if self.runner is not None:
             self.runner.start()
         context = ray.get_runtime_context()
@@ -222,12 +253,19 @@ class RayRunner(RemoteRunBase):
         self._actor = None
         self._started = False  # the actor has started its run
         self.stop_grace = STOP_GRACE
+        self.start_wait = START_WAIT  # s: how long it waits for a node to take its actor (a CPU)
         self.node_id: str | None = None  # the Ray node it trains on, once started
         self.pid: int | None = None  # the actor's process there
 
     @property
     def _remote(self):
         return self._actor
+
+    @staticmethod
+    def unavailable() -> str | None:
+        """None while the cluster answers, else why a new run would fail at once, naming the cluster
+        (lab/running/ray_watch.py; never blocks, probes at most every few seconds)."""
+        return WATCH.lost()
 
     @property
     def preparing(self) -> str | None:
@@ -280,7 +318,7 @@ class RayRunner(RemoteRunBase):
         ray = self.ray
         decode, summary, error, lost = pipes.EventDecoder(self.run_id), None, None, None
         try:
-            where = ray.get(started)  # waits while the cluster has no CPU for it (a kill ends the wait)
+            where = self._wait_started(started)  # a kill ends the wait (ray.get raises)
             self.node_id, self.pid, error = where["node"], where["pid"], where["error"]
             self._started = True
             while summary is None and error is None:
@@ -298,6 +336,8 @@ class RayRunner(RemoteRunBase):
                         self.holding = held if self._state == "paused" else None
                 if summary is None and error is None:
                     time.sleep(READ_PERIOD)  # a batch of generations per take, not a call per generation
+        except _NotStarted as e:  # no CPU for it in time, or the cluster lost
+            lost = e
         except Exception as e:  # noqa: BLE001 - the actor died (killed, its process or node gone)
             lost = _why_lost(e)
         if summary is not None:
@@ -307,10 +347,34 @@ class RayRunner(RemoteRunBase):
         elif error is not None:
             self._conclude(self._summarize("failed", decode.controller, error))
         else:
-            log.warning("run %s: its Ray worker was lost: %s", self.run_id, lost)
-            self._conclude(self._summarize("failed", decode.controller, f"its Ray worker was lost: {lost}"))
+            why = (f"its Ray worker never started: {lost}" if isinstance(lost, _NotStarted) else
+                   f"its Ray worker was lost: {lost}")
+            log.warning("run %s: %s", self.run_id, why)
+            self._conclude(self._summarize("failed", decode.controller, why))
         if self._actor is not None:
-            try:  # the run has ended: its CPU goes back to the cluster
+            try:  # the run has ended: its CPU goes back to the cluster (a pending actor is cancelled)
                 ray.kill(self._actor, no_restart=True)
             except Exception:  # noqa: BLE001
                 pass
+
+    def _wait_started(self, started) -> dict:
+        """The actor's answer to start(); _NotStarted, naming the cluster, when the cluster is found
+        lost meanwhile (looked at every WAIT_STEP s), when no node has taken the actor start_wait s
+        after Start, or when one has and start() has not answered LOST_AFTER s later."""
+        ray, t0, taken = self.ray, time.monotonic(), None
+        while True:
+            try:
+                return ray.get(started, timeout=WAIT_STEP)
+            except ray.exceptions.GetTimeoutError:
+                pass
+            if (lost := WATCH.lost()) is not None:
+                raise _NotStarted(lost)
+            now = time.monotonic()
+            if taken is None and now - t0 > self.start_wait:
+                if _actor_state(self._actor) != "ALIVE":
+                    raise _NotStarted(f"no node of {WATCH.where()} took it within {self.start_wait:g} s "
+                                      "(every CPU busy, or the cluster lost)")
+                taken = now  # it has its CPU: its worker is loading the lab
+            if taken is not None and now - taken > LOST_AFTER:
+                raise _NotStarted(f"its worker on {WATCH.where()} has not started the run {LOST_AFTER:g} s after "
+                                  "it took it")
