@@ -211,3 +211,33 @@ def _protocol(path: str):
         return read_recording(path).protocol
     except Exception:  # noqa: BLE001 - still being written
         return None
+
+
+def test_pose_goals_on_a_six_joint_arm_of_your_own_and_positions_only_on_fewer_joints(app):
+    """Pose goals on a robot of your own with a serial chain of 6-7 joints (erd:ur3: the tab's gizmo turns);
+    fewer joints keep to positions, saying why: 3 (erd:finger_edu), and 5 without a known approach axis
+    (the own arm: robots.pose)."""
+    from app.tab.posegoal import pose_refusal
+
+    assert "approach axis" in pose_refusal(f"{os.path.abspath(OWN)}#tool0")  # 5 joints
+    assert "3 joints" in pose_refusal("erd:finger_edu") and "positions only" in pose_refusal("erd:finger_edu")
+    assert app.switch_robot("erd:ur3") is None
+    tab = open_tab(app)
+    try:
+        assert app.panel.set_goal("pose") is None and app.state.goal == "pose"
+        assert app.state.shown.controller is None and app.state.shown.source == any_robot.NO_NETWORK
+        msg = tab.wait_for(lambda m: m["type"] == "TransformControlsMessage" and m["name"] == "/tab/goal0/marker"
+                           and not m["props"]["disable_rotations"], timeout=30)
+        assert list(msg["props"]["active_axes"]) == [True, True, True]
+        # Start trains a pose network on it, in the worker process, and the arms show it
+        config = lab.TrainConfig.preset(robot="erd:ur3#tool0", goal="pose", population=8, generations=3, hidden=8,
+                                        targets=20, test_goals=20)
+        assert app.state.start(config) is None
+        assert wait_until(lambda: app.state.runner.state in ("finished", "failed", "stopped"), timeout=600)
+        assert app.state.runner.state == "finished", app.state.progress()["error"]
+        assert wait_until(lambda: getattr(app.state.shown.controller, "goal", None) == "pose")
+    finally:
+        tab.close()
+        app.state.reset()
+        app.panel.set_goal("position")
+        app.switch_robot(OWN)

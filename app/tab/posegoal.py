@@ -37,12 +37,18 @@ def takes_poses(robot: str) -> bool:
 
 def pose_refusal(robot: str) -> str | None:
     """Why `robot` takes no pose goals (a line naming it), or None for one that does: the real arms
-    (robots.kind "real"), whose tool frame robots.pose holds (robots.pose.approach_axis)."""
+    (robots.kind "real") and a robot of your own with a serial chain of 5-7 joints (kind "custom"), whose
+    tool frame robots.pose holds (robots.pose.approach_axis)."""
     try:
         kind = robots.kind(robot)
     except Exception as e:  # noqa: BLE001 - an unknown robot: its own message
         return f"pose goals: {e}"
-    if kind != "real":
+    if kind == "custom":  # a robot of your own (erd:NAME, a URDF): a serial chain of 5-7 joints, as TRAC-IK's
+        arm = robots.load(robot)
+        if arm.is_tree or not 5 <= arm.nq <= 7:
+            return (f"pose goals are for serial chains of 5 to 7 joints; the {arm.name} has "
+                    f"{f'{arm.n_effectors} end effectors' if arm.is_tree else f'{arm.nq} joints'}: positions only")
+    elif kind != "real":
         real = ", ".join(n for n in robots.names() if robots.kind(n) == "real")
         return (f"pose goals are for the real arms ({real}); the {robot} is a {kind} robot, whose goals "
                 "are positions only")
