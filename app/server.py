@@ -182,7 +182,7 @@ class LabApp:
         self.host = host
         self.sessions: dict[int, TabSession] = {}
         self._sessions_lock = threading.Lock()
-        self._gone: set[int] = set()  # ids of closed tabs (ids are never reused)
+        self._gone: set[int] = set()  # ids of tabs that closed while their scene was being built (until _connect sees it)
         self.latency: deque = deque(maxlen=100_000)  # (tab, callback start, pose flushed) of marker updates
         self._stop = threading.Event()
         self.failures = FailureLog(log)  # the render loop's: a traceback once per tab, then a count a minute
@@ -258,6 +258,7 @@ class LabApp:
         session.my_run = None if presenter else MyRunPanel(client, session, self.class_runs)
         with self._sessions_lock:
             gone = client.client_id in self._gone  # the tab closed while its scene was being built
+            self._gone.discard(client.client_id)  # seen: no closed tab's id is kept for good
             if not gone:
                 self.sessions[client.client_id] = session
         if gone:
@@ -281,7 +282,8 @@ class LabApp:
     def _disconnect(self, client: viser.ClientHandle) -> None:
         with self._sessions_lock:
             session = self.sessions.pop(client.client_id, None)
-            self._gone.add(client.client_id)
+            if session is None:  # its _connect has not registered it yet: it drops it when it does
+                self._gone.add(client.client_id)
         self.access.disconnected(client.client_id)
         self.class_runs.drop_tab(client.client_id)  # its queued run dropped, its running run stopped
         if session is not None:

@@ -11,6 +11,15 @@ its kernels, its error-map grid) shows in round 0 only. Also printed: the visual
 
     .venv/bin/python benchmarks/bench_app_memory.py [--robot g1] [--robots g1,planar,ur5,talos-legs,scara,panda]
         [--rounds 6] [--tabs 3] [--keep]
+
+--plain: rounds of tabs that connect and close, no lesson, no switch (issue 55: a server kept 15-18
+MiB per 300 such tabs, round after round). Each round opens `--tabs` plain tabs (`--batch` at a time,
+each until its scene is built), closes them all, and prints the RSS once they are gone, with what the
+app's per-tab structures still hold (their entries should be none); --viewers makes them viewers of
+a class (a presenter token is set: each gets My experiment and its own replay); --trace also prints
+the allocations that grew most from the first round's end to the last's (tracemalloc).
+
+    .venv/bin/python benchmarks/bench_app_memory.py --plain --robot planar --tabs 300 --rounds 3 [--viewers] [--trace]
 """
 
 from __future__ import annotations
@@ -37,7 +46,13 @@ def main() -> None:
     p.add_argument("--rounds", type=int, default=6)
     p.add_argument("--tabs", type=int, default=3, help="tabs opened with each robot's lesson link")
     p.add_argument("--keep", action="store_true", help="keep a round's tabs open until its end")
+    p.add_argument("--plain", action="store_true", help="rounds of plain tabs that connect and close")
+    p.add_argument("--batch", type=int, default=25, help="--plain: tabs open at once")
+    p.add_argument("--viewers", action="store_true", help="--plain: the tabs are a class's viewers")
+    p.add_argument("--trace", action="store_true", help="--plain: the allocations that grew, by line")
     args = p.parse_args()
+    if args.plain:
+        return plain_rounds(args)
 
     import psutil
 
@@ -101,6 +116,85 @@ def main() -> None:
             alive = sum(ref() is not None for ref in held)
             print(f"round {r}: {mib:.0f} MiB ({time.perf_counter() - t0:.0f} s); visual models kept "
                   f"{robot_arm._visual_cache.cache_info().currsize}; closed tabs still held {alive}")
+    finally:
+        app.stop()
+        loop.call_soon_threadsafe(loop.stop)
+
+
+def per_tab_entries(app) -> dict[str, int]:
+    """What the app's per-tab structures hold (app.per_tab_entries when the app has it, else the known ones)."""
+    if hasattr(app, "per_tab_entries"):
+        return app.per_tab_entries()
+    return {"sessions": len(app.sessions), "class_runs names": len(app.class_runs._names),
+            "access roles": len(app.access._roles), "viser clients": len(app.server.get_clients())}
+
+
+def plain_rounds(args) -> None:
+    import psutil
+
+    sys.path.insert(0, str(ROOT))
+    from app.probe import Probe
+    from app.server import LabApp
+
+    if args.trace:
+        import tracemalloc
+
+        tracemalloc.start(6)
+    me = psutil.Process()
+    try:
+        trim = ctypes.CDLL("libc.so.6").malloc_trim
+    except (OSError, AttributeError):
+        trim = None
+
+    def rss() -> float:
+        gc.collect()
+        if trim is not None:
+            trim(0)
+        return me.memory_info().rss / 2**20
+
+    def until(predicate, timeout: float = 120.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            time.sleep(0.05)
+        return False
+
+    folder = tempfile.mkdtemp(prefix="bench-app-memory-")
+    app = LabApp(port=0, robot=args.robot, notebook=f"{folder}/notebook.db", recordings=f"{folder}/rec", record=False,
+                 presenter_token="bench-token" if args.viewers else None)
+    loop = asyncio.new_event_loop()
+    threading.Thread(target=loop.run_forever, daemon=True).start()
+    held, snapshots = [], []
+    print(f"a {args.robot} lab; each round {args.tabs} {'viewer' if args.viewers else 'plain'} tabs connect "
+          f"({args.batch} at a time, each until its scene is built) and close")
+    print(f"start: {rss():.0f} MiB")
+    try:
+        for r in range(args.rounds):
+            t0 = time.perf_counter()
+            for first in range(0, args.tabs, args.batch):
+                tabs = [Probe(app.url, loop=loop).start(120) for _ in range(min(args.batch, args.tabs - first))]
+                for tab in tabs:
+                    tab.wait_for(lambda m: m.get("name") == "/tab/goal0/label", 120)
+                    tab.drain()
+                held += [weakref.ref(s) for s in list(app.sessions.values())]
+                for tab in tabs:
+                    tab.close()
+                until(lambda: not app.sessions and not app.server.get_clients(), 60)
+            mib = rss()
+            alive = sum(ref() is not None for ref in held)
+            left = {k: v for k, v in per_tab_entries(app).items() if v}
+            print(f"round {r}: {mib:.0f} MiB ({time.perf_counter() - t0:.0f} s); closed tabs still held {alive}; "
+                  f"per-tab entries left {left or 'none'}", flush=True)
+            if args.trace:
+                snapshots.append(tracemalloc.take_snapshot())
+        if args.trace and len(snapshots) > 1:
+            grew = snapshots[-1].compare_to(snapshots[0], "traceback")
+            print(f"grew from round 0 to round {len(snapshots) - 1} (tracemalloc, the largest 12):")
+            for stat in grew[:12]:
+                print(f"  {stat.size_diff / 2**10:+9.1f} KiB {stat.count_diff:+7d} blocks")
+                for line in stat.traceback.format()[-8:]:
+                    print("     " + line)
     finally:
         app.stop()
         loop.call_soon_threadsafe(loop.stop)
