@@ -1,4 +1,4 @@
-"""How soon a class on a Ray cluster learns that its node is lost (issue 55): a local Ray instance
+"""How soon a class on a Ray cluster learns that its node is lost: a local Ray instance
 (`--ray local`'s), one student run going per CPU and one queued, the board asking
 ClassRuns.unavailable() 4 times a second as the render loop does; then the raylet is SIGKILLed (as
 the OOM killer does). Prints the seconds from the kill to: the cluster said lost, every run going

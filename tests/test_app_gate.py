@@ -27,7 +27,7 @@ from conftest import make_app, session_of, tab_of, wait_until
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection")
 TOKEN = "s3cret-Token_1"
 NAN, INF = float("nan"), float("inf")
-# the last one of each list stays in a gizmo unless the gate drops it: the (NaN, 0, 0, 0)
+# the last one of each list stays in a gizmo unless the gate drops it: (NaN, 0, 0, 0), as a probe sent
 BAD_WXYZ = [(0.0, 0.0, 0.0, 0.0), (INF, 0.0, 0.0, 0.0), (1.0, NAN, 0.0, 0.0), (-INF, INF, 0.0, 0.0),
             (1e300, 1e300, 0.0, 0.0), (NAN, 0.0, 0.0, 0.0)]
 CAMERA = dict(wxyz=(1.0, 0.0, 0.0, 0.0), position=(0.0, -3.0, 2.0), fov=1.0, near=0.01, far=1000.0,

@@ -1,4 +1,4 @@
-"""A lost Ray node never wedges the class (issue 55): with the raylet of the local Ray instance killed
+"""A lost Ray node never wedges the class: with the raylet of the local Ray instance killed
 (SIGKILL, as the OOM killer does), the runs going fail, a run started afterwards fails within the bound
 with a message naming the cluster instead of waiting for a CPU for good, its worker slot is freed, new
 runs are refused with that reason and the Class board says the cluster is lost. A run that no node

@@ -7,7 +7,7 @@
 
 A Ray node can go while this process lives on: its raylet killed (the OOM killer's usual victim),
 its machine gone. Ray then keeps a new actor pending for good, waiting for a CPU no node offers, and
-says nothing (issue 55). The probe asks the cluster's GCS for its nodes (`ray.nodes()`, under a
+says nothing. The probe asks the cluster's GCS for its nodes (`ray.nodes()`, under a
 millisecond) and knocks on the port of the raylet this process joined through (a TCP connect: a
 killed raylet refuses at once, where the GCS takes ~15 s of missed heartbeats to mark its node
 dead). The cluster is lost when the GCS does not answer within PROBE_TIMEOUT s, when this process's
