@@ -474,3 +474,21 @@ def test_the_presenters_board_controls_new_board_large_chart_and_grade_book(app)
 
 def presenter_id(app, probe) -> int:
     return session_of(app, probe).client.client_id
+
+
+def test_a_lesson_link_that_makes_no_run_is_refused_in_the_students_folder(app):
+    """A refusal is said where the student looks (the folder's first line, above Start), not only as a toast."""
+    from app.probe import Probe
+    from app.viser_private import websocket_link
+
+    link = websocket_link(app.url, lesson="class-as-a-search", robot="nosuchrobot", class_hidden="2.3")
+    tab = Probe(urllib.parse.unquote(link.split("?websocket=", 1)[1]).replace("ws://", "http://")).start(60)
+    try:
+        tab.wait_for(lambda m: m.get("name") == "/tab/goal0/label", 60)
+        panel = session_of(app, tab).my_run
+        assert wait_until(lambda: panel.part.content.startswith("refused: this lesson link does not make a run"), 30)
+        assert "nosuchrobot" in panel.part.content and panel.message.content == panel.part.content
+        assert wait_until(lambda: "refused" in folder_and_first_line(tab, "My experiment (this tab)")[1], 30)
+        assert folder_and_first_line(tab, "My experiment (this tab)")[0]["props"]["expand_by_default"] is True
+    finally:
+        tab.close()

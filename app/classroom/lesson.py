@@ -213,7 +213,10 @@ def open_lesson(app, session, params: dict, client, presenter: bool) -> str | No
     try:
         _, _, views, text = check_lesson(params)
     except ValueError as e:
-        return _tell(client, f"refused: this lesson link does not make a run: {e}", error=True)
+        why = f"refused: this lesson link does not make a run: {e}"
+        if getattr(session, "my_run", None) is not None:  # said in the student's folder (and a toast)
+            return session.my_run.refuse_part(why)
+        return _tell(client, why, error=True)
     refused = apply_lesson(app, params, client) if presenter else None
     if session is not None:
         if views is not None:

@@ -216,7 +216,7 @@ class MyRunPanel:
         try:
             main, _partner = lesson_configs(params)
         except ValueError as e:
-            return self._refuse_part(f"refused: this lesson link does not make a run: {e}")
+            return self.refuse_part(f"refused: this lesson link does not make a run: {e}")
         hidden, seed = main.hidden, main.seed
         if text:
             try:
@@ -224,7 +224,7 @@ class MyRunPanel:
                 if not values or min(values) < 0:
                     raise ValueError
             except ValueError:
-                return self._refuse_part(f"refused: class_hidden= is whole numbers joined by dots, got {text[:40]!r}")
+                return self.refuse_part(f"refused: class_hidden= is whole numbers joined by dots, got {text[:40]!r}")
             seat = self.runs.lesson_seat(self.lesson, self.tab)
             hidden, seed = values[seat % len(values)], seat // len(values)
         self.robot.value, self.method.value = main.robot, methods.get(main.method).label
@@ -248,7 +248,8 @@ class MyRunPanel:
         notify(self.client, "My experiment", part.replace("**", ""), error=False)
         return None
 
-    def _refuse_part(self, why: str) -> str:
+    def refuse_part(self, why: str) -> str:
+        """A lesson link's refusal, said on the folder's first line and above Start (and as a toast)."""
         self.part.content = why
         return self._tell(why)
 
