@@ -50,10 +50,10 @@ def main() -> None:
         p.wait_for(lambda m: m.get("name") == "/tab/goal0/label", 120)
         owner = int(p.owner("/tab/goal0/marker"))
         deadline = time.monotonic() + 60
-        while (owner not in app.sessions or "part of the class" not in app.sessions[owner].my_run.message.content) \
+        while (owner not in app.sessions or "part of the class" not in app.sessions[owner].my_run.part.content) \
                 and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert "part of the class" in app.sessions[owner].my_run.message.content, "the lesson gave no part"
+        assert "part of the class" in app.sessions[owner].my_run.part.content, "the lesson gave no part"
         students.append((owner, p.drain()))
     t0 = time.perf_counter()
     for owner, _p in students:
