@@ -128,6 +128,9 @@ def test_a_taken_name_is_refused_and_a_closed_tabs_run_stops(app, wait_ended):
         assert a.start() is None
         waiting = app.class_runs.run_of(a.tab)
         assert waiting.state == "queued"
+        # its tab says who is ahead and the wait (or that none can be told yet), above Start my run
+        assert wait_until(lambda: "1 run ahead of yours" in a.status.content, 30), a.status.content
+        assert "to wait" in a.status.content or "no estimate" in a.status.content
         label = next(k for k, v in wait_for_options(app, waiting) if v == waiting.id)
         app.board.choice.value = label
         two.click("Stop this run")

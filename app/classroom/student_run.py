@@ -82,10 +82,10 @@ def queue_wait(runs, run, now: float | None = None) -> tuple[int, float | None]:
     rows = runs.rows()
     ended = [r for r in rows if r.ended and r.ended_at and r.started and r.state == "finished"]
     running = [r for r in rows if r.state in ("running", "paused")]
-    place, _of = runs.place(run)
-    if place is None:
+    if run.state != "queued" or run not in rows:
         return 0, 0.0
-    queued = [r for r in rows if r.state == "queued" and (runs.place(r)[0] or 0) < place]
+    # the queue is first come first served: the queued runs submitted before it (rows are in that order)
+    queued = [r for r in rows[:rows.index(run)] if r.state == "queued"]
     ahead = len(running) + len(queued)
     free = []
     for r in running:
@@ -95,7 +95,7 @@ def queue_wait(runs, run, now: float | None = None) -> tuple[int, float | None]:
         free.append(left)
     free += [0.0] * max(0, runs.workers - len(free))
     heapq.heapify(free)
-    for r in sorted(queued, key=lambda q: runs.place(q)[0] or 0):
+    for r in queued:
         length = _length(r, ended, now)
         if length is None:
             return ahead, None

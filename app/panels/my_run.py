@@ -16,6 +16,8 @@ without a token), has no such folder: it has the shared Train panel.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import viser
 import viser.uplot
@@ -39,6 +41,7 @@ from app.training.state import Shown
 from app.viser_private import client_query
 
 EMPTY = (np.array([1.0, 2.0]), np.full(2, np.nan))
+WAIT_PERIOD = 1.0  # s: a queued run's wait is worked out again at most this often (the render loop draws often)
 VIEWER_START = "**Start my run** (in *My experiment*) trains one of your own."
 MINE = "my run"  # the start of the source of what this tab's arms show from its run
 
@@ -107,6 +110,7 @@ class MyRunPanel:
         self.stop_button.on_click(lambda e: self.stop())
         self.show_on_arm.on_update(lambda e: self._show(force=True))
         self._drawn = None  # (run id, generation, state, status) last drawn
+        self._wait = (None, 0.0, "")  # (run id, when, words) of a queued run's wait, worked out once a WAIT_PERIOD
         self._shown_version = None
         self.view: RunView | None = None  # the run's robot in this tab's scene, when it is not the class's
         self._view_key = None  # (run id, robot, the class's arm) it was drawn for
@@ -270,7 +274,10 @@ class MyRunPanel:
             self.stop_button.disabled = not stoppable
         status = run.status()
         if run.state == "queued":  # who is ahead, and the wait from their budgets and this server's pace
-            status = f"{status}: {wait_words(*queue_wait(self.runs, run))}"
+            now = time.monotonic()
+            if self._wait[0] != run.id or now - self._wait[1] >= WAIT_PERIOD:
+                self._wait = (run.id, now, wait_words(*queue_wait(self.runs, run)))
+            status = f"{status}: {self._wait[2]}"
         drawn = (run.id, run.generation, run.state, status)
         if drawn != self._drawn:
             self._drawn = drawn
