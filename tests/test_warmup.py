@@ -67,8 +67,10 @@ def test_a_spare_compiling_what_the_run_does_not_call_is_not_its_worker():
 
 @pytest.fixture
 def cache(tmp_path, monkeypatch):
-    """An empty numba cache folder of its own (the figures live beside it)."""
+    """An empty numba cache folder of its own (the figures live beside it), on a machine as busy as
+    when its figures were taken (busy() = 1: the load average of a shared box is no test's input)."""
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(warmup, "busy", lambda: 1.0)
     return tmp_path
 
 
@@ -81,8 +83,22 @@ def test_the_estimates_come_from_this_machines_stored_figures_scaled_by_the_step
     assert estimate.seconds(kin) == 4.0 and estimate.seconds(cma) == 30.0
     estimate.finished(kin, 8.0, compiled=True)  # twice as slow as last time: a busier machine
     assert estimate.seconds(cma) == pytest.approx(60.0)
-    # and stored for the next warm-up
-    assert json.loads((cache / warmup.FIGURES).read_text())[warmup.KINEMATICS] == 8.0
+    # and stored for the next warm-up, with how busy the machine was
+    stored = json.loads((cache / warmup.FIGURES).read_text())
+    assert stored[warmup.KINEMATICS] == 8.0 and stored[warmup.LOADS] == {warmup.KINEMATICS: 1.0}
+
+
+def test_before_a_long_step_is_done_the_estimates_follow_the_load(cache, monkeypatch):
+    """A figure taken on a quiet machine, a machine three times busier now: three times the figure;
+    a short step (mostly imports) does not yet scale them."""
+    (cache / warmup.FIGURES).write_text(json.dumps({"cmaes/arm/1/position": 30.0, warmup.KINEMATICS: 2.0,
+                                                    warmup.LOADS: {"cmaes/arm/1/position": 1.0}}))
+    steps = {s.key: s for s in warmup.plan(robot="planar")}
+    monkeypatch.setattr(warmup, "busy", lambda: 3.0)
+    estimate = warmup.Estimate()
+    assert estimate.seconds(steps["cmaes/arm/1/position"]) == pytest.approx(90.0)
+    estimate.finished(steps[warmup.KINEMATICS], 3.0, compiled=True)  # 3 s: too short to tell
+    assert estimate.seconds(steps["cmaes/arm/1/position"]) == pytest.approx(90.0)
 
 
 def test_a_step_never_timed_here_has_no_estimate_until_a_step_is_done(cache):
@@ -90,9 +106,9 @@ def test_a_step_never_timed_here_has_no_estimate_until_a_step_is_done(cache):
     kin, cma = steps[warmup.KINEMATICS], steps["cmaes/arm/1/position"]
     estimate = warmup.Estimate()
     assert estimate.seconds(kin) is None and estimate.seconds(cma) is None  # no figure, nothing done: no number
-    estimate.finished(kin, 2 * warmup.REFERENCE_SECONDS[warmup.KINEMATICS], compiled=True)
+    estimate.finished(kin, 4 * warmup.REFERENCE_SECONDS[warmup.KINEMATICS], compiled=True)  # 10 s: long enough
     compile_seconds = lab.methods.get("cmaes").compile_seconds[0]
-    assert estimate.seconds(cma) == pytest.approx(2 * compile_seconds)  # the reference, scaled by this machine
+    assert estimate.seconds(cma) == pytest.approx(4 * compile_seconds)  # the reference, scaled by this machine
 
 
 def test_a_step_that_loaded_from_the_cache_changes_neither_the_scale_nor_the_figures(cache):
@@ -102,6 +118,7 @@ def test_a_step_that_loaded_from_the_cache_changes_neither_the_scale_nor_the_fig
     estimate.finished(steps[warmup.KINEMATICS], 0.05, compiled=False)
     assert estimate.seconds(steps["cmaes/arm/1/position"]) == 30.0
     assert warmup.stored_figures() == {warmup.KINEMATICS: 4.0, "cmaes/arm/1/position": 30.0}
+    assert warmup.stored_loads() == {}
 
 
 @pytest.mark.parametrize("text", ["not json", "[1, 2]", '{"kinematics": "soon", "x": -3}'])
@@ -109,7 +126,7 @@ def test_an_unreadable_figures_file_is_no_figure(cache, text):
     (cache / warmup.FIGURES).write_text(text)
     assert warmup.stored_figures() == {}
     warmup.store_figure(warmup.KINEMATICS, 3.0)  # and the next step writes a good one
-    assert warmup.stored_figures() == {warmup.KINEMATICS: 3.0}
+    assert warmup.stored_figures() == {warmup.KINEMATICS: 3.0} and warmup.stored_loads() == {warmup.KINEMATICS: 1.0}
 
 
 def test_a_spare_started_for_other_kernels_than_the_pages_first_start_is_started_again(monkeypatch):

@@ -39,6 +39,8 @@ FIGURES = "warmup-seconds.json"  # beside numba's cache: each step's seconds the
 # reference s of a step on the 2-core machine of docs/log.md with an empty cache, used only as the
 # ratio of one step to another where this machine has no figure of its own (scaled by its own steps)
 REFERENCE_SECONDS = {KINEMATICS: 2.5, "pose": 12.0, "limbs": 2.5}
+LOADS = "_load"  # in FIGURES: the machine's busy factor (busy()) when each figure was taken
+SCALED_BY = 5.0  # s: compiled steps this long in all scale the estimates by themselves, else the load does
 
 
 def warmed_by(method: str) -> str:
@@ -216,12 +218,32 @@ def stored_figures(path: str | None = None) -> dict[str, float]:
     return {k: float(v) for k, v in d.items() if isinstance(v, (int, float)) and v > 0} if isinstance(d, dict) else {}
 
 
-def store_figure(key: str, seconds: float, path: str | None = None) -> None:
-    """Write (atomically) that step `key` took `seconds` to compile here; a folder that cannot be
-    written leaves the estimates as they were."""
+def busy() -> float:
+    """How much slower than alone a process runs here now: runnable processes (the load average over
+    a minute) per core, at least 1."""
+    try:
+        return max(1.0, os.getloadavg()[0] / (os.cpu_count() or 1))
+    except OSError:
+        return 1.0
+
+
+def stored_loads(path: str | None = None) -> dict[str, float]:
+    """busy() when each stored figure was taken ({} when not stored)."""
+    try:
+        with open(path or figures_path(), encoding="utf-8") as f:
+            d = json.load(f).get(LOADS, {})
+        return {k: max(1.0, float(v)) for k, v in d.items() if isinstance(v, (int, float))}
+    except (OSError, ValueError, AttributeError):
+        return {}
+
+
+def store_figure(key: str, seconds: float, path: str | None = None, load: float | None = None) -> None:
+    """Write (atomically) that step `key` took `seconds` to compile here, with busy() then (load); a
+    folder that cannot be written leaves the estimates as they were."""
     path = path or figures_path()
     figures = stored_figures(path)
     figures[key] = round(float(seconds), 2)
+    figures[LOADS] = {**stored_loads(path), key: round(busy() if load is None else load, 2)}
     try:
         os.makedirs(os.path.dirname(path), exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path), prefix=".warmup-", suffix=".json")
@@ -233,15 +255,22 @@ def store_figure(key: str, seconds: float, path: str | None = None) -> None:
 
 
 class Estimate:
-    """Seconds a step takes on this machine now: its stored figure (else its reference figure)
-    scaled by the steps that compiled so far this time, each against its own figure."""
+    """Seconds a step takes on this machine now: its stored figure (else its reference figure, taken
+    on a quiet machine), scaled by the steps that compiled so far this time, each against its own
+    figure, once they add up to SCALED_BY s; before that by how busy the machine is now against
+    when the figure was taken (busy(): a short step is mostly imports, which say little)."""
 
-    def __init__(self, figures: dict[str, float] | None = None):
+    def __init__(self, figures: dict[str, float] | None = None, loads: dict[str, float] | None = None):
         self.figures = stored_figures() if figures is None else dict(figures)
+        self.loads = stored_loads() if loads is None else dict(loads)
         self.now, self.then = 0.0, 0.0  # s the compiled steps took this time, and by their figures
 
-    def scale(self) -> float:
-        return self.now / self.then if self.then > 0 else 1.0
+    def scale(self, key: str | None = None) -> float:
+        """How much longer than its figure a step of `key` takes now: the load now against the load
+        then, times how much longer than so scaled the steps done this time took (once they are long
+        enough to tell)."""
+        done = self.now / self.then if self.now >= SCALED_BY and self.then > 0 else 1.0
+        return busy() / self.loads.get(key, 1.0) * done
 
     def _base(self, key: str) -> tuple[float, bool]:
         """(the figure, whether this machine measured it)."""
@@ -262,7 +291,7 @@ class Estimate:
         base, measured = self._base(step.key)
         if not measured and self.then == 0:
             return None
-        return base * self.scale()
+        return base * self.scale(step.key)
 
     def finished(self, step: Step, seconds: float, compiled: bool, store: bool = True) -> None:
         """Step done in `seconds`; compiled: numba compiled in it (a step that loaded from the cache
@@ -270,11 +299,12 @@ class Estimate:
         if not compiled:
             return
         base, _ = self._base(step.key)
+        load = self.loads.get(step.key, 1.0)
         self.now += seconds
-        self.then += base
-        self.figures[step.key] = seconds
+        self.then += base * busy() / load  # its figure at this load: the long steps' ratio is load-free
+        self.figures[step.key], self.loads[step.key] = seconds, busy()
         if store:
-            store_figure(step.key, seconds)
+            store_figure(step.key, seconds, load=self.loads[step.key])
 
 
 class CompileWatch:
