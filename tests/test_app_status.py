@@ -248,7 +248,10 @@ def test_ctrl_c_during_a_cold_warm_up_ends_the_app_and_its_compiling_worker(tmp_
             if "Ctrl-C stops" in line:
                 break
         text = "".join(out)
-        assert "preparing the training kernels: step 1 of 7, forward kinematics" in text, text
+        from lab.running.warmup import plan
+
+        steps = len(plan(robot="planar"))
+        assert f"preparing the training kernels: step 1 of {steps}, forward kinematics" in text, text
         children = Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()
         workers = [int(pid) for pid in children
                    if b"lab.running.worker" in Path(f"/proc/{pid}/cmdline").read_bytes()]
