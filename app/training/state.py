@@ -165,9 +165,9 @@ class LabState:
                 generation=len(self._history), total=r.config.generations if r else 0,
                 state=r.state if r else "idle", best=best, median=median, generations=gens + 1,
                 evals_per_s=self._evals / self._seconds if self._seconds > 0 else 0.0,
-                recording=self.recording, run_id=r.run_id if r else None,
                 # generations a second of optimizer time: what the robot allows here (Speed only caps it)
                 generations_per_s=len(self._history) / self._seconds if self._seconds > 0 else 0.0,
+                recording=self.recording, run_id=r.run_id if r else None,
                 seconds=self._seconds, budget=r.config.seconds if r else None,  # optimizer s so far; the time budget
                 # what the run waits for before its first generation (the training kernels compiling:
                 # "step 2 of 7 (...), about 12 s"), None when nothing; why a failed run failed
@@ -299,14 +299,14 @@ class LabState:
                 return f"refused: cannot build this run: {e}"
             recordings = [self._record(r) for r in runners]
             self.notice = None
+            shown = self._shown  # a tree's run ends no worse than what it replaces (kept_the_better)
+            self._replaced = (shown.controller, shown.source) if shown.arm.is_tree and shown.controller is not None \
+                and shown.arm.name == config.robot and self.goal == goal and not self.replaying else None
             self._clear_history()
             self.runner, self.recording, self.replaying = runners[0], recordings[0], False
             self.track = RunTrack(lab.methods.get(config.method))
             self.partner = None
             if partner is not None:
-            shown = self._shown  # a tree's run ends no worse than what it replaces (kept_the_better)
-            self._replaced = (shown.controller, shown.source) if shown.arm.is_tree and shown.controller is not None \
-                and shown.arm.name == config.robot and self.goal == goal and not self.replaying else None
                 self.partner = Partner(runners[1], recordings[1], RunTrack(lab.methods.get(partner.method)))
             for r, rec, is_partner in zip(runners, recordings, (False, True)):
                 r.subscribe(_Tap(self, r, rec, partner=is_partner))
@@ -459,8 +459,6 @@ class LabState:
             self.notebook.add(entry, timeout=END_WRITE_WAIT)
         except Exception:  # noqa: BLE001 - an entry that is not JSON (a bug of ours)
             log.exception("could not write the notebook entry of run %s", summary.run_id)
-
-
         self.kept_the_better(runner, summary)
 
     def kept_the_better(self, runner, summary) -> bool:
@@ -492,3 +490,5 @@ class LabState:
                            f"({before:.3g}): the robot shows that one again ({source}). The run is in the "
                            "notebook (Runs), where it can be shown.")
         return True
+
+
