@@ -12,7 +12,7 @@ its kernels, its error-map grid) shows in round 0 only. Also printed: the visual
     .venv/bin/python benchmarks/bench_app_memory.py [--robot g1] [--robots g1,planar,ur5,talos-legs,scara,panda]
         [--rounds 6] [--tabs 3] [--keep]
 
---plain: rounds of tabs that connect and close, no lesson, no switch (issue 55: a server kept 15-18
+--plain: rounds of tabs that connect and close, no lesson, no switch (a server kept 15-18
 MiB per 300 such tabs, round after round). Each round opens `--tabs` plain tabs (`--batch` at a time,
 each until its scene is built), closes them all, and prints the RSS once they are gone, with what the
 app's per-tab structures still hold (their entries should be none); --viewers makes them viewers of
@@ -125,8 +125,13 @@ def per_tab_entries(app) -> dict[str, int]:
     """What the app's per-tab structures hold (app.per_tab_entries when the app has it, else the known ones)."""
     if hasattr(app, "per_tab_entries"):
         return app.per_tab_entries()
-    return {"sessions": len(app.sessions), "class_runs names": len(app.class_runs._names),
-            "access roles": len(app.access._roles), "viser clients": len(app.server.get_clients())}
+    ws = app.server._websock_server
+    return {"sessions": len(app.sessions), "closed-tab ids": len(getattr(app, "_gone", ())),
+            "class_runs names": len(app.class_runs._names), "lesson seats": len(app.class_runs._seats),
+            "access roles": len(app.access._roles), "access viewers": len(app.access._viewers),
+            "upload starts": len(app.runs.uploads._starts), "viser clients": len(app.server.get_clients()),
+            "viser client states": len(ws._client_state_from_id),
+            "viser broadcast cursors": len(ws._broadcast_buffer.generator_cursors)}
 
 
 def plain_rounds(args) -> None:

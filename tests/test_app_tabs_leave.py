@@ -1,4 +1,4 @@
-"""Tabs that connect and close leave nothing behind (issue 55: a server kept 15-18 MiB per 300 such
+"""Tabs that connect and close leave nothing behind (a server kept 15-18 MiB per 300 such
 tabs, round after round). The property, not the RSS (benchmarks/bench_app_memory.py --plain prints
 that): once the tabs have closed, no per-tab structure of the app, nor viser's, holds an entry for
 them, for presenters and for a class's viewers (My experiment, their own replay), in a lesson too."""

@@ -1,7 +1,8 @@
-"""The smaller faults of issue 55 in a class: every "Stop my run" while a run is stopping started a
-thread (7 to 336 threads from 300 clicks); names that only look alike ("ＡＤＡ" beside "Ada") were both
-accepted; a viewer's upload was "refused: refused: ..."; refusals named fields by the API's names
-("targets", "seconds") where the student reads "Goals" and "Time budget (s)"."""
+"""Small faults of a class, found by a hostile probe (docs/faults.md): every "Stop my run" while a
+run is stopping started a thread (7 to 336 threads from 300 clicks); names that only look alike
+("ＡＤＡ" beside "Ada") were both accepted; a viewer's upload was "refused: refused: ..."; refusals
+named fields by the API's names ("targets", "seconds") where the student reads "Goals" and "Time
+budget (s)"."""
 
 from __future__ import annotations
 

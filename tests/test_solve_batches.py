@@ -1,4 +1,4 @@
-"""lab.solve on batches of any size (issue 55): an empty batch gives an empty answer of the right
+"""lab.solve on batches of any size: an empty batch gives an empty answer of the right
 shapes (it blamed "q0 must be (0, 6)", a q0 never given); a large one is solved CHUNK goals at a time,
 each goal's answer the one it gets in a smaller batch, with a progress line once the call has run a
 few seconds (a million poses grew memory without bound and said nothing)."""
