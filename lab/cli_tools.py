@@ -19,11 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from lab.methods import DEFAULT_METHOD
+
 ROBOT_HELP = ("a registered name (planar, ur5, panda, ...), erd:NAME (an example-robot-data robot: erd:ur3, "
               "erd:bravo7_no_ee), or a URDF file's path")
 
 
-def load_run(run: str, robot=None, goal: str = "position", method: str = "cmaes"):
+def load_run(run: str, robot=None, goal: str = "position", method: str = DEFAULT_METHOD):
     """(controller, robot string or None) of a RUN (see the module)."""
     from lab.problem.controllers import controller_from_dict
 

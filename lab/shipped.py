@@ -17,6 +17,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+from lab.methods import DEFAULT_METHOD
 from lab.problem.controllers import Controller, controller_from_dict
 from lab.problem.pose_encoding import check_goal
 from lab.problem.robot import load_arm, robot_name
@@ -30,13 +31,13 @@ def pretrained_dir() -> Path:
     return Path(next(iter(spec.submodule_search_locations))) / "pretrained"
 
 
-def pretrained_path(robot, goal: str = "position", method: str = "cmaes") -> Path:
+def pretrained_path(robot, goal: str = "position", method: str = DEFAULT_METHOD) -> Path:
     """app/pretrained/<robot>-<method>.json, or <robot>-pose-<method>.json for goal "pose"."""
     kind = "pose-" if check_goal(goal) == "pose" else ""
     return pretrained_dir() / f"{robot_name(robot)}-{kind}{method}.json"
 
 
-def shipped(goal: str = "position", method: str = "cmaes") -> tuple[str, ...]:
+def shipped(goal: str = "position", method: str = DEFAULT_METHOD) -> tuple[str, ...]:
     """The robots with a shipped controller for these goals and method, by name."""
     tail = f"-pose-{method}.json" if check_goal(goal) == "pose" else f"-{method}.json"
     folder = pretrained_dir()
@@ -44,7 +45,7 @@ def shipped(goal: str = "position", method: str = "cmaes") -> tuple[str, ...]:
     return tuple(sorted(n for n in names if goal == "pose" or not n.endswith("-pose")))
 
 
-def pretrained(robot, goal: str = "position", method: str = "cmaes") -> Controller:
+def pretrained(robot, goal: str = "position", method: str = DEFAULT_METHOD) -> Controller:
     """The controller the project ships for `robot` (a name or an Arm), for position or pose goals,
     trained by `method`; ValueError naming the robots that have one where this one has none, and
     where the file holds a controller of another arm or goal."""
