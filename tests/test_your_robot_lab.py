@@ -47,12 +47,14 @@ def test_an_example_robot_data_arm_trains_with_no_settings_and_the_arm_itself_is
     assert lab.TrainConfig.from_dict(same.config.to_dict()) == same.config
 
 
-def test_an_arm_robots_load_cannot_rebuild_is_refused_by_name(ur3, tmp_path):
-    import dataclasses
-
-    stray = dataclasses.replace(ur3, name="ur3")  # what from_urdf without a registry name would carry
-    with pytest.raises(ValueError, match="cannot be named by a string robots.load rebuilds"):
-        robot_name(stray)
+def test_an_arm_of_from_urdf_is_named_by_its_path_and_one_no_string_rebuilds_is_refused(ur3, tmp_path):
+    """lab.evolve(robots.from_urdf(path, "tool0")) was refused: such an arm is named by its URDF's path and
+    frame where robots.load rebuilds the same arm from them; one with other limits is refused by name."""
+    plain = robots.from_urdf(UR3, "tool0")
+    assert plain.name == "ur3_robot" and robot_name(plain) == ur3.name
+    narrow = robots.from_urdf(UR3, "tool0", limits={"shoulder_pan_joint": (-1.0, 1.0)})
+    with pytest.raises(ValueError, match="cannot be named by a string robots.load rebuilds.*another arm"):
+        robot_name(narrow)
     with pytest.raises(ValueError, match="unknown robot"):
         lab.TrainConfig(robot=str(tmp_path / "no-such.urdf"))
 

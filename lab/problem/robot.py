@@ -60,17 +60,33 @@ def robot_name(robot, ee: str | None = None) -> str:
     workers carry; robots.load(robot_name(r)) rebuilds the same arm. ValueError, naming why, for a
     robot that cannot be loaded, and for an Arm whose name robots.load does not rebuild."""
     arm = load_arm(robot, ee)
-    if isinstance(robot, robots.Arm):
+    if not isinstance(robot, robots.Arm):
+        return arm.name
+    # an Arm: its name where robots.load rebuilds it from that (robots.load's arms), else its URDF's
+    # path and frames where those rebuild the same arm (an arm of robots.from_urdf)
+    tried = []
+    path = getattr(arm, "urdf_path", None)
+    for name in (arm.name, *((f"{os.path.abspath(path)}#{','.join(arm.effectors)}",) if path else ())):
         try:
-            again = robots.load(arm.name)
+            again = robots.load(name)
         except (ValueError, OSError, TypeError) as e:
-            raise ValueError(f"the Arm {arm.name!r} cannot be named by a string robots.load rebuilds ({e}); "
-                             "load it with robots.load(ROBOT, ee=FRAME) (ROBOT: a registered name, erd:NAME or a "
-                             "URDF path)") from None
-        if again.nq != arm.nq or tuple(again.effectors) != tuple(arm.effectors):
-            raise ValueError(f"the Arm {arm.name!r} is not the arm robots.load({arm.name!r}) builds "
-                             f"({again.nq} joints, {', '.join(again.effectors)}): load it with robots.load")
-    return arm.name
+            tried.append(f"{name}: {e}")
+            continue
+        if _same(again, arm):
+            return again.name
+        tried.append(f"{name}: robots.load builds another arm ({again.nq} joints, limits or axes differ)")
+    raise ValueError(f"the Arm {arm.name!r} cannot be named by a string robots.load rebuilds ({'; '.join(tried)}); "
+                     "load it with robots.load(ROBOT, ee=FRAME) (ROBOT: a registered name, erd:NAME or a URDF path)")
+
+
+def _same(a: robots.Arm, b: robots.Arm) -> bool:
+    """Whether two arms have the same joints, limits, effectors, task axes and kinematics."""
+    import numpy as np
+
+    return (a.nq == b.nq and tuple(a.joint_names) == tuple(b.joint_names) and tuple(a.effectors) == tuple(b.effectors)
+            and tuple(a.task_axes) == tuple(b.task_axes) and np.allclose(a.lower, b.lower)
+            and np.allclose(a.upper, b.upper) and (a.is_tree or all(
+                np.shape(x) == np.shape(y) and np.allclose(x, y) for x, y in zip(a.chain.arrays, b.chain.arrays))))
 
 
 def arm_kind(arm: robots.Arm) -> str:
