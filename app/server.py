@@ -205,8 +205,9 @@ class LabApp:
             self.runs = RunsPanel(gui, self)
         # an uploaded URDF (the Train panel's More robots…) is kept beside the uploaded recordings, under their limits
         self.panel.more.upload_folder, self.panel.more.guard = os.path.join(recordings, "uploads"), self.runs.uploads
-        with tabs.add_tab("Class", viser.Icon.USERS):
-            self.board = ClassBoard(gui, self.class_runs, show=self.runs._show, replay=self.runs.open_file)
+        with tabs.add_tab("Class", viser.Icon.USERS) as class_tab:
+            self.board = ClassBoard(gui, self.class_runs, show=self.runs._show, replay=self.runs.open_file,
+                                    tab=class_tab)
         with tabs.add_tab("About", viser.Icon.INFO_CIRCLE):
             gui.add_markdown(MORE)
         self.show_map.on_update(lambda e: self._show_map(self.show_map.value and has_map(self.state.arm)
@@ -252,6 +253,7 @@ class LabApp:
         session.presenter = presenter
         session.page_url = f"http://{host}" if host else self.url
         follow_portrait(client, lambda: session.ws)  # a phone held upright sees the whole workspace
+        self.board.follow_phone(client)  # and its Class tab the board's columns that fit
         # a viewer replays in its own tab (a presenter replays for every tab, in the Runs tab)
         session.replay = None if presenter else TabReplay(client, session, self.runs)
         # a viewer's own run (a presenter has the shared Train panel): app/panels/my_run.py
@@ -263,6 +265,7 @@ class LabApp:
                 self.sessions[client.client_id] = session
         if gone:
             self.class_runs.drop_tab(client.client_id)
+            self.board.forget(client.client_id)
             session.close()
             self.access.disconnected(client.client_id)
             return
@@ -271,11 +274,14 @@ class LabApp:
         self._write_lesson_links([session])
 
     def _write_lesson_links(self, sessions) -> None:
-        """Each tab's lesson link for the panel's current settings (at the address that tab used)."""
+        """Each tab's lesson link for the panel's current settings (at the address that tab used); a
+        presenter's tab on a server with a token also its own presenter link (the token in it)."""
         params = lesson_params(self.panel)
+        token = self.access.token if self.access.restricted else None
         for s in sessions:
             try:
-                s.show_lesson(lesson_link(s.page_url, params), params)
+                own = lesson_link(s.page_url, {"token": token, **params}) if token and s.presenter else None
+                s.show_lesson(lesson_link(s.page_url, params), params, presenter_link=own)
             except Exception:  # noqa: BLE001 - one tab's failure never stops the others'
                 self._tab_failed(s, "lesson link")
 
@@ -286,6 +292,7 @@ class LabApp:
                 self._gone.add(client.client_id)
         self.access.disconnected(client.client_id)
         self.class_runs.drop_tab(client.client_id)  # its queued run dropped, its running run stopped
+        self.board.forget(client.client_id)  # its narrow table (a phone's), its large chart
         if session is not None:
             session.close()
 

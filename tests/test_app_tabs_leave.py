@@ -27,6 +27,7 @@ def per_tab(app) -> dict:
         "class_runs next seats": app.class_runs._next_seat,
         "access roles": app.access._roles, "access viewers": app.access._viewers,
         "uploads starts": app.runs.uploads._starts, "board's large charts": app.board._big,
+        "board's phone tables": app.board._phones,
         "ik worker due": IK_WORKER._due,
         "viser clients": server._connected_clients, "viser client states": ws._client_state_from_id,
         "viser connections": ws._live_connections,

@@ -207,3 +207,16 @@ def test_a_students_default_run_is_sized_by_measurement():
     for robot, method in (("ur5", "cmaes"), ("ur5", "neat"), ("g1", "neat"), ("planar", "gradient")):
         length = student_length(robot, method)
         assert length["generations"] is None and 5 <= length["seconds"] <= 20, (robot, method)
+
+
+def test_a_phones_table_has_the_three_columns_that_fit_and_its_lesson_rows_span_them(runs):
+    run_one(runs, 1, 0.125, lesson="class-as-a-search")
+    run_one(runs, 2, 0.5)
+    narrow, wide = board_html(runs, narrow=True), board_html(runs)
+    assert re.findall(r"<th>([^<]*)</th>", narrow) == ["name", "state", "held-out MSE"]
+    assert len(re.findall(r"<th>", wide)) == 7 and 'class="lab-board-wide"' in wide
+    assert narrow.startswith("<style>.lab-board-wide{display:none}</style>")  # hides the wide one in its tab
+    assert 'colspan="3"' in narrow and 'colspan="7"' not in narrow and "<svg" not in narrow
+    rows = re.findall(r"<tr><td><b>(student \d)</b></td>((?:<td>[^<]*</td>)*)</tr>", narrow)
+    assert [(name, cells.count("<td>")) for name, cells in rows] == [("student 1", 2), ("student 2", 2)]
+    assert "<td>0.125</td>" in narrow

@@ -22,6 +22,12 @@ type, a grid, each point's student on hover: what a projector shows the room at 
 **Download the class's runs** sends the session's runs as a CSV file to the presenter's tab
 (app/classroom/gradebook.py: name, lesson, board, every setting, state, generations, training and
 held-out MSE, seconds, recording). The table groups the runs of each lesson link under its name.
+
+On a phone (app/tab/phone.py is_phone: a canvas as narrow as viser's bottom sheet, held upright) the
+seven columns wrap each cell onto several lines and cut the curve off: each phone tab gets, in its own
+Class tab, the table of the columns that fit (name, state, held-out MSE: `board_html(runs,
+narrow=True)`), with a style that hides the shared wide table in that tab only. A tab turned wide
+again loses it (the wide table shows again); a closed tab's entry goes (`forget`).
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ from __future__ import annotations
 import html
 import math
 import os
+import threading
 import time
 
 import numpy as np
@@ -36,12 +43,15 @@ import numpy as np
 from app.classroom.class_runs import ClassRuns, describe
 from app.classroom.gradebook import class_csv
 from app.panels.class_chart import AXES, chart_svg
+from app.tab.phone import is_phone
 from app.training.live import decimate
 
 NONE = "(no run going)"
 NOTHING = "(no run with a network yet)"
 BIG_WIDTH, BIG_HEIGHT = 940, 720  # px: the large chart's window in the presenter's tab (1366 x 768: the lab's panel beside it)
 ROWS = 60  # rows drawn at most (the newest); the notebook keeps every run
+WIDE = "lab-board-wide"  # the class of the shared table's block, hidden in a phone's tab
+HIDE_WIDE = f"<style>.{WIDE}{{display:none}}</style>"  # in a phone tab's own table: the wide one goes
 
 
 def spark(best: np.ndarray, width: int = 56, height: int = 20) -> str:
@@ -64,11 +74,18 @@ def fmt(x: float | None) -> str:
     return "-" if x is None or not math.isfinite(x) else f"{x:.3g}"
 
 
-def _row(r) -> str:
-    _gens, best, _median = r.track.curves()
-    return "<tr>" + "".join(f"<td>{c}</td>" for c in (
-        f"<b>{html.escape(r.name)}</b>", html.escape(describe(r.config)), html.escape(r.status()),
-        str(r.generation), fmt(r.best()), fmt(r.held_out()), spark(best))) + "</tr>"
+WIDE_COLUMNS = ("name", "settings", "state", "gen.", "best train MSE", "held-out MSE", "curve")
+NARROW_COLUMNS = ("name", "state", "held-out MSE")  # what a phone's width holds
+
+
+def _row(r, narrow: bool = False) -> str:
+    name, state, held = f"<b>{html.escape(r.name)}</b>", html.escape(r.status()), fmt(r.held_out())
+    if narrow:
+        cells = (name, state, held)
+    else:
+        _gens, best, _median = r.track.curves()
+        cells = (name, html.escape(describe(r.config)), state, str(r.generation), fmt(r.best()), held, spark(best))
+    return "<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>"
 
 
 def lost_html(runs: ClassRuns) -> str:
@@ -78,14 +95,17 @@ def lost_html(runs: ClassRuns) -> str:
             "New runs are refused until it answers again; runs waiting for it have failed.</div>")
 
 
-def board_html(runs: ClassRuns) -> str:
+def board_html(runs: ClassRuns, narrow: bool = False) -> str:
     """The current board's runs (ClassRuns.board_rows), newest first, those of each lesson link under
     its name (the lesson of the newest run first), then the runs started without one; a lost Ray
-    cluster's line (lost_html) first."""
-    return lost_html(runs) + _board_html(runs)
+    cluster's line (lost_html) first. narrow: a phone's, its columns NARROW_COLUMNS, with the style
+    that hides the wide table (in the block of class WIDE) in the tab it is drawn in."""
+    if narrow:
+        return f'{HIDE_WIDE}<div class="lab-board-narrow">{lost_html(runs)}{_board_html(runs, NARROW_COLUMNS)}</div>'
+    return f'<div class="{WIDE}">{lost_html(runs)}{_board_html(runs, WIDE_COLUMNS)}</div>'
 
 
-def _board_html(runs: ClassRuns) -> str:
+def _board_html(runs: ClassRuns, columns: tuple) -> str:
     rows = runs.board_rows()
     earlier = len(runs.rows()) - len([r for r in rows if r.board == runs.boards])
     note = (f" Board {runs.boards}: {earlier} earlier run{'s' * (earlier != 1)} left the board (the notebook "
@@ -105,20 +125,23 @@ def _board_html(runs: ClassRuns) -> str:
         if len(groups) > 1 or lesson:
             title = (f"Lesson {html.escape(lesson if lesson != '1' else 'link (shared settings)')}" if lesson
                      else "Runs started without a lesson link")
-            cells.append(f'<tr><td colspan="7" style="background:#eef;font-weight:bold">{title}: '
+            cells.append(f'<tr><td colspan="{len(columns)}" style="background:#eef;font-weight:bold">{title}: '
                          f"{len(group)} run{'s' * (len(group) != 1)}</td></tr>")
-        cells.extend(_row(r) for r in group)
-    return (head + '<table style="font-size:11px;border-collapse:collapse;width:100%;table-layout:auto">'
-            "<tr><th>name</th><th>settings</th><th>state</th><th>gen.</th><th>best train MSE</th>"
-            "<th>held-out MSE</th><th>curve</th></tr>" + "".join(cells) + "</table>")
+        cells.extend(_row(r, narrow=columns == NARROW_COLUMNS) for r in group)
+    size = 13 if columns == NARROW_COLUMNS else 11  # a phone's: fewer columns, larger type
+    return (head + f'<table style="font-size:{size}px;border-collapse:collapse;width:100%;table-layout:auto">'
+            "<tr>" + "".join(f"<th>{c}</th>" for c in columns) + "</tr>" + "".join(cells) + "</table>")
 
 
 class ClassBoard:
-    def __init__(self, gui, runs: ClassRuns, show=None, replay=None):
+    def __init__(self, gui, runs: ClassRuns, show=None, replay=None, tab=None):
         """gui: server.gui (inside the Class tab); show(robot, controller, source, client) -> None or why
         not: shows a network in the shared scene (app.panels.runs.RunsPanel._show); replay(path, client,
-        entry) -> None or why not: opens a recording in the Runs tab (app.panels.runs.RunsPanel.open_file)."""
-        self.runs, self.show, self.replay = runs, show, replay
+        entry) -> None or why not: opens a recording in the Runs tab (app.panels.runs.RunsPanel.open_file);
+        tab: the Class tab's handle (a phone tab's own narrow table goes in it; None: no narrow table)."""
+        self.runs, self.show, self.replay, self.tab = runs, show, replay, tab
+        self._phones: dict[int, object] = {}  # a phone tab's id -> its own narrow table (follow_phone)
+        self._phones_lock = threading.Lock()
         self.table = gui.add_html(board_html(runs))
         self.axis = gui.add_dropdown("Chart against", tuple(AXES), initial_value="hidden units",
                                      hint="the class chart's horizontal axis: a setting of the runs")
@@ -161,12 +184,65 @@ class ClassBoard:
             return
         self._drawn = key
         self.table.content = board_html(self.runs)
+        self._draw_phones()
         going = [r for r in rows if not r.ended]
         self._ids = {f"{r.name} [{r.id[:6]}]": r.id for r in going}
         self._set_options(self.choice, tuple(self._ids) or (NONE,))
         self._shows = {f"{r.name} [{r.id[:6]}]": r.id for r in reversed(rows) if r.controller is not None}
         self._set_options(self.show_choice, tuple(self._shows) or (NOTHING,))
         self._draw_chart()
+
+    # ------------------------------------------------------------------ a phone's narrow table
+    def follow_phone(self, client) -> None:
+        """Give `client`'s tab the narrow table while its canvas is a phone's (is_phone), each time its
+        camera reports its size: added when it becomes one, removed when it turns wide."""
+
+        def on_camera(camera) -> None:
+            try:
+                phone = is_phone(camera)
+            except (AssertionError, ZeroDivisionError):  # no size reported yet
+                return
+            self._set_phone(client, phone)
+
+        client.camera.on_update(on_camera)
+        on_camera(client.camera)  # viser calls a tab connected once its first camera message came
+
+    def _set_phone(self, client, phone: bool) -> None:
+        cid = client.client_id
+        with self._phones_lock:  # one tab context at a time (a tab handle has one restore slot)
+            if phone == (cid in self._phones) or self.tab is None:
+                return
+            if phone:
+                with self.tab:  # the tab's own element, in the shared Class tab, beside the wide table
+                    self._phones[cid] = client.gui.add_html(board_html(self.runs, narrow=True),
+                                                            order=self.table.order + 0.5)
+            else:
+                self._remove(self._phones.pop(cid))
+
+    @staticmethod
+    def _remove(handle) -> None:
+        try:
+            handle.remove()
+        except Exception:  # noqa: BLE001 - that tab has gone
+            pass
+
+    def _draw_phones(self) -> None:
+        with self._phones_lock:
+            if not self._phones:
+                return
+            content = board_html(self.runs, narrow=True)
+            for cid, handle in list(self._phones.items()):
+                try:
+                    if handle.content != content:
+                        handle.content = content
+                except Exception:  # noqa: BLE001 - that tab has gone
+                    self._phones.pop(cid, None)
+
+    def forget(self, client_id: int) -> None:
+        """A closed tab: its narrow table and large chart entries go (viser drops their elements)."""
+        with self._phones_lock:
+            self._phones.pop(client_id, None)
+        self._big.pop(client_id, None)
 
     @staticmethod
     def _set_options(dropdown, options: tuple) -> None:

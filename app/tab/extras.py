@@ -147,11 +147,18 @@ class TabExtras:
             for k, g in enumerate(self.goals):
                 g.draw_population(reach[:, k], q[:, k], colors, self.faint_arms.value)
 
-    def show_lesson(self, link: str, params: dict) -> None:
-        """The lesson link of the panel's settings (written only when it changes)."""
-        if getattr(self, "_lesson_link", None) == link or self.closed:
+    def show_lesson(self, link: str, params: dict, presenter_link: str | None = None) -> None:
+        """The lesson link of the panel's settings (written only when it changes): the students' (no
+        token); on a presenter's tab of a server with a token, also the presenter's own (presenter_link:
+        the same settings with the token, its tab a presenter), labelled not to be shared."""
+        if getattr(self, "_lesson_link", None) == (link, presenter_link) or self.closed:
             return
-        self._lesson_link = link
+        self._lesson_link = (link, presenter_link)
         what = ", ".join(f"{k} {v}" for k, v in params.items() if k != "lesson")
-        self.lesson.content = (f"[Open this lesson]({link}) in another browser: a tab with these settings "
-                               f"({what}).\n\n```\n{link}\n```")
+        text = (f"**For the students:** [Open this lesson]({link}) in another browser: a tab with these settings "
+                f"({what}).\n\n```\n{link}\n```")
+        if presenter_link:
+            text += (f"\n\n**For you (presenter) — do not share:** [this link]({presenter_link}) opens the lesson "
+                     f"as a presenter (it holds the presenter token; the lesson's settings are applied to the "
+                     f"class's run).\n\n```\n{presenter_link}\n```")
+        self.lesson.content = text
