@@ -7,7 +7,9 @@ with the token; a viewer's tab is never sent the token."""
 
 from __future__ import annotations
 
+import os
 import re
+import shutil
 import urllib.parse
 
 import pytest
@@ -116,3 +118,53 @@ def test_the_presenters_share_this_lesson_holds_its_own_link_with_the_token_and_
     finally:
         viewer.close()
         presenter.close()
+
+
+@pytest.mark.skipif(shutil.which("chromium") is None, reason="Debian's chromium is not installed (`make browser`)")
+def test_in_a_real_browser_a_phone_shows_the_three_columns_unwrapped_and_a_laptop_the_whole_table(tmp_path):
+    """Chromium at 390 x 844 (a phone) and 1366 x 768: the phone's Class tab shows the narrow table
+    (3 columns, each row on a line or two, within the page's width), not the wide one; the laptop's
+    the wide one. APP_SCREENSHOT_DIR keeps the screenshots."""
+    sync_api = pytest.importorskip("playwright.sync_api", reason="the playwright package is not installed")
+    app = make_app(tmp_path, startup=None)
+    try:
+        for tab, name in ((10_001, "Ana on a phone"), (10_002, "Bartholomew")):
+            assert app.class_runs.set_name(tab, name) is None
+            assert app.class_runs.submit(tab, lab.TrainConfig(robot="planar", generations=5, population=10)) is None
+        folder = os.environ.get("APP_SCREENSHOT_DIR") or str(tmp_path)
+        with sync_api.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=shutil.which("chromium"), headless=True)
+            try:
+                page = browser.new_page(viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True)
+                page.goto(app.url)
+                bar = page.get_by_text("Neuro-IK Lab", exact=True)
+                sync_api.expect(bar).to_be_visible(timeout=30_000)
+                page.wait_for_timeout(1000)  # folded on load
+                bar.tap()
+                page.get_by_text("Class", exact=True).first.tap()
+                narrow = page.locator(".lab-board-narrow table")
+                sync_api.expect(narrow).to_be_visible(timeout=15_000)
+                narrow.scroll_into_view_if_needed()  # the sheet scrolls: the board below its tabs
+                page.wait_for_timeout(500)
+                page.screenshot(path=os.path.join(folder, "class-board-phone-390x844.png"))
+                assert narrow.locator("th").all_inner_texts() == ["name", "state", "held-out MSE"]
+                assert not page.locator(".lab-board-wide").first.is_visible()
+                box = narrow.bounding_box()
+                assert box["x"] >= 0 and box["x"] + box["width"] <= 390, box
+                heights = [r.bounding_box()["height"] for r in narrow.locator("tr").all()[1:]]
+                assert heights and max(heights) < 3 * 17, heights  # a row on a line or two, not 5-6
+                page.close()
+                page = browser.new_page(viewport={"width": 1366, "height": 768})
+                page.goto(app.url)
+                page.get_by_text("Class", exact=True).first.click(timeout=30_000)
+                wide = page.locator(".lab-board-wide table")
+                sync_api.expect(wide).to_be_visible(timeout=15_000)
+                page.screenshot(path=os.path.join(folder, "class-board-1366x768.png"))
+                assert len(wide.locator("th").all_inner_texts()) == 7 and page.locator(".lab-board-narrow").count() == 0
+                page.close()
+            finally:
+                browser.close()
+    finally:
+        for tab in (10_001, 10_002):
+            app.class_runs.stop_tab(tab, "test over")
+        app.stop()
