@@ -50,6 +50,7 @@ def main() -> None:
     p.add_argument("--batch", type=int, default=25, help="--plain: tabs open at once")
     p.add_argument("--viewers", action="store_true", help="--plain: the tabs are a class's viewers")
     p.add_argument("--trace", action="store_true", help="--plain: the allocations that grew, by line")
+    p.add_argument("--frames", type=int, default=6, help="--trace: frames kept of each allocation")
     args = p.parse_args()
     if args.plain:
         return plain_rounds(args)
@@ -144,7 +145,7 @@ def plain_rounds(args) -> None:
     if args.trace:
         import tracemalloc
 
-        tracemalloc.start(6)
+        tracemalloc.start(args.frames)
     me = psutil.Process()
     try:
         trim = ctypes.CDLL("libc.so.6").malloc_trim
@@ -186,10 +187,12 @@ def plain_rounds(args) -> None:
                 for tab in tabs:
                     tab.close()
                 until(lambda: not app.sessions and not app.server.get_clients(), 60)
+            raw = me.memory_info().rss / 2**20  # before gc and malloc_trim (the render loop's, every 30 s)
             mib = rss()
             alive = sum(ref() is not None for ref in held)
             left = {k: v for k, v in per_tab_entries(app).items() if v}
-            print(f"round {r}: {mib:.0f} MiB ({time.perf_counter() - t0:.0f} s); closed tabs still held {alive}; "
+            print(f"round {r}: {mib:.0f} MiB ({raw:.0f} before gc and trim; {time.perf_counter() - t0:.0f} s); "
+                  f"closed tabs still held {alive}; "
                   f"per-tab entries left {left or 'none'}", flush=True)
             if args.trace:
                 snapshots.append(tracemalloc.take_snapshot())
