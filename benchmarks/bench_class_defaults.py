@@ -2,7 +2,7 @@
 method (app/classroom/student_run.student_length), trained with lab.evolve on one thread.
 
     OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 LAB_THREADS=1 \\
-        python benchmarks/bench_class_defaults.py --robots planar scara ur5 --methods cmaes neat --seeds 0 1
+        python benchmarks/bench_class_defaults.py --robots planar scara ur5 --seeds 0 1
 
 Prints one markdown row per robot, method and seed: the default (generations or time budget), the
 generations run, the seconds of optimizer time, the training and held-out MSE. Each robot's first
@@ -37,7 +37,8 @@ def measure(robot: str, method: str, seed: int) -> dict:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--robots", nargs="+", default=["planar", "scara", "ur5"])
-    p.add_argument("--methods", nargs="+", default=["cmaes", "neat"])
+    p.add_argument("--methods", nargs="+", help="default: the methods with a student's run length (class_generations)",
+                   default=[m for m in lab.methods.names() if lab.methods.get(m).class_generations is not None])
     p.add_argument("--seeds", nargs="+", type=int, default=[0])
     args = p.parse_args(argv)
     print(f"# {time.strftime('%Y-%m-%d %H:%M')}, load {os.getloadavg()[0]:.1f}, "

@@ -24,7 +24,7 @@ from app.classroom.class_runs import ClassRuns  # noqa: E402
 from app.classroom.limits import CLASSROOM  # noqa: E402
 from app.training.notebook import Notebook  # noqa: E402
 
-LONG = dict(robot="planar", method="cmaes", generations=100_000, population=10)
+LONG = dict(robot="planar", method=lab.methods.DEFAULT_METHOD, generations=100_000, population=10)
 
 
 def raylet_pid(ray) -> int:

@@ -20,7 +20,8 @@ Nothing here knows about networks or evolution.
 
 from robots import pose
 from robots.arm import Arm, from_urdf
-from robots.registry import in_metres, kind, load, names
+from robots.registry import in_metres, kind, names
+from robots.sources import load
 from robots.sources import source_status
 
 __all__ = ["Arm", "from_urdf", "in_metres", "kind", "load", "names", "pose", "source_status"]

@@ -98,16 +98,6 @@ def in_metres(name: str) -> bool:
     return kind(name) not in ("paper", "snake")
 
 
-def load(name, ee=None) -> Arm:
-    """The arm a robot string names, built once, then shared: a registered name (see `names()`),
-    "erd:NAME" (any example-robot-data robot) or a URDF file's path, with its tool frame(s) after '#'
-    or in ee= (robots/sources.py); without them, a registered robot's own, else the end of the longest
-    chain (said in a log line). An Arm is returned as it is."""
-    from robots import sources
-
-    return sources.load(name, ee)
-
-
 @functools.cache
 def _build(name: str) -> Arm:
     spec = SPECS[name]

@@ -171,7 +171,7 @@ def test_python_m_lab_train_seconds(capsys):
 def test_a_shared_server_bounds_the_budget_not_the_generations_of_a_budgeted_run():
     assert refusal(lab.TrainConfig.preset(robot="ur5", seconds=600), CLASSROOM) is None
     why = refusal(lab.TrainConfig.preset(robot="ur5", seconds=601), CLASSROOM)
-    assert "time budget" in why and "at most 600" in why and "--limit seconds=N" in why
+    assert "Time budget (s)" in why and "at most 600" in why and "--limit seconds=N" in why
     assert "generations" in refusal(lab.TrainConfig.preset(robot="planar", generations=10**6), CLASSROOM)
 
 

@@ -18,7 +18,7 @@ import pytest
 import lab
 from app.classroom.class_runs import ClassRuns
 from app.classroom.gradebook import class_csv
-from app.classroom.student_run import GENERATIONS, queue_wait, student_length, wait_words
+from app.classroom.student_run import queue_wait, student_length, wait_words
 from app.panels.class_board import board_html
 from app.panels.class_chart import chart_svg, comparable
 from app.training.notebook import Notebook
@@ -201,9 +201,10 @@ def test_a_queued_run_is_told_how_many_runs_are_ahead_and_the_wait_from_their_bu
 def test_a_students_default_run_is_sized_by_measurement():
     """docs/results/class.md: a paper arm's preset (1000 generations) gets the measured number of
     generations; a real arm or a tree a time budget; never the 200 generations that taught nothing."""
-    assert student_length("planar", "cmaes") == {"generations": GENERATIONS["cmaes"], "seconds": None}
-    assert student_length("scara", "neat") == {"generations": GENERATIONS["neat"], "seconds": None}
-    assert GENERATIONS["cmaes"] >= 1000
+    cmaes, neat = lab.methods.get("cmaes").class_generations, lab.methods.get("neat").class_generations
+    assert student_length("planar", "cmaes") == {"generations": cmaes, "seconds": None}
+    assert student_length("scara", "neat") == {"generations": neat, "seconds": None}
+    assert cmaes >= 1000
     for robot, method in (("ur5", "cmaes"), ("ur5", "neat"), ("g1", "neat"), ("planar", "gradient")):
         length = student_length(robot, method)
         assert length["generations"] is None and 5 <= length["seconds"] <= 20, (robot, method)

@@ -8,9 +8,10 @@ long a queued run will wait.
 **Defaults** (docs/results/class.md, `python benchmarks/bench_class_defaults.py`, one thread): the
 lab's preset for a paper arm (70 goals, 1000 generations) is fast there, and the 200 generations the
 panel gave before ended at a held-out MSE of 0.79 on the planar arm in under 2 s. A student's run on an arm
-whose preset is the paper's (at most PAPER_GENERATIONS generations, not a tree) runs GENERATIONS[method]
-generations (a fixed number: the class's runs compare seed for seed, whatever the load); on a real
-arm or a tree, and with a method not in GENERATIONS, a time budget of BUDGET seconds (the method's
+whose preset is the paper's (at most PAPER_GENERATIONS generations, not a tree) runs the method's
+`class_generations` (the registry's; a fixed number: the class's runs compare seed for seed, whatever
+the load); on a real
+arm or a tree, and with a method that has none, a time budget of BUDGET seconds (the method's
 budget defaults, lab docs/results/budgets.md). Each is 5-20 s of training on one worker of the
 2-core machine it was measured on.
 
@@ -30,7 +31,6 @@ import lab
 import robots
 
 PAPER_GENERATIONS = 1000  # a preset of at most this many generations is the paper's short run
-GENERATIONS = {"cmaes": 3000, "neat": 1000}  # measured: docs/results/class.md
 BUDGET = 15.0  # s: a real arm's or a tree's student run, or another method's
 
 
@@ -39,8 +39,9 @@ def student_length(robot: str, method: str) -> dict:
     with this method (ValueError from the preset for an unknown robot or method)."""
     preset = lab.TrainConfig.preset(robot=robot, method=method)
     tree = robots.load(robot).is_tree
-    if method in GENERATIONS and preset.generations <= PAPER_GENERATIONS and not tree:
-        return {"generations": GENERATIONS[method], "seconds": None}
+    generations = lab.methods.get(method).class_generations
+    if generations is not None and preset.generations <= PAPER_GENERATIONS and not tree:
+        return {"generations": generations, "seconds": None}
     return {"generations": None, "seconds": BUDGET}
 
 

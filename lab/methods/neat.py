@@ -496,6 +496,7 @@ METHOD = register(Method(
     min_population=2, min_hidden=0,
     search_title="NEAT species and best network size",
     search_series="number of species, nodes and enabled connections of the best genome",
+    class_generations=1000,  # a student's default run on a paper arm (docs/results/class.md)
     cost=6.0, compile_seconds=(7.0, 4.5), ablations=("mutation_power=1.0", "margin=0.0", "features=reach"),
     reference=SpeedReference("neat-python Population.run, random fitness", 1.5, reference_loop),
     live_plots=(

@@ -98,6 +98,8 @@ class Method:
         (TrainConfig.goal "pose", a real arm; seconds None without a budget), over defaults_for's.
     warms_with: optional, another method whose warm-up (lab/running/warmup.py) compiles every kernel
         this one calls: its step stands for both, and this method has none of its own.
+    class_generations: optional, the generations of a student's default run on a paper arm, sized to
+        teach in 5-20 s on one worker (docs/results/class.md); None: such a run has a time budget.
     """
 
     name: str
@@ -123,6 +125,7 @@ class Method:
     compile_seconds: tuple[float, float] = (10.0, 5.0)
     pose_defaults: Callable[..., Mapping] | None = field(default=None, compare=False)
     warms_with: str | None = None
+    class_generations: int | None = None
 
     def __post_init__(self):
         if not (isinstance(self.name, str) and self.name.isidentifier() and self.name.islower()):
