@@ -25,9 +25,8 @@ import threading
 import time
 from collections import deque
 
-from app.classroom.limits import refused
-
 from app.classroom.files import kind_of, not_a_file
+from app.classroom.limits import refused
 
 MAX_UPLOAD = 200 * 2**20  # bytes, one file
 MAX_URDF = 8 * 2**20  # bytes, an uploaded URDF (app/any_robot.py): one without meshes is tens of kB
