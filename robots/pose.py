@@ -40,6 +40,7 @@ import numba
 import numpy as np
 import pinocchio as pin
 
+from robots import registry
 from robots.arm import Arm
 from robots.kinematics import tree_points
 
@@ -58,6 +59,7 @@ APPROACH_AXES: dict[str, tuple[float, float, float]] = {
     "so101": (0.0, 0.0, 1.0),
 }
 FULL_POSE_JOINTS = 6  # an arm of at least this many joints is held to a full pose
+APPROACH_JOINTS = 5  # an arm of this many joints is held to its approach axis (the last joint's), roll free
 DEFAULT_ANGLE_TOL = math.radians(0.1)  # a pose's angle tolerance [rad]: 0.1 degree
 ORTHONORMAL_ATOL = 1e-6  # how far R^T R may be from I (largest entry) and the last row from (0, 0, 0, 1)
 AXIS_AGREEMENT = 1e-3  # rad: how far APPROACH_AXES may be from the last joint's axis
@@ -73,9 +75,9 @@ def _check_pose_arm(arm: Arm) -> None:
     if tuple(arm.task_axes) != (0, 1, 2):
         raise ValueError(f"{arm.name}: its goals are on task axes {tuple(arm.task_axes)}; a pose is a 3-D "
                          "position and orientation (task axes (0, 1, 2))")
-    if arm.name not in APPROACH_AXES and arm.nq < FULL_POSE_JOINTS:
-        raise ValueError(f"{arm.name} has {arm.nq} joints: a full pose needs {FULL_POSE_JOINTS}, and no approach "
-                         f"axis is known for it (robots.pose.APPROACH_AXES: {', '.join(APPROACH_AXES)})")
+    if arm.nq < APPROACH_JOINTS:
+        raise ValueError(f"{arm.name} has {arm.nq} joints: a full pose needs {FULL_POSE_JOINTS}, and a pose held "
+                         f"to an approach axis (the last joint's, its roll left free) {APPROACH_JOINTS}")
 
 
 _approach_axes = weakref.WeakKeyDictionary()
@@ -83,27 +85,55 @@ _approach_axes = weakref.WeakKeyDictionary()
 
 def approach_axis(arm: Arm) -> np.ndarray | None:
     """The unit tool-frame axis whose direction a pose of this arm holds, the roll about it free:
-    for the 5-joint SO arms (APPROACH_AXES), the last joint's (the wrist roll's) axis in the tool
-    frame, pointing toward the fingers; None for an arm held to a full pose (6 joints or more).
-    ValueError, naming why, for an arm that takes no pose goals (_check_pose_arm), or when the
-    last joint's axis is not the one APPROACH_AXES names."""
+    for a 5-joint arm, the last joint's (the wrist roll's) axis in the tool frame, pointing toward the
+    fingers (the SO arms: the sign APPROACH_AXES gives; any other: from the last joint's origin toward
+    the tool's, where they are apart along it); None for an arm held to a full pose (6 joints or more).
+    ValueError, naming why, for an arm that takes no pose goals (_check_pose_arm), a last joint that
+    does not turn (prismatic), or when the last joint's axis is not the one APPROACH_AXES names."""
     _check_pose_arm(arm)
-    if arm.name not in APPROACH_AXES:
+    if arm.nq >= FULL_POSE_JOINTS:
         return None
     axis = _approach_axes.get(arm)
     if axis is None:
-        nominal = np.asarray(APPROACH_AXES[arm.name], dtype=np.float64)
-        nominal = nominal / np.linalg.norm(nominal)
         data = arm.model.createData()
-        J = pin.computeFrameJacobian(arm.model, data, arm.to_pinocchio(arm.rest), arm.ee_frame_id, pin.LOCAL)
-        roll = J[3:, -1] / np.linalg.norm(J[3:, -1])  # the last joint's axis in the tool frame
+        q = arm.to_pinocchio(arm.rest)
+        J = pin.computeFrameJacobian(arm.model, data, q, arm.ee_frame_id, pin.LOCAL)
+        turn = np.linalg.norm(J[3:, -1])
+        if turn < 1e-9:
+            raise ValueError(f"{arm.name}: its last joint does not turn the tool (a prismatic joint?), so it has no "
+                             "approach axis to hold a 5-joint pose to; use position goals, or a tool frame of a "
+                             "chain that ends in a revolute joint")
+        roll = J[3:, -1] / turn  # the last joint's axis in the tool frame
+        registered = _registered_axis(arm)
+        if registered is not None:
+            nominal = np.asarray(registered, dtype=np.float64)
+        else:  # toward the tool: the tool's origin seen from the last joint's, in the tool frame
+            pin.framesForwardKinematics(arm.model, data, q)
+            tool = data.oMf[arm.ee_frame_id]
+            ahead = tool.rotation.T @ (tool.translation - data.oMi[arm.model.njoints - 1].translation)
+            nominal = roll if abs(ahead @ roll) < 1e-9 else ahead
+        nominal = nominal / np.linalg.norm(nominal)
         roll = roll if roll @ nominal >= 0 else -roll
-        if math.atan2(np.linalg.norm(np.cross(roll, nominal)), roll @ nominal) > AXIS_AGREEMENT:
+        if registered is not None and math.atan2(np.linalg.norm(np.cross(roll, nominal)), roll @ nominal) > AXIS_AGREEMENT:
             raise ValueError(f"{arm.name}: the approach axis {nominal.tolist()} of robots.pose.APPROACH_AXES is not "
                              f"its last joint's axis {np.round(roll, 6).tolist()} (in the tool frame)")
         axis = _approach_axes[arm] = roll
         axis.flags.writeable = False
     return axis
+
+
+def _registered_axis(arm: Arm) -> tuple[float, float, float] | None:
+    """APPROACH_AXES' sign for a registered SO arm, also when loaded by its example-robot-data name
+    with the registry's tool frame ("erd:so100")."""
+    if arm.name in APPROACH_AXES:
+        return APPROACH_AXES[arm.name]
+    source = (arm.source or "").partition("#")[0]
+    if source.startswith("erd:"):
+        for name, axis in APPROACH_AXES.items():
+            spec = registry.SPECS[name]
+            if spec.erd == source[len("erd:"):] and arm.effectors == (spec.ee_frame,):
+                return axis
+    return None
 
 
 def pose_dims(arm: Arm) -> int:

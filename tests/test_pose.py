@@ -360,3 +360,25 @@ def test_refine_pose_is_refine_on_poses():
     a, b = refine(arm, T, q0), refine_pose(arm, T, q0)
     np.testing.assert_array_equal(a.q, b.q)
     np.testing.assert_array_equal(a.angle, b.angle)
+
+
+def test_a_five_joint_arm_of_your_own_holds_its_last_joints_axis_toward_the_tool():
+    """Any 5-joint chain takes pose goals held to an approach axis: its last joint's axis in the tool
+    frame (turning that joint leaves the direction where it is), pointing from that joint toward the
+    tool; the SO-100 loaded by its example-robot-data name gets the registered arm's axis."""
+    import os
+
+    arm = robots.load(os.path.join(os.path.dirname(__file__), "data", "own_arm.urdf"), ee="tool0")
+    assert arm.nq == 5 and robots.kind(arm.name) == "custom"
+    axis = pose.approach_axis(arm)
+    assert pose.pose_dims(arm) == 5 and abs(np.linalg.norm(axis) - 1) < 1e-12
+    q = arm.sample_q(50, seed=6)
+    rolled = q.copy()
+    rolled[:, -1] = arm.lower[-1] + (arm.upper[-1] - arm.lower[-1]) * np.random.default_rng(0).random(len(q))
+    a, a_rolled = pose.fk_pose(arm, q)[:, :3, :3] @ axis, pose.fk_pose(arm, rolled)[:, :3, :3] @ axis
+    np.testing.assert_allclose(a, a_rolled, rtol=0, atol=1e-12)
+    last = arm.joint_positions(q)[:, arm.nq]  # origins: base, then each joint in order
+    tool = pose.fk_pose(arm, q)[:, :3, 3]
+    assert np.all(np.einsum("ij,ij->i", tool - last, a) > 0)  # toward the tool, not back into the arm
+    np.testing.assert_allclose(pose.approach_axis(robots.load("erd:so100")), pose.approach_axis(robots.load("so100")),
+                               rtol=0, atol=1e-12)
