@@ -152,6 +152,9 @@ def main() -> None:
         "drags": len(work),
         "runs_at_once_max": most[0],
         "run_wall_s_mean": round(statistics.mean(lasted.values()), 2) if lasted else None,
+        # a run's cost beside its training: its start (worker, writer) to its end (issue #57: at most 1 s)
+        "run_overhead_s_mean": round(statistics.mean(lasted[r.id] - r.summary.seconds for r in runs
+                                                     if r.id in lasted and r.summary is not None), 2) if lasted else None,
         "generations_mean": round(statistics.mean(r.generation for r in runs), 1),
         "board_update_max_s": round(max(board), 2) if board else None,
         "board_seen": len(board),

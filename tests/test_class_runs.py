@@ -108,6 +108,31 @@ def test_one_run_per_tab_the_limits_the_queue_a_closed_tab_and_the_servers_stop(
     assert runs.submit(5, lab.TrainConfig(**SHORT)) == "refused: the server is stopping"
 
 
+def test_a_students_run_takes_a_worker_started_and_warmed_before_it_was_submitted(notebook):
+    """Issue #57: a class of 30 runs pays no process start a run. From the first run on, `workers` warm
+    workers wait (its replacement started when one is taken): the next run trains in one of them,
+    started before it was submitted, and N runs start at most N + workers processes. A run ends with
+    its last message, not after its worker's teardown; the server's stop ends the waiting workers."""
+    runs = ClassRuns(notebook, CLASSROOM, workers=1)
+    assert runs.warm.pids() == []  # nothing started before a student's first run
+    assert runs.submit(1, lab.TrainConfig(**SHORT)) is None
+    first = runs.run_of(1)
+    assert wait_until(lambda: first.ended, 300), first.status()
+    waiting = runs.warm.pids()
+    assert len(waiting) == 1 and first.runner.pid not in waiting
+    for tab in (2, 3):
+        assert runs.submit(tab, lab.TrainConfig(**SHORT, seed=tab)) is None
+        run = runs.run_of(tab)
+        assert wait_until(lambda: run.ended, 300), run.status()
+        assert run.state == "finished" and run.runner.pid in waiting  # started before this run was submitted
+        assert notebook.get(run.id)["generations"] == 20
+        waiting = runs.warm.pids()
+        assert len(waiting) == 1 and run.runner.pid not in waiting  # its replacement waits
+    assert runs.warm.started <= 3 + runs.workers
+    runs.shutdown()
+    assert runs.warm.pids() == [] and wait_until(lambda: all(process_ended(p) for p in waiting), 30)
+
+
 def test_the_queue_is_bounded(notebook):
     runs = ClassRuns(notebook, CLASSROOM, workers=1)
     runs._pump = lambda: None  # nothing starts: only the queue's bound is tried

@@ -10,7 +10,9 @@
 
 Nothing here knows viser (the panels are app/panels/my_run.py and app/panels/class_board.py). Each
 run trains in a worker process of its own (lab.running.worker.ProcessRunner, as the shared run does,
-but never the prestarted spare, which stays for the presenter's next Start). At most `workers` run at
+but never the prestarted spare, which stays for the presenter's next Start): one of `workers` warm
+workers (lab.running.worker.WarmWorkers, kept from the first run on: a run taken, its replacement
+starts and warms up while it trains, so the next run does not wait ~2 s for a process). At most `workers` run at
 once (default: the cores the shared run and the server leave, at least 1); the others wait in one
 queue, first come first served. A tab has one run at a time (queued or running), within the server's
 limits (app/classroom/limits.py); the queue holds at most MAX_QUEUED runs. A run's end writes its
@@ -40,7 +42,7 @@ import uuid
 from collections import deque
 
 import lab
-from lab.running.worker import STOP_GRACE, ProcessRunner
+from lab.running.worker import STOP_GRACE, ProcessRunner, WarmWorkers
 
 from app.classroom.limits import refusal as limits_refusal
 from app.training.live import RunTrack
@@ -62,9 +64,11 @@ def default_workers(cores: int | None = None) -> int:
     return max(1, cores - 2)
 
 
-def local_runner(config: lab.TrainConfig, history_limit: int | None = None) -> ProcessRunner:
-    """A student run's runner on this machine: a worker process of its own, never the prestarted spare."""
-    return ProcessRunner(config, history_limit=history_limit, spare=False)
+def local_runner(config: lab.TrainConfig, history_limit: int | None = None,
+                 warm: WarmWorkers | None = None) -> ProcessRunner:
+    """A student run's runner on this machine: a worker process of its own, never the prestarted spare
+    (warm: one of these warm workers; ClassRuns keeps `workers` of them)."""
+    return ProcessRunner(config, history_limit=history_limit, spare=warm if warm is not None else False)
 
 
 def clean_name(text) -> tuple[str | None, str | None]:
@@ -172,10 +176,11 @@ class ClassRuns:
         cluster's: lab.running.ray_runner.RayRunner); recorder: callable(runner) -> a logger with .path,
         subscribed to the runner (app.server.rerun_recorder), or None: no recordings."""
         self.notebook, self.limits, self.recorder = notebook, limits, recorder
-        self.make_runner = runner or local_runner
         # why runs cannot go where the runner sends them now (a lost Ray cluster: RayRunner.unavailable)
-        self._unavailable = getattr(self.make_runner, "unavailable", None)
+        self._unavailable = getattr(runner, "unavailable", None)
         self.workers = max(1, int(workers)) if workers is not None else default_workers()
+        self.warm = WarmWorkers(self.workers) if runner is None else None  # the local runs' warm workers
+        self.make_runner = runner or (lambda config, history_limit=None: local_runner(config, history_limit, self.warm))
         self.stop_grace = stop_grace
         self._lock = threading.RLock()
         self.runs: dict[str, StudentRun] = {}  # every run of the session, in order (the board's rows)
@@ -391,6 +396,8 @@ class ClassRuns:
         and every running run stops (its worker killed after stop_grace s); returns once they have ended."""
         with self._lock:
             self.closed = True
+            if self.warm is not None:
+                self.warm.close()
             queued, self._queue = list(self._queue), deque()
             for run in queued:
                 run.state, run.note = "stopped", "the server stopped before it started"

@@ -146,9 +146,10 @@ class ProcessRunner(RemoteRunBase):
     backend lives in the worker."""
 
     def __init__(self, config: TrainConfig, blas_threads: int | None = 1, history_limit: int | None = None,
-                 spare: bool = True):
+                 spare: "bool | WarmWorkers" = True):
         """spare: take the prestarted worker when there is one (False: always a worker of its own, so
-        that runs beside the app's own, a class's students', leave the spare to the app's next Start)."""
+        that runs beside the app's own, a class's students', leave the spare to the app's next Start;
+        a WarmWorkers: one of its warm workers, which leaves the app's spare alone too)."""
         super().__init__(config, blas_threads=blas_threads, history_limit=history_limit)
         self.use_spare = spare
         self._proc: subprocess.Popen | None = None
@@ -174,7 +175,10 @@ class ProcessRunner(RemoteRunBase):
     def start(self) -> "ProcessRunner":
         """Hand the run to a worker process; returns at once."""
         self._claim()
-        self._proc = _take_worker(self.config) if self.use_spare else _spawn(spare=False)
+        if isinstance(self.use_spare, WarmWorkers):
+            self._proc = self.use_spare.take(self.config)
+        else:
+            self._proc = _take_worker(self.config) if self.use_spare else _spawn(spare=False)
         self._command("run", self.config, self.run_id, self.blas_threads, self.history_limit)
         self._sent_at_start()
         threading.Thread(target=self._read, name=f"lab-worker-{self.run_id}", daemon=True).start()
@@ -242,10 +246,16 @@ class ProcessRunner(RemoteRunBase):
                     summary = body
                 elif kind == "failed":
                     error = body
+            if summary is not None:  # its last message: the run ends now, not after its interpreter's teardown (~0.5-1 s)
+                break
             time.sleep(READ_PERIOD)  # the next read takes this while's events at once: not a wake-up per generation
         self._proc.stdin.close()
         self._proc.stdout.close()
-        code = self._proc.wait()
+        if summary is not None:  # it exits on its own; reaped aside
+            threading.Thread(target=self._proc.wait, name=f"lab-worker-exit-{self.run_id}", daemon=True).start()
+            code = None
+        else:
+            code = self._proc.wait()
         if summary is None and self._killed is not None:  # killed by stop_or_kill: what it had sent counts
             self._conclude(self._summarize("stopped", decode.controller, self._killed))
         elif summary is None:
@@ -276,6 +286,63 @@ def prestart(robot: str | None = None, first: TrainConfig | None = None) -> None
             _first_robot, _first_config = robot, None
         if _spare is None or _spare.poll() is not None:
             _spare = _spawn(spare=True)
+
+
+class WarmWorkers:
+    """Workers kept started and warmed up for runs beside the app's own (a class's students'), apart
+    from the app's spare: `take` hands one to a run and starts its replacement at once, so the next
+    run's worker has imported the lab and loaded its kernels while this one trained (~2 s a run saved
+    on a 2-core machine: docs/results/class.md). Each warms up only the kernels of the run taken last
+    (the class's next is most likely alike), not every method as the app's spare does: a worker a run
+    costs no more CPU than a fresh one; one compiling kernels the run does not call is ended and the
+    run gets a fresh worker (one of other settings loads its own kernels once it has it). Nothing is
+    started before the first take (a server nobody runs a student run on starts no process for it)."""
+
+    def __init__(self, size: int):
+        self.size = max(1, int(size))
+        self._ready: list[subprocess.Popen] = []  # started, oldest first
+        self._lock = threading.Lock()
+        self.closed = False
+        self.started = 0  # worker processes started by this pool, fresh ones for a run included
+
+    def pids(self) -> list[int]:
+        """The waiting workers' process ids."""
+        with self._lock:
+            return [p.pid for p in self._ready if p.poll() is None]
+
+    def take(self, config: TrainConfig | None = None) -> subprocess.Popen:
+        """A warm worker for a run of `config` (a fresh one when none is ready), its replacement started."""
+        with self._lock:
+            proc = None
+            while self._ready and proc is None:
+                candidate = self._ready.pop(0)
+                if candidate.poll() is None:
+                    proc = candidate
+            if proc is not None and config is not None and _busy_elsewhere(proc.warmup, config):
+                proc.warmup.abandoned = True
+                proc.kill()  # its finished steps stay in numba's cache
+                threading.Thread(target=proc.wait, daemon=True).start()
+                proc = None
+            if proc is None:
+                proc = _spawn(spare=False)
+                self.started += 1
+            self._fill(config)
+            return proc
+
+    def _fill(self, config: TrainConfig | None) -> None:
+        self._ready = [p for p in self._ready if p.poll() is None]
+        while not self.closed and len(self._ready) < self.size:
+            self._ready.append(_spawn(spare=True, only=config))
+            self.started += 1
+
+    def close(self) -> None:
+        """End the waiting workers (the runs they gave away go on); take() then starts fresh ones, unkept."""
+        with self._lock:
+            self.closed, ready, self._ready = True, self._ready, []
+        for proc in ready:
+            proc.warmup.abandoned = True
+            proc.kill()
+            threading.Thread(target=proc.wait, daemon=True).start()
 
 
 def _first_key() -> str | None:
@@ -315,12 +382,15 @@ def _busy_elsewhere(warmup: Warmup, config: TrainConfig) -> bool:
     return not Step(0, 0, "", warmup.key, lambda: None).needed_by(run_key(config))
 
 
-def _spawn(spare: bool) -> subprocess.Popen:
+def _spawn(spare: bool, only: TrainConfig | None = None) -> subprocess.Popen:
+    """A worker; only: a spare that warms up only the kernels a run of these settings needs, then waits."""
     read, write = os.pipe()  # the warm-up's progress (Warmup)
+    robot, config = (only.robot, only.to_dict()) if only is not None else (_first_robot, _first_config)
     try:
-        first = ["--first-config", json.dumps(_first_config)] if _first_config is not None else []
-        proc = pipes.start("lab.running.worker", "--progress", str(write), "--first-robot", _first_robot, *first,
-                           *(["--spare"] if spare else []), pass_fds=(write,))
+        first = ["--first-config", json.dumps(config)] if config is not None else []
+        proc = pipes.start("lab.running.worker", "--progress", str(write), "--first-robot", robot, *first,
+                           *(["--spare"] if spare else []), *(["--only-first"] if only is not None else []),
+                           pass_fds=(write,))
     except BaseException:
         os.close(read)
         raise
@@ -332,12 +402,13 @@ def _spawn(spare: bool) -> subprocess.Popen:
     return proc
 
 
-def _warm_up(stream, progress_fd: int | None, spare: bool, first_robot: str = "planar", first_config=None):
+def _warm_up(stream, progress_fd: int | None, spare: bool, first_robot: str = "planar", first_config=None,
+             only_first: bool = False):
     """In the worker: compile the kernels (lab/running/warmup.py) before the run, each step told on
     progress_fd. A spare compiles every step, `first_robot`'s for the default method (or the run of
     `first_config`, a TrainConfig.to_dict()) first, until its
-    run arrives; from then on (and in a worker started with its run) only the steps that run needs:
-    the kinematics and its own kernels. Returns the first batch of messages (None: the parent went
+    run arrives (only_first: `first_config`'s steps, then it waits); from then on (and in a worker
+    started with its run) only the steps that run needs: the kinematics and its own kernels. Returns the first batch of messages (None: the parent went
     away)."""
     from lab.running import warmup
 
@@ -371,6 +442,8 @@ def _warm_up(stream, progress_fd: int | None, spare: bool, first_robot: str = "p
     try:
         try:
             steps = warmup.plan(TrainConfig.from_dict(first_config) if first_config else None, robot=first_robot)
+            if only_first and first_config:
+                steps = warmup.for_run(steps, set(), TrainConfig.from_dict(first_config))
         except Exception:  # noqa: BLE001 - an unknown robot: the run itself says so
             log.exception("cannot plan the warm-up for %s", first_robot)
             steps = []
@@ -415,7 +488,8 @@ def main(argv: list[str]) -> int:
     stream = pipes.messages(sys.stdin.fileno())
     first_robot = argv[argv.index("--first-robot") + 1] if "--first-robot" in argv else "planar"
     first_config = json.loads(argv[argv.index("--first-config") + 1]) if "--first-config" in argv else None
-    first = _warm_up(stream, progress_fd, spare="--spare" in argv, first_robot=first_robot, first_config=first_config)
+    first = _warm_up(stream, progress_fd, spare="--spare" in argv, first_robot=first_robot, first_config=first_config,
+                     only_first="--only-first" in argv)
     if not first:
         return 0  # a spare whose parent ended without using it
     (_, config, run_id, blas_threads, *more), pending = first[0], first[1:]
