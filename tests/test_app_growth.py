@@ -123,7 +123,8 @@ def test_a_hall_of_viewer_tabs_redraws_within_its_budget_each_tab_in_turn_and_pr
 
     from types import SimpleNamespace
 
-    clock, hall = [0.0], SimpleNamespace(access=SimpleNamespace(restricted=True))  # a classroom's server
+    clock, hall = [0.0], SimpleNamespace(access=SimpleNamespace(restricted=True),  # a classroom's server
+                                         _refresh_tab=lambda s: s.refresh())  # (LabApp's catches a tab's failure)
     tabs = [_Tab(True, clock)] + [_Tab(False, clock) for _ in range(viewers)]
     frames, turn, per_frame = int(10 * FPS), 0, []
     for f in range(frames):
@@ -170,7 +171,8 @@ def test_where_every_tab_is_a_presenter_all_tabs_share_the_hall_budget():
 
     from app.server import HALL_REDRAWS, LabApp
 
-    clock, server = [0.0], SimpleNamespace(access=SimpleNamespace(restricted=False))  # loopback, no token
+    clock, server = [0.0], SimpleNamespace(access=SimpleNamespace(restricted=False),  # loopback, no token
+                                           _refresh_tab=lambda s: s.refresh())
     tabs = [_Tab(True, clock) for _ in range(200)]
     LabApp._refresh_tabs(server, tabs, 0)
     assert all(t.period == 200 / HALL_REDRAWS for t in tabs)
