@@ -426,7 +426,7 @@ def test_a_read_only_notebook_is_listed_and_not_written(tmp_path, monkeypatch, c
 
     path = tmp_path / "nb.db"
     Notebook(str(path)).add({"run_id": "kept1", "robot": "planar", "method": "cmaes"})
-    before = _sha(path)
+    before, files = _sha(path), sorted(os.listdir(tmp_path))  # the notebook (and its journal's reserve)
     real = os.access
     for locked, why in ((str(path), "the file is read-only"), (str(tmp_path), f"the folder {tmp_path} is read-only")):
         caplog.clear()
@@ -439,7 +439,7 @@ def test_a_read_only_notebook_is_listed_and_not_written(tmp_path, monkeypatch, c
             assert [e["run_id"] for e in nb.entries()] == ["kept1", "session1"]  # a run added while read-only: listed
         [line] = [r.getMessage() for r in caplog.records]  # said once, clearly
         assert f"notebook {path} is read-only ({why})" in line and "new runs are not written" in line
-        assert _sha(path) == before and sorted(os.listdir(tmp_path)) == ["nb.db"]
+        assert _sha(path) == before and sorted(os.listdir(tmp_path)) == files == ["nb.db", "nb.db.journal-reserve"]
     monkeypatch.setattr(os, "access", real)
 
     def readonly(self):
