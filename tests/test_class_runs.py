@@ -133,6 +133,50 @@ def test_a_students_run_takes_a_worker_started_and_warmed_before_it_was_submitte
     assert runs.warm.pids() == [] and wait_until(lambda: all(process_ended(p) for p in waiting), 30)
 
 
+def test_the_next_run_starts_while_the_last_runs_recording_is_still_being_closed(notebook):
+    """A recording's writer closes its file after the run (seconds on a busy machine): the queue's next
+    run starts at once, and the ended run's notebook entry is written only once its file is whole."""
+    import threading
+
+    class HeldLogger:  # a recording whose close waits until the test lets it
+        def __init__(self):
+            self.path, self.block_on_end, self.closed, self.release = "held.rrd", True, False, threading.Event()
+
+        def __call__(self, event):
+            pass
+
+        def on_end(self, summary):
+            self.close(summary, block=self.block_on_end)
+
+        def close(self, summary=None, block=True):
+            if block and not self.closed:
+                self.release.wait(120)
+            self.closed = True
+
+        def failure(self):
+            return None
+
+    loggers = []
+
+    def recorder(runner):
+        loggers.append(HeldLogger())
+        runner.subscribe(loggers[-1])
+        return loggers[-1]
+
+    runs = ClassRuns(notebook, CLASSROOM, workers=1, recorder=recorder)
+    try:
+        assert runs.submit(1, lab.TrainConfig(**SHORT)) is None and runs.submit(2, lab.TrainConfig(**SHORT)) is None
+        first, second = runs.run_of(1), runs.run_of(2)
+        assert wait_until(lambda: second.state == "running", 300), (first.status(), second.status())
+        assert not loggers[0].closed and notebook.get(first.id) is None and not first.ended
+    finally:
+        for logger in loggers:
+            logger.release.set()
+    assert wait_until(lambda: first.ended and second.ended, 300), (first.status(), second.status())
+    assert loggers[0].closed and notebook.get(first.id)["recording"] == "held.rrd" and first.state == "finished"
+    runs.shutdown()
+
+
 def test_the_queue_is_bounded(notebook):
     runs = ClassRuns(notebook, CLASSROOM, workers=1)
     runs._pump = lambda: None  # nothing starts: only the queue's bound is tried

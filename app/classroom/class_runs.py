@@ -23,7 +23,7 @@ With a recorder (app.server.rerun_recorder, as the shared run's), each run is re
 run is: a lab.recording.logger.RerunLogger subscribed to its runner before it starts, whose writer is a
 process of its own (the runner's reader thread only hands each generation's numbers to a pipe); the
 run's end waits for its file to be closed before its notebook entry names it, so an entry's recording
-is whole.
+is whole; the next queued run starts first, so a writer's close costs the class no worker's time.
 
 Names are labels, not identities: at most NAME_MAX characters, letters, digits, spaces and . _ ' -
 (anything else is refused, naming the characters), unique per server among the open tabs (compared
@@ -116,6 +116,7 @@ class StudentRun:
         self.summary = None
         self.note: str | None = None  # why it stopped or failed, when not by its own end
         self.stopping = False  # a Stop is under way (one thread waits for its worker: ClassRuns.stop)
+        self.freed = False  # its worker is done: the next queued run starts while its recording is closed
         self.submitted = time.time()
         self.started: float | None = None
         self.ended_at: float | None = None  # time.time() of its end (ClassRuns._ended)
@@ -284,7 +285,7 @@ class ClassRuns:
 
     def _pump(self) -> None:
         """Start queued runs while a worker is free (under the lock)."""
-        while self._queue and not self.closed and len(self.running()) < self.workers:
+        while self._queue and not self.closed and sum(not r.freed for r in self.running()) < self.workers:
             run = self._queue.popleft()
             if (lost := self.unavailable()) is not None:  # it would wait for a CPU none offers: it fails now
                 log.warning("student run %s not started: %s", run.id, lost)
@@ -294,8 +295,8 @@ class ClassRuns:
             try:
                 runner = self.make_runner(run.config, history_limit=HISTORY_POINTS)
                 runner.run_id = run.id
-                self._record(run, runner)  # before the run's own subscriber: its end closes the file first
-                runner.subscribe(run)
+                runner.subscribe(run)  # before the logger: its end starts the next run, then closes the file
+                self._record(run, runner)
                 run.runner, run.state, run.started = runner, "running", time.time()
                 runner.start()
             except Exception as e:  # noqa: BLE001 - a run that cannot start fails; the queue goes on
@@ -314,7 +315,17 @@ class ClassRuns:
             run.logger = run.recording = None
 
     def _ended(self, run: StudentRun, summary) -> None:
-        """A run's end (its reader thread): its state, its notebook entry, the next queued run."""
+        """A run's end (its reader thread): the next queued run starts, this one's recording is closed
+        (its writer's close no longer holds up the class's next run), then its state and its notebook
+        entry, which names a whole recording."""
+        with self._lock:
+            run.freed = True
+            self._pump()
+        if run.logger is not None:  # the file whole (its logger's own on_end, after this, finds it closed)
+            try:
+                run.logger.close(summary, block=run.logger.block_on_end)
+            except RuntimeError:  # said once (failure()), the run's entry names what is readable
+                log.warning("%s", run.logger.failure())
         with self._lock:
             run.summary, run.state = summary, summary.state
             run.ended_at = time.time()  # its wall time, start to end (a queued run's wait estimate: app/classroom/student_run.py)
