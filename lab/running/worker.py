@@ -49,6 +49,7 @@ from lab.running.runner import RemoteRunBase
 STOP_GRACE = 5.0
 # s: the reader takes the worker's events in batches this far apart (hundreds of generations a second
 # would otherwise wake it, and take the GIL from the app's threads, hundreds of times a second)
+ANSWERED_WAIT = 10.0  # s Stop waits for a worker that answered (its pipe holds unread data) to end its run
 READ_PERIOD = 0.02
 
 log = logging.getLogger(__name__)
@@ -198,8 +199,10 @@ class ProcessRunner(RemoteRunBase):
         if self._proc is None or self._done.is_set():
             return False
         # a worker that answered (it has ended, or sent what the reader, slowed by a busy machine, has
-        # not read yet) is not killed: its reader concludes with what it sent
-        deadline = time.monotonic() + grace
+        # not read yet) is not killed: its reader concludes with what it sent. It may take longer than
+        # the grace to end its run and exit on a loaded machine (1.7-2.3 s at load 6), so it is given
+        # ANSWERED_WAIT while its pipe holds what the reader has not read; a silent worker is killed now
+        deadline = time.monotonic() + max(grace, ANSWERED_WAIT)
         while self._answered() and not self._done.is_set() and time.monotonic() < deadline:
             self._done.wait(0.05)
         if self._done.is_set() or self._proc.poll() is not None:
