@@ -100,6 +100,9 @@ class Meter:
 
     def window(self, t0: float, t1: float):
         pts = [p for p in self.points if t0 <= p[0] <= t1]
+        if len(pts) < 2:  # was an IndexError at load 15-17
+            raise SystemExit(f"bench_app: the run trained {len(pts)} generation(s) in the {t1 - t0:.1f} s window "
+                             "(a machine too loaded to measure on?); try a longer --seconds")
         return pts[0], pts[-1]
 
     def rate(self, t0: float, t1: float) -> float:
