@@ -241,3 +241,37 @@ def test_python_m_lab_export_writes_and_checks_a_controller_file(capsys, tmp_pat
     assert "the closed-form wrist" in said and "the first joint's turn" in said
     assert main(["export", str(tmp_path / "missing.json"), "--onnx", str(out)]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+LIFT_ARM = """<robot name="lift_arm">
+  <link name="base"/><link name="torso"/><link name="l1"/><link name="l2"/><link name="l3"/><link name="tool"/>
+  <joint name="lift" type="prismatic"><parent link="base"/><child link="torso"/>
+    <axis xyz="0 0 1"/><limit lower="0" upper="0.4" effort="1" velocity="1"/></joint>
+  <joint name="yaw" type="revolute"><parent link="torso"/><child link="l1"/><origin xyz="0 0 0.5"/>
+    <axis xyz="0 0 1"/><limit lower="-2.5" upper="2.5" effort="1" velocity="1"/></joint>
+  <joint name="pitch" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0 0 0.1"/>
+    <axis xyz="0 1 0"/><limit lower="-1.5" upper="1.5" effort="1" velocity="1"/></joint>
+  <joint name="elbow" type="revolute"><parent link="l2"/><child link="l3"/><origin xyz="0.3 0 0"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+  <joint name="tool_joint" type="fixed"><parent link="l3"/><child link="tool"/><origin xyz="0.25 0 0"/></joint>
+</robot>
+"""
+
+
+def test_a_robot_whose_first_joint_slides_trains_with_every_method_and_no_settings(tmp_path):
+    """A mobile manipulator's torso lift (PR2, TIAGo) as the first joint: the first joint cannot be
+    turned toward the goal in closed form, so no method's defaults turn it (they did, and every run
+    was refused: "the turn needs a revolute first joint"), and each method trains with no settings."""
+    import lab
+    import robots
+
+    path = tmp_path / "lift_arm.urdf"
+    path.write_text(LIFT_ARM)
+    arm = robots.load(str(path), ee="tool")
+    assert arm.is_prismatic[0] and arm.nq == 4
+    for name in lab.methods.names():
+        method = lab.methods.get(name)
+        assert not method.defaults_for(arm).get("turn", False), name
+        assert not method.defaults_for(arm, seconds=5.0).get("turn", False), name
+        run = lab.evolve(arm, name, generations=2, population=8, targets=20, test_goals=20, seed=0)
+        assert len(run.history) >= 1 and run.test_mse == run.test_mse  # trained, a finite error

@@ -89,11 +89,19 @@ def margin_of(arm) -> float:
     return LIMITED_MARGIN if bool(np.all((arm.upper - arm.lower)[limited] < 2 * np.pi - 1e-9)) else 0.0
 
 
+def can_turn(arm) -> bool:
+    """Whether the first joint can be turned in closed form toward the goal (lab/problem/encoding.py,
+    the turn): a revolute first joint and 3-D goals (not a mobile manipulator's lift, say)."""
+    return not bool(arm.is_prismatic[0]) and tuple(arm.task_axes) == (0, 1, 2)
+
+
 def real_arm_io(arm) -> dict:
     """A real arm's network inputs and output mapping: "sphere" inputs ("bearings" on BEARINGS_ARMS),
     the output margin margin_of(arm), and the first joint turned in closed form toward the goal
-    (lab/problem/encoding.py, the turn)."""
-    return dict(features="bearings" if arm.name in BEARINGS_ARMS else "sphere", margin=margin_of(arm), turn=True)
+    (lab/problem/encoding.py, the turn) where it can be (can_turn: a robot of a URDF whose first joint
+    slides, as PR2's and TIAGo's torso lifts, is not turned)."""
+    return dict(features="bearings" if arm.name in BEARINGS_ARMS else "sphere", margin=margin_of(arm),
+                turn=can_turn(arm))
 
 
 @dataclass(frozen=True, eq=False)

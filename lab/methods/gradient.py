@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lab.methods.base import Backend, Options, StepResult, option, real_arm_io
+from lab.methods.base import Backend, Options, StepResult, can_turn, option, real_arm_io
 from lab.methods.registry import LivePlot, Method, register
 from lab.problem.checks import real
 from lab.problem.controllers import MLPController, mlp_size
@@ -155,7 +155,7 @@ def pose_defaults(arm, seconds: float | None) -> dict:
     lab.problem.pose_fitness.PoseProblem.mlp_gradient), chosen by short runs (docs/log.md); no closed-
     form reach (the elbow and shoulder it solves would be held too: on a 6-joint arm no joint is left
     to learn)."""
-    return dict(real_arm_io(arm), margin=0.0, turn=POSE_TURN, reach=0)
+    return dict(real_arm_io(arm), margin=0.0, turn=POSE_TURN and can_turn(arm), reach=0)
 
 
 METHOD = register(Method(
