@@ -45,7 +45,7 @@ def runs_of(way: str, n: int, seconds: float, record: bool, queued: bool = False
     if queued:  # every run submitted at once (a class pressing Start): the wall time less the training, a run
         t = time.time()
         for k in range(n):
-            why = runs.submit(k, lab.TrainConfig(robot="planar", method="cmaes", seconds=seconds, population=20, seed=k))
+            why = runs.submit(k, lab.TrainConfig(robot="planar", method=lab.methods.DEFAULT_METHOD, seconds=seconds, population=20, seed=k))
             assert why is None, why
         while not all(runs.notebook.get(r.id) is not None for r in runs.rows()):
             time.sleep(0.01)
@@ -56,7 +56,7 @@ def runs_of(way: str, n: int, seconds: float, record: bool, queued: bool = False
     for k in range(n):
         first: list[float] = []
         t = time.time()
-        why = runs.submit(k, lab.TrainConfig(robot="planar", method="cmaes", seconds=seconds, population=20, seed=k))
+        why = runs.submit(k, lab.TrainConfig(robot="planar", method=lab.methods.DEFAULT_METHOD, seconds=seconds, population=20, seed=k))
         assert why is None, why
         run = runs.run_of(k)
         while run.runner is None:
