@@ -19,7 +19,7 @@ import urllib.parse
 from viser import _messages
 
 from app.training.notebook import Notebook
-from conftest import tab_of, wait_or_kill, wait_until
+from conftest import tab_of, wait_until
 
 TOKEN = "journal-Token_0123456789"
 
@@ -45,6 +45,16 @@ class App:
     def line(self, text: str, timeout: float = 300.0) -> str | None:
         assert wait_until(lambda: any(text in s for s in self.lines) or self.proc.poll() is not None, timeout)
         return next((s for s in self.lines if text in s), None)
+
+    def wait(self, timeout: float) -> int:
+        """The app's exit code; killed past `timeout` s. Not proc.communicate(): that reads the pipe too,
+        and under load took the app's last lines (the journal's) from the reader thread."""
+        try:
+            return self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            raise
 
     def output(self) -> str:
         self.reader.join(30)
@@ -99,7 +109,7 @@ def test_the_app_stopped_while_another_program_locks_the_notebook_keeps_every_en
     finally:  # the tabs stay open: a closed tab would stop its own run (and drop a queued one) first
         app.proc.send_signal(signal.SIGTERM)
         try:
-            wait_or_kill(app.proc, 120)
+            app.wait(120)
         finally:
             for tab in tabs:
                 tab.close()
@@ -109,7 +119,9 @@ def test_the_app_stopped_while_another_program_locks_the_notebook_keeps_every_en
         assert "Traceback" not in out and "retried until written" not in out, out[-3000:]
         assert [r[0] for r in other.execute("SELECT run_id FROM runs")] == []  # none written: the lock held
         journal = f"{nb}.journal"
-        [line] = [s for s in out.splitlines() if "before the app stopped" in s]
+        lines = [s for s in out.splitlines() if "before the app stopped" in s]
+        assert len(lines) == 1, out[-6000:]
+        [line] = lines
         assert f"in the journal {journal} (" in line and "which the next opening of the notebook imports" in line
         ids = re.search(r"in the journal \S+ \(([^)]*)\)", line).group(1).split(", ")
         assert len(ids) == 3 and "3 runs could not be written before the app stopped (database is locked)" in line
