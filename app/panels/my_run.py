@@ -16,6 +16,7 @@ without a token), has no such folder: it has the shared Train panel.
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -103,6 +104,7 @@ class MyRunPanel:
         intro = getattr(session, "intro", None)
         if intro is not None and START_HINT in intro.content:
             intro.content = intro.content.replace(START_HINT, VIEWER_START)
+        self._renaming = threading.RLock()  # a write-back of the name calls its on_update again
         self.name.on_update(lambda e: self._rename())
         self.robot.on_update(lambda e: self._defaults())
         self.method.on_update(lambda e: self._defaults())
@@ -125,13 +127,18 @@ class MyRunPanel:
         return text
 
     def _rename(self) -> None:
+        with self._renaming:  # one at a time: viser runs the callbacks of quick edits side by side
+            self._rename_once()
+
+    def _rename_once(self) -> None:
         if self.name.value == self.runs.name_of(self.tab):  # its name (our own write-back too)
             return
         typed = self.name.value
         why = self.runs.set_name(self.tab, typed)
         if why is not None:
             self._tell(why)
-            self.name.value = self.runs.name_of(self.tab)  # back to the name it has
+            if self.name.value == typed:  # back to the name it has, unless another was typed meanwhile
+                self.name.value = self.runs.name_of(self.tab)
             # said in the folder until a name is taken: the runs carry the name it has, not the typed one
             self.name_note.content = (f"Your name {str(typed)[:40]!r} was {why} Your runs show on the Class "
                                       f"board as **{self.runs.name_of(self.tab)}** until you type another.")
