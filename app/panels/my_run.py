@@ -151,11 +151,7 @@ class MyRunPanel:
     def _method_name(self) -> str:
         """The registry's name of the chosen method; ValueError naming the value if it is none of them
         (the message gate keeps a tab's dropdown within its options: app/viser_private.py)."""
-        name = next((m.name for m in methods.all_methods() if m.label == self.method.value), None)
-        if name is None:
-            raise ValueError(f"method {self.method.value!r:.40} is not one of "
-                             f"{', '.join(m.label for m in methods.all_methods())}")
-        return name
+        return methods.by_label(self.method.value)
 
     def _defaults(self) -> None:
         """The robot's and method's defaults into the fields (when they have changed: a write of the same

@@ -144,11 +144,7 @@ class RaceFields:
     def _method_name(self) -> str:
         """The registry's name of the chosen method; ValueError naming the value if it is none of them
         (the message gate keeps a tab's dropdown within its options: app/viser_private.py)."""
-        name = next((m.name for m in methods.all_methods() if m.label == self.method.value), None)
-        if name is None:
-            raise ValueError(f"method {self.method.value!r:.40} is not one of "
-                             f"{', '.join(m.label for m in methods.all_methods())}")
-        return name
+        return methods.by_label(self.method.value)
 
     def _fill_defaults(self) -> None:
         d = lab.TrainConfig.preset(robot=self.panel.robot.value, method=self._method_name())

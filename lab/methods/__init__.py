@@ -18,7 +18,7 @@
 from __future__ import annotations
 
 from lab.methods.base import Backend, Options, Population, RunSettings, StepResult, option
-from lab.methods.registry import DEFAULT_METHOD, LivePlot, Method, all_methods, get, load_plugins, names, register, unregister
+from lab.methods.registry import DEFAULT_METHOD, LivePlot, Method, all_methods, by_label, get, load_plugins, names, register, unregister
 
 
 def make_backend(problem, config: RunSettings) -> Backend:
@@ -32,4 +32,4 @@ from lab.methods import cmaes, gradient, neat, neat_cma  # noqa: E402,F401  (eac
 # asked (registry._load_environment): a module that cannot be imported is then a SettingError
 
 __all__ = ["Backend", "DEFAULT_METHOD", "LivePlot", "Method", "Population", "Options", "RunSettings", "StepResult",
-           "all_methods", "get", "load_plugins", "make_backend", "names", "option", "register", "unregister"]
+           "all_methods", "by_label", "get", "load_plugins", "make_backend", "names", "option", "register", "unregister"]

@@ -220,6 +220,15 @@ def all_methods() -> tuple[Method, ...]:
     return tuple(_REGISTRY.values())
 
 
+def by_label(label) -> str:
+    """The name of the method people read as `label` ("CMA-ES" -> "cmaes"); ValueError naming the value
+    when it is none of them."""
+    name = next((m.name for m in all_methods() if m.label == label), None)
+    if name is None:
+        raise ValueError(f"method {label!r:.40} is not one of {', '.join(m.label for m in all_methods())}")
+    return name
+
+
 def load_plugins(spec: str | None) -> None:
     """Import the modules named in `spec` (comma-separated) and the installed entry points of group
     `neuro_ik_lab.methods`: each registers its methods on import."""
