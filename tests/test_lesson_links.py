@@ -102,8 +102,9 @@ def test_a_presenter_link_opens_a_presenter_tab_with_the_lesson_applied_and_a_st
         presenter, viewer = (app.sessions[o] for o in owners)
         assert presenter.presenter and presenter.my_run is None
         assert not viewer.presenter and viewer.my_run is not None
-        assert int(app.panel.generations.value) == int(lesson.params["generations"])  # the lesson applied
-        assert viewer.my_run.lesson == lesson.name
+        # the tab is listed before its lesson is opened (app/server.py): both are waited for
+        assert wait_until(lambda: int(app.panel.generations.value) == int(lesson.params["generations"]), 60)
+        assert wait_until(lambda: viewer.my_run.lesson == lesson.name, 60)
     finally:
         for t in tabs:
             t.close()
