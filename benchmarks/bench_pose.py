@@ -117,7 +117,7 @@ def network_solver(arm, controller, restarts: bool):
 
 
 def compiled_solver(arm, controller, poses=None):
-    """robots.pose_solve.solve_pose from the network's proposals (controller None: from arm.rest),
+    """robots.pose_solve.PoseSolver from the network's proposals (controller None: from arm.rest),
     then random restarts, within the budget on the bench's clock. poses given: the proposals of all
     of them in one batched forward pass first, its time shared equally among the poses (what
     lab.solve does with many poses at once)."""
@@ -126,6 +126,7 @@ def compiled_solver(arm, controller, poses=None):
         return np.asarray(own(goals))
 
     batch, share = None, 0.0
+    solver = pose_solve.PoseSolver(arm, tol=TOL, angle_tol=TOL)  # the arm's arrays once, as lab.solve does
     if controller is not None and poses is not None:
         starts_of(poses[:2])  # warm
         t0 = clock()
@@ -137,8 +138,7 @@ def compiled_solver(arm, controller, poses=None):
         starts = None
         if controller is not None:
             starts = batch[:, i] if batch is not None else starts_of(goal[None])[:, 0]
-        r = pose_solve.solve_pose(arm, goal, starts, seconds=BUDGET - share - (clock() - t0), tol=TOL,
-                                  angle_tol=TOL, seed=i, clock=clock)
+        r = solver.solve(goal, starts, seconds=BUDGET - share - (clock() - t0), seed=i, clock=clock)
         return r.q, clock() - t0 + share
     return solve
 

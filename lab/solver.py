@@ -379,9 +379,9 @@ def _budgeted(arm, goals, seeds, first_error, first_angle, network: bool, tol, a
     n = len(goals)
     q, error, angle = np.empty((n, arm.nq)), np.empty(n), np.empty(n)
     converged, steps = np.zeros(n, bool), np.zeros(n, np.int64)
+    solver = pose_solve.PoseSolver(arm, tol=tol, angle_tol=angle_tol)
     for i in range(n):
-        r = pose_solve.solve_pose(arm, goals[i], seeds[:, i], seconds=float(seconds), tol=tol, angle_tol=angle_tol,
-                                  seed=None if seed is None else seed + i)
+        r = solver.solve(goals[i], seeds[:, i], seconds=float(seconds), seed=None if seed is None else seed + i)
         q[i], error[i], angle[i], converged[i], steps[i] = r.q, r.error, r.angle, r.converged, r.iterations
     return Solution(q=q, error=error, angle=angle, converged=converged, tol=tol, angle_tol=angle_tol, steps=steps,
                     choice=None, network_error=first_error if network else None,

@@ -168,7 +168,8 @@ def descend_many(starts, gR, gp, chain, tool, axis, length, lower, upper, wrap, 
         for it in range(iterations + 1):
             if norm < best_norm:
                 best_norm, best_p, best_a = norm, err_p, err_a
-                best[:] = q[0]
+                for k in range(n):  # loops, not slices: numba's shape-mismatch message costs compile time
+                    best[k] = q[0, k]
             if (err_p < tol and err_a < atol) or it == iterations:
                 break
             steps += 1
@@ -202,9 +203,11 @@ def descend_many(starts, gR, gp, chain, tool, axis, length, lower, upper, wrap, 
             if not moved or (it >= 2 and n_try > stall * norm):  # stuck, or a slow crawl: the next start
                 if moved and n_try < best_norm:
                     best_norm, best_p, best_a = n_try, p_try, a_try
-                    best[:] = trial[0]
+                    for k in range(n):
+                        best[k] = trial[0, k]
                 break
-            q[0] = trial[0]
+            for k in range(n):
+                q[0, k] = trial[0, k]
             norm, err_p, err_a = _residual(q, gR, gp, chain, tool, axis, length, e, Je, True, scratch)
         if best_p < tol and best_a < atol:
             return best_norm, best_p, best_a, steps, s + 1
@@ -228,44 +231,67 @@ def solve_pose(arm: Arm, goal, starts=None, *, seconds: float | None = 0.005, re
     robots.ik.pose_tolerances (default 0.1 mm and 0.1 degree); iterations: steps a descent may take;
     damping: b in the damping |e|^2 + b^2, as a fraction of robots.ik.workspace_size. Returns an
     IKResult (q, error, iterations: steps in all, seconds, converged, angle, restarts) of the best
-    iterate. ValueError, naming the problem, for a goal that is not one pose or starts of another shape."""
+    iterate. ValueError, naming the problem, for a goal that is not one pose or starts of another shape.
+    Many goals of one arm: PoseSolver, which prepares the arm's arrays once."""
     t0 = clock()
-    goals = pose.check_poses(goal, what=f"{arm.name}: pose goal")
-    if len(goals) != 1:
-        raise ValueError(f"{arm.name}: solve_pose solves one pose (4, 4), got {len(goals)}")
-    tol, angle_tol = pose_tolerances(arm, tol, angle_tol)
-    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
-        raise ValueError(f"iterations must be an integer >= 1, got {iterations!r}")
-    if starts is None:
-        starts = arm.rest[None]
-    # a writeable copy: one compiled signature for every caller (a readonly array would be another)
-    starts = np.array(starts, dtype=np.float64, order="C", ndmin=2)
-    if starts.ndim != 2 or starts.shape[1] != arm.nq or not len(starts) or not np.isfinite(starts).all():
-        raise ValueError(f"{arm.name}: starts must be finite joint vectors ({arm.nq},) or (k, {arm.nq}), "
-                         f"got shape {np.shape(starts)}")
-    chain, tool, axis = _setup(arm)
-    g = goals[0]
-    gR, gp = np.ascontiguousarray(g[:3, :3]), np.ascontiguousarray(g[:3, 3])
-    length = tol / angle_tol
-    bias2 = (damping * workspace_size(arm)) ** 2
-    best = np.empty(arm.nq)
-    wrap = (~np.asarray(arm.is_prismatic, bool)) & (arm.upper - arm.lower >= 2 * np.pi - 1e-9) & bool(WRAP)
-    args = (gR, gp, chain, tool, axis, length, arm.lower, arm.upper, np.asarray(wrap, np.bool_), bias2, tol, angle_tol,
-            int(iterations), float(stall))
-    norm, err_p, err_a, steps, _ = descend_many(starts, *args, best)
-    q = best.copy()
-    rng = np.random.default_rng(seed)
-    done = 0
-    more = seconds is not None or restarts is not None
-    while more and not (err_p < tol and err_a < angle_tol):
-        if (seconds is not None and clock() - t0 >= seconds) or (restarts is not None and done >= restarts):
-            break
-        k = BATCH if restarts is None else min(BATCH, restarts - done)
-        draws = arm.lower + (arm.upper - arm.lower) * rng.random((k, arm.nq))
-        n2, p2, a2, s2, ran = descend_many(draws, *args, best)
-        steps += s2
-        done += ran
-        if n2 < norm:
-            norm, err_p, err_a, q = n2, p2, a2, best.copy()
-    return IKResult(q=q, error=float(err_p), iterations=int(steps), seconds=clock() - t0,
-                    converged=bool(err_p < tol and err_a < angle_tol), angle=float(err_a), restarts=done)
+    solver = PoseSolver(arm, tol=tol, angle_tol=angle_tol, iterations=iterations, damping=damping, stall=stall)
+    return solver.solve(goal, starts, seconds=seconds, restarts=restarts, seed=seed, clock=clock, t0=t0)
+
+
+class PoseSolver:
+    """solve_pose for many goals of one arm: the arm's arrays, tolerances and settings prepared once
+    (half the time of a pose solved from its first start was that preparation, redone each goal)."""
+
+    def __init__(self, arm: Arm, *, tol: float | None = None, angle_tol: float | None = None,
+                 iterations: int = STEPS_FROM_START, damping: float = 1e-4, stall: float = STALL):
+        self.arm = arm
+        self.tol, self.angle_tol = pose_tolerances(arm, tol, angle_tol)
+        if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
+            raise ValueError(f"iterations must be an integer >= 1, got {iterations!r}")
+        self.nq = arm.nq
+        self.lower, self.upper = np.asarray(arm.lower, np.float64), np.asarray(arm.upper, np.float64)
+        self.span = self.upper - self.lower
+        # a writeable copy: one compiled signature for every caller (a readonly array would be another)
+        self.rest = np.array(arm.rest, dtype=np.float64, order="C", ndmin=2)
+        chain, tool, axis = _setup(arm)
+        wrap = (~np.asarray(arm.is_prismatic, bool)) & (self.span >= 2 * np.pi - 1e-9) & bool(WRAP)
+        self._args = (chain, tool, axis, self.tol / self.angle_tol, self.lower, self.upper, np.asarray(wrap, np.bool_),
+                      (damping * workspace_size(arm)) ** 2, self.tol, self.angle_tol, int(iterations), float(stall))
+
+    def solve(self, goal, starts=None, *, seconds: float | None = 0.005, restarts: int | None = None,
+              seed: int | None = 0, clock=time.perf_counter, t0: float | None = None) -> IKResult:
+        """solve_pose's answer for one goal (4, 4) with this solver's arm and settings."""
+        t0 = clock() if t0 is None else t0
+        arm, tol, angle_tol = self.arm, self.tol, self.angle_tol
+        goals = pose.check_poses(goal, what=f"{arm.name}: pose goal")
+        if len(goals) != 1:
+            raise ValueError(f"{arm.name}: solve_pose solves one pose (4, 4), got {len(goals)}")
+        if starts is None:
+            starts = self.rest
+        else:
+            starts = np.array(starts, dtype=np.float64, order="C", ndmin=2)
+            if starts.ndim != 2 or starts.shape[1] != self.nq or not len(starts) or not np.isfinite(starts).all():
+                raise ValueError(f"{arm.name}: starts must be finite joint vectors ({self.nq},) or (k, {self.nq}), "
+                                 f"got shape {np.shape(starts)}")
+        g = goals[0]
+        gR, gp = np.ascontiguousarray(g[:3, :3]), np.ascontiguousarray(g[:3, 3])
+        chain, tool, axis, *rest = self._args
+        best = np.empty(self.nq)
+        norm, err_p, err_a, steps, _ = descend_many(starts, gR, gp, chain, tool, axis, *rest, best)
+        q = best.copy()
+        rng = None  # made when the first restart needs it (the same draws as made up front)
+        done = 0
+        more = seconds is not None or restarts is not None
+        while more and not (err_p < tol and err_a < angle_tol):
+            if (seconds is not None and clock() - t0 >= seconds) or (restarts is not None and done >= restarts):
+                break
+            rng = np.random.default_rng(seed) if rng is None else rng
+            k = BATCH if restarts is None else min(BATCH, restarts - done)
+            draws = self.lower + self.span * rng.random((k, self.nq))
+            n2, p2, a2, s2, ran = descend_many(draws, gR, gp, chain, tool, axis, *rest, best)
+            steps += s2
+            done += ran
+            if n2 < norm:
+                norm, err_p, err_a, q = n2, p2, a2, best.copy()
+        return IKResult(q=q, error=float(err_p), iterations=int(steps), seconds=clock() - t0,
+                        converged=bool(err_p < tol and err_a < angle_tol), angle=float(err_a), restarts=done)

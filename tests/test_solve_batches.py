@@ -127,8 +127,8 @@ def test_no_chunk_holds_more_than_chunk_goals(monkeypatch):
 def test_a_budgeted_chunk_keeps_each_goals_own_generator(monkeypatch):
     """seconds: goal i draws its restarts from seed + i whichever chunk it is in."""
     calls = []
-    monkeypatch.setattr(solver.pose_solve, "solve_pose",
-                        lambda arm, goal, seeds, **kw: calls.append(kw["seed"]) or _fake_result(seeds[0]))
+    monkeypatch.setattr(solver.pose_solve.PoseSolver, "solve",
+                        lambda self, goal, seeds, **kw: calls.append(kw["seed"]) or _fake_result(seeds[0]))
     monkeypatch.setattr(solver, "CHUNK", 4)
     arm = robots.load("ur5")
     lab.solve(None, arm, pose.sample_poses(arm, 10, seed=0), seconds=0.001, seed=100)

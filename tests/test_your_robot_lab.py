@@ -118,11 +118,12 @@ def test_the_first_pose_solve_that_compiles_says_so(monkeypatch, capsys, ur3):
     poses = pose.sample_poses(ur3, 2, seed=8)
     real = solver.pose_solve
 
-    def slow(*args, **kwargs):
-        time.sleep(0.05)
-        return real.solve_pose(*args, **kwargs)
+    class Slow(real.PoseSolver):
+        def solve(self, *args, **kwargs):
+            time.sleep(0.05)
+            return super().solve(*args, **kwargs)
 
-    monkeypatch.setattr(solver, "pose_solve", SimpleNamespace(solve_pose=slow))
+    monkeypatch.setattr(solver, "pose_solve", SimpleNamespace(PoseSolver=Slow))
     monkeypatch.setattr(solver, "_pose_kernels", lambda controller: [SimpleNamespace(signatures=[])])
     for cached, says in ((False, True), (True, False), (None, True)):
         monkeypatch.setattr(solver, "_solved_once", threading.Event())
