@@ -490,7 +490,8 @@ def test_a_lesson_link_that_makes_no_run_is_refused_in_the_students_folder(app):
         tab.wait_for(lambda m: m.get("name") == "/tab/goal0/label", 60)
         panel = session_of(app, tab).my_run
         assert wait_until(lambda: panel.part.content.startswith("refused: this lesson link does not make a run"), 30)
-        assert "nosuchrobot" in panel.part.content and panel.message.content == panel.part.content
+        assert "nosuchrobot" in panel.part.content
+        assert wait_until(lambda: panel.message.content == panel.part.content, 30)  # said above Start just after
         assert wait_until(lambda: "refused" in folder_and_first_line(tab, "My experiment (this tab)")[1], 30)
         assert folder_and_first_line(tab, "My experiment (this tab)")[0]["props"]["expand_by_default"] is True
     finally:
