@@ -93,7 +93,8 @@ def _jr_inv(w, theta, M):
 
 @numba.njit(cache=True, nogil=True)
 def _residual(q, gR, gp, chain, tool, axis, length, e, Je, want_j, scratch):
-    """e (6,) and, when want_j, Je (6, n) at q (1, n); returns (|e|, position error, angle error)."""
+    """e (6,) and, when want_j, Je (6, n) at q (1, n); returns (|e|, position error, angle error).
+    Callers pass want_j as np.bool_(...): a literal True or False would compile it twice."""
     rot, pos, kind, identity, parent, ee_joint, effector_pos = chain
     F, p, origins, axes, R, E, w, M = scratch
     tree_points(q, 0, rot, pos, kind, identity, parent, ee_joint, effector_pos, F, p, 0, origins, axes)
@@ -136,6 +137,36 @@ def _residual(q, gR, gp, chain, tool, axis, length, e, Je, want_j, scratch):
     return norm, err_p, err_a
 
 
+@numba.njit(cache=True, nogil=True)
+def _spd_solve(A, b, y):
+    """y <- A^-1 b for a symmetric positive definite A (m, m) (J J^T + lambda^2 I), by Cholesky; A is
+    overwritten by its factor. Written out rather than np.linalg.solve, whose LAPACK binding took
+    a quarter of the pose solver's compile (docs/results/app-speed.md). A pivot that is not positive
+    (NaN in, or a rounding that made A indefinite) gives a step the line search then rejects."""
+    m = A.shape[0]
+    for j in range(m):
+        d = A[j, j]
+        for k in range(j):
+            d -= A[j, k] * A[j, k]
+        d = math.sqrt(d) if d > 0.0 else 1e-300
+        A[j, j] = d
+        for i in range(j + 1, m):
+            v = A[i, j]
+            for k in range(j):
+                v -= A[i, k] * A[j, k]
+            A[i, j] = v / d
+    for i in range(m):  # L z = b
+        v = b[i]
+        for k in range(i):
+            v -= A[i, k] * y[k]
+        y[i] = v / A[i, i]
+    for i in range(m - 1, -1, -1):  # L^T y = z
+        v = y[i]
+        for k in range(i + 1, m):
+            v -= A[k, i] * y[k]
+        y[i] = v / A[i, i]
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
 def _within(x, lo, hi, wrap):
     """x within [lo, hi]: a joint of a whole turn or more (wrap) by whole turns where that brings it
@@ -157,14 +188,14 @@ def descend_many(starts, gR, gp, chain, tool, axis, length, lower, upper, wrap, 
     S, n = starts.shape
     q, trial = np.empty((1, n)), np.empty((1, n))
     e, e_try, Je, dq = np.empty(6), np.empty(6), np.empty((6, n)), np.empty(n)
-    A, held = np.empty((6, 6)), np.zeros(n, np.bool_)
+    A, held, y = np.empty((6, 6)), np.zeros(n, np.bool_), np.empty(6)
     scratch = (np.empty((n, 12)), np.empty((1, 1, 3)), np.empty((1, n + 1, 3)), np.empty((n, 3)), np.empty((3, 3)),
                np.empty((3, 3)), np.empty(3), np.empty((3, 3)))
     best_norm, best_p, best_a, steps = np.inf, np.inf, np.inf, 0
     for s in range(S):
         for k in range(n):
             q[0, k] = _within(starts[s, k], lower[k], upper[k], wrap[k])
-        norm, err_p, err_a = _residual(q, gR, gp, chain, tool, axis, length, e, Je, True, scratch)
+        norm, err_p, err_a = _residual(q, gR, gp, chain, tool, axis, length, e, Je, np.bool_(True), scratch)
         for it in range(iterations + 1):
             if norm < best_norm:
                 best_norm, best_p, best_a = norm, err_p, err_a
@@ -187,7 +218,7 @@ def descend_many(starts, gR, gp, chain, tool, axis, length, lower, upper, wrap, 
                     for k in range(n):
                         acc += Je[r, k] * Je[c, k]
                     A[r, c] = acc + (lam2 if r == c else 0.0)
-            y = np.linalg.solve(A, e)
+            _spd_solve(A, e, y)
             for k in range(n):
                 dq[k] = Je[0, k] * y[0] + Je[1, k] * y[1] + Je[2, k] * y[2] + Je[3, k] * y[3] + Je[4, k] * y[4] + \
                     Je[5, k] * y[5]
@@ -195,7 +226,7 @@ def descend_many(starts, gR, gp, chain, tool, axis, length, lower, upper, wrap, 
             for h in range(5):
                 for k in range(n):
                     trial[0, k] = _within(q[0, k] + t * dq[k], lower[k], upper[k], wrap[k])
-                n_try, p_try, a_try = _residual(trial, gR, gp, chain, tool, axis, length, e_try, Je, False, scratch)
+                n_try, p_try, a_try = _residual(trial, gR, gp, chain, tool, axis, length, e_try, Je, np.bool_(False), scratch)
                 if n_try < norm:
                     moved = True
                     break
@@ -208,7 +239,7 @@ def descend_many(starts, gR, gp, chain, tool, axis, length, lower, upper, wrap, 
                 break
             for k in range(n):
                 q[0, k] = trial[0, k]
-            norm, err_p, err_a = _residual(q, gR, gp, chain, tool, axis, length, e, Je, True, scratch)
+            norm, err_p, err_a = _residual(q, gR, gp, chain, tool, axis, length, e, Je, np.bool_(True), scratch)
         if best_p < tol and best_a < atol:
             return best_norm, best_p, best_a, steps, s + 1
     return best_norm, best_p, best_a, steps, S

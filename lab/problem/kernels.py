@@ -160,7 +160,10 @@ def _chain_frames(Q, chain, R, P):
                     m0, m1, m2 = m[0, b], m[1, b], m[2, b]
                     for g in range(n):
                         T[a, b, g] = R[a, 0, g] * m0 + R[a, 1, g] * m1 + R[a, 2, g] * m2
-            R[:, :, :] = T
+            for a in range(3):
+                for b in range(3):
+                    for g in range(n):
+                        R[a, b, g] = T[a, b, g]
         if kind[k] == 0:
             sincos_row(Q[k], S, C)
             for a in range(3):
@@ -243,7 +246,7 @@ def fk_turned_sq_errors(Q, goalsT, axes, chain, turn, E):
     R, P = np.empty((3, 3, n)), np.empty((3, n))
     _chain_frames(Q, chain, R, P)
     if turn[0] != 0.0:
-        _turn_row(P, R, ee_pos, Q, goalsT, turn, E, False)
+        _turn_row(P, R, ee_pos, Q, goalsT, turn, E, np.bool_(False))
         return
     e0, e1, e2 = ee_pos[0], ee_pos[1], ee_pos[2]
     for g in range(n):
@@ -261,7 +264,7 @@ def turn_first_joint(Q, goalsT, chain, turn):
     n = Q.shape[1]
     R, P, E = np.empty((3, 3, n)), np.empty((3, n)), np.empty(n)
     _chain_frames(Q, chain, R, P)
-    _turn_row(P, R, chain[4], Q, goalsT, turn, E, True)
+    _turn_row(P, R, chain[4], Q, goalsT, turn, E, np.bool_(True))
 
 
 @numba.njit(**_JIT)
@@ -384,7 +387,9 @@ def _graph_rows(XT, p, starts, n_nodes, bias, response, link_start, link_src, li
 def _graph_scratch(XT, n_nodes):
     ni, n = XT.shape
     V = np.empty((ni + max(1, n_nodes.max()), n))
-    V[:ni] = XT
+    for i in range(ni):  # loops, not slices (see _tiled)
+        for g in range(n):
+            V[i, g] = XT[i, g]
     return V
 
 
@@ -414,8 +419,10 @@ def joints_mse(QT, goalsT, axes, chain, turn, out):
     """MSE of joint values QT (P, nq, n) on the goals, the first joint turned when turn[0] is set: out (P,)."""
     P, nq, n = QT.shape
     Q = np.empty((nq, P * n))
-    for p in range(P):
-        Q[:, p * n:(p + 1) * n] = QT[p]
+    for p in range(P):  # loops, not slices (see _tiled)
+        for k in range(nq):
+            for g in range(n):
+                Q[k, p * n + g] = QT[p, k, g]
     _joints_side_by_side_mse(Q, goalsT, axes, chain, turn, out)
 
 
@@ -424,8 +431,10 @@ def _tiled(G, P):
     """G (k, n) repeated P times side by side: (k, P n)."""
     n = G.shape[1]
     out = np.empty((G.shape[0], P * n))
-    for p in range(P):
-        out[:, p * n:(p + 1) * n] = G
+    for p in range(P):  # loops, not a slice assignment: numba's shape-mismatch message for one
+        for a in range(G.shape[0]):  # costs seconds of compile (docs/results/app-speed.md)
+            for g in range(n):
+                out[a, p * n + g] = G[a, g]
     return out
 
 
@@ -445,7 +454,8 @@ def _head_joints(A, h, qmap, Q):
     """Q <- head h's joint values from the outputs A."""
     nq = Q.shape[0]
     for o in range(nq):
-        Q[o] = A[h * nq + o]
+        for g in range(Q.shape[1]):
+            Q[o, g] = A[h * nq + o, g]
         _to_joints_row(Q[o], o, qmap)
 
 
@@ -498,7 +508,8 @@ def tree_sq_errors(Q, goalsT, axes, tree, turns, E):
     for e in range(ee_pos.shape[0]):
         a, b = starts[e], starts[e + 1]
         for k in range(b - a):
-            Qe[k] = Q[joints[a + k]]
+            for g in range(Q.shape[1]):
+                Qe[k, g] = Q[joints[a + k], g]
         fk_turned_sq_errors(Qe[:b - a], goalsT[e * m:(e + 1) * m], axes,
                             (rot[a:b], pos[a:b], kind[a:b], identity[a:b], ee_pos[e]), turns[e], Ee)
         for g in range(n):
@@ -516,10 +527,12 @@ def tree_turn_joints(Q, goalsT, tree, turns):
         a, b = starts[e], starts[e + 1]
         Qe = np.empty((b - a, Q.shape[1]))
         for k in range(b - a):
-            Qe[k] = Q[joints[a + k]]
+            for g in range(Q.shape[1]):
+                Qe[k, g] = Q[joints[a + k], g]
         turn_first_joint(Qe, goalsT[3 * e:3 * e + 3], (rot[a:b], pos[a:b], kind[a:b], identity[a:b], ee_pos[e]),
                          turns[e])
-        Q[joints[a]] = Qe[0]
+        for g in range(Q.shape[1]):
+            Q[joints[a], g] = Qe[0, g]
 
 
 @numba.njit(**_JIT)
@@ -582,8 +595,10 @@ def tree_joints_mse(QT, goalsT, axes, tree, turns, out):
     """joints_mse on a tree: joint values QT (P, nq, n), goals (E m, n) -> out (P,) (turns as tree_sq_errors)."""
     P, nq, n = QT.shape
     Q = np.empty((nq, P * n))
-    for p in range(P):
-        Q[:, p * n:(p + 1) * n] = QT[p]
+    for p in range(P):  # loops, not slices (see _tiled)
+        for k in range(nq):
+            for g in range(n):
+                Q[k, p * n + g] = QT[p, k, g]
     _tree_side_by_side_mse(Q, goalsT, axes, tree, turns, out)
 
 

@@ -37,6 +37,24 @@ from lab.problem.kernels import (_JIT, _chain_frames, _graph_rows, _graph_scratc
 
 
 @numba.njit(**_JIT)
+def _copy2(src, dst):
+    """dst <- src, both (a, b): loops, not a slice assignment, whose shape-mismatch message costs numba
+    seconds of compile (docs/results/app-speed.md)."""
+    for a in range(src.shape[0]):
+        for b in range(src.shape[1]):
+            dst[a, b] = src[a, b]
+
+
+@numba.njit(**_JIT)
+def _copy3(src, dst):
+    """dst <- src, both (a, b, c)."""
+    for a in range(src.shape[0]):
+        for b in range(src.shape[1]):
+            for c in range(src.shape[2]):
+                dst[a, b, c] = src[a, b, c]
+
+
+@numba.njit(**_JIT)
 def _turned_frames(Q, GP, chain, turn, R, P):
     """R (3, 3, N), P (3, N) <- the last joint's frame of Q (nq, N), the first joint turned toward each
     goal position's bearing when turn[0] is set (Q[0] then holds the turned values)."""
@@ -46,7 +64,7 @@ def _turned_frames(Q, GP, chain, turn, R, P):
     n = Q.shape[1]
     before = Q[0].copy()
     E = np.empty(n)
-    _turn_row(P, R, chain[4], Q, GP, turn, E, True)
+    _turn_row(P, R, chain[4], Q, GP, turn, E, np.bool_(True))
     for g in range(n):
         d = Q[0, g] - before[g]
         if d != 0.0:
@@ -173,7 +191,7 @@ def _wrist_rows(Q, GP, GR, chain, spec, R, P):
             if k < w:
                 _rz_into(T1, Q[k, g], Rp)
             else:
-                Rp[:, :] = T1
+                _copy2(T1, Rp)
         for a in range(3):
             for b in range(3):
                 G[a, b] = GR[3 * a + b, g]
@@ -224,7 +242,7 @@ def _wrist_rows(Q, GP, GR, chain, spec, R, P):
                     bz += Rb[2, 0] * pos[k, 0] + Rb[2, 1] * pos[k, 1] + Rb[2, 2] * pos[k, 2]
                     _mm(Rb, rot[k], T1)
                 else:
-                    T1[:, :] = Rb
+                    _copy2(Rb, T1)
                 _rz_into(T1, t, Rb)
             ex = bx + Rb[0, 0] * ee_pos[0] + Rb[0, 1] * ee_pos[1] + Rb[0, 2] * ee_pos[2] - GP[0, g]
             ey = by + Rb[1, 0] * ee_pos[0] + Rb[1, 1] * ee_pos[1] + Rb[1, 2] * ee_pos[2] - GP[1, g]
@@ -298,7 +316,7 @@ def _reach_rows(Q, GP, GR, chain, spec, R, P, step, PT):
             py += Rp[1, 0] * pos[k, 0] + Rp[1, 1] * pos[k, 1] + Rp[1, 2] * pos[k, 2]
             pz += Rp[2, 0] * pos[k, 0] + Rp[2, 1] * pos[k, 1] + Rp[2, 2] * pos[k, 2]
             if identity[k]:
-                T1[:, :] = Rp
+                _copy2(Rp, T1)
             else:
                 _mm(Rp, rot[k], T1)
             if k == 0 or k == S or k == j:
@@ -539,9 +557,9 @@ def _turned_and_wrist(Q, GP, GR, chain, turn, spec, R, P):
         for g in range(n):
             D[g] += w2 * A[g] * A[g]
         _keep_best(D, best, Q, R, P, Qb, Rb, Pb)
-    Q[:, :] = Qb
-    R[:, :, :] = Rb
-    P[:, :] = Pb
+    _copy2(Qb, Q)
+    _copy3(Rb, R)
+    _copy2(Pb, P)
 
 
 @numba.njit(**_JIT)
@@ -615,9 +633,12 @@ def _keep_best(D, best, Q, R, P, Qb, Rb, Pb):
     for g in range(D.shape[0]):
         if D[g] < best[g]:
             best[g] = D[g]
-            Qb[:, g] = Q[:, g]
-            Rb[:, :, g] = R[:, :, g]
-            Pb[:, g] = P[:, g]
+            for a in range(Q.shape[0]):  # loops, not slices: numba's shape-mismatch message costs
+                Qb[a, g] = Q[a, g]  # seconds of compile (docs/results/app-speed.md)
+            for a in range(3):
+                Pb[a, g] = P[a, g]
+                for b in range(3):
+                    Rb[a, b, g] = R[a, b, g]
 
 
 @numba.njit(**_JIT)
@@ -660,9 +681,9 @@ def _centred(Q, GP, GR, chain, turn, spec, R, P):
             _turned_frames(Q, GW, cchain, turn, R, P)
             _centred_errors(Q, GP, GR, GW, chain, spec, centre, spherical, R, P, D, A)
         _keep_best(D, best, Q, R, P, Qb, Rb, Pb)
-    Q[:, :] = Qb
-    R[:, :, :] = Rb
-    P[:, :] = Pb
+    _copy2(Qb, Q)
+    _copy3(Rb, R)
+    _copy2(Pb, P)
     if spherical:
         _wrist_rows(Q, GP, GR, chain, spec, R, P)
 
