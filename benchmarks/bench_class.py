@@ -4,6 +4,7 @@ presenter's shared run trains and the presenter drags a goal.
     python benchmarks/bench_class.py                          # 30 students, 30 s runs, the default workers
     python benchmarks/bench_class.py --students 30 --seconds 3 --workers 1
     python benchmarks/bench_class.py --ray 127.0.0.1:6390           # the runs on a Ray cluster's actors
+    python benchmarks/bench_class.py --default --spread 60          # each the panel's default run, Starts over a minute
 
 Each student tab (app/probe.py, one event loop for all, in this process) gets a name, a planar CMA-ES
 run with a time budget of --seconds, and presses "Start my run"; the presenter's tab drags its goal
@@ -11,7 +12,10 @@ marker 10 times a second throughout. Reports: how long the last run waited in th
 class's wall time, the presenter's drags (the server's work per drag, callback to pose sent: p50/p95,
 app.latency; and the round trip the probe saw, inflated by its sharing this process), how long the
 Class board took to show each run's end (the largest), and that every run finished and has its
-notebook entry with its student's name. With --ray ADDRESS the runs go to that Ray cluster (as
+notebook entry with its student's name. --default: each student presses Start on *My experiment*'s
+default run (the robot, method and length the panel offers; only the seed is the student's own),
+--spread S: the Starts one after another over S seconds (a class pressing Start within a minute:
+60); class_wall_s is then the first Start to the last run's end. With --ray ADDRESS the runs go to that Ray cluster (as
 `python -m app --ray ADDRESS`; "local": a local instance), at most its CPUs at once unless --workers
 says otherwise, and it counts the runs each node trained.
 """
@@ -40,6 +44,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=None, help="student runs at once (default: cores - 2, at least 1)")
     ap.add_argument("--ray", default=None, metavar="ADDRESS", help="run the students' runs on this Ray cluster")
     ap.add_argument("--hz", type=float, default=10.0, help="the presenter's drags a second")
+    ap.add_argument("--default", action="store_true", help="each student runs My experiment's default (only the seed set)")
+    ap.add_argument("--spread", type=float, default=0.0, help="the Starts spread evenly over this many seconds")
     args = ap.parse_args()
 
     import numpy as np
@@ -119,14 +125,21 @@ def main() -> None:
     app.latency.clear()
     dragger = threading.Thread(target=drag, daemon=True)
     dragger.start()
-    t0 = time.perf_counter()
+    t0, default_run = time.perf_counter(), None
     for k, (owner, _probe) in enumerate(owners.items()):
         panel = app.sessions[owner].my_run
         assert app.class_runs.set_name(owner, f"bench {k + 1}") is None
-        panel.population.value, panel.budget.value, panel.seed.value = 20.0, float(args.seconds), float(k)
-        panel.generations.value = 100_000.0  # the time budget ends the run
+        panel.seed.value = float(k)
+        if not args.default:
+            panel.population.value, panel.budget.value = 20.0, float(args.seconds)
+            panel.generations.value = 100_000.0  # the time budget ends the run
+        elif k == 0:
+            default_run = f"{panel.robot.value}, {panel.method.value}, population {int(panel.population.value)}, " \
+                f"{int(panel.generations.value)} generations, budget {panel.budget.value} s"
         why = panel.start()
         assert why is None, why
+        if args.spread and k < len(owners) - 1:
+            time.sleep(max(0.0, t0 + args.spread * (k + 1) / (len(owners) - 1) - time.perf_counter()))
     runs = [app.class_runs.run_of(o) for o in owners]
     while not all(r.ended for r in runs):
         time.sleep(0.1)
@@ -140,7 +153,8 @@ def main() -> None:
     entries = [app.state.notebook.get(r.id) for r in runs]
     shared_ok = app.state.runner is not None and app.state.runner.state == "running"
     result = {
-        "students": args.students, "seconds": args.seconds, "workers": app.class_runs.workers,
+        "students": args.students, "run": default_run if args.default else f"planar, {args.seconds} s",
+        "spread_s": args.spread, "workers": app.class_runs.workers,
         "cores": os.cpu_count(),
         "finished": sum(r.state == "finished" for r in runs),
         "entries_with_name": sum(e is not None and e.get("student", "").startswith("bench ") for e in entries),

@@ -345,7 +345,7 @@ METHOD = register(Method(
     min_population=4, min_hidden=1, max_heads=MAX_HEADS,
     search_title="CMA-ES step size and restarts", search_series="CMA-ES step size sigma and the number of restarts",
     class_generations=3000,  # a student's default run on a paper arm (docs/results/class.md)
-    cost=1.0, compile_seconds=(16.0, 13.0), ablations=("features=polar", "features=cartesian", "margin=0.5", "hidden=8", "sigma0=0.4", "diagonal=0"),
+    cost=1.0, compile_seconds=(10.0, 11.0), ablations=("features=polar", "features=cartesian", "margin=0.5", "hidden=8", "sigma0=0.4", "diagonal=0"),
     reference=SpeedReference("pycma ask/tell, sphere", 1.25, reference_loop),
     live_plots=(
         LivePlot("sigma", "CMA-ES step size σ", log=True, about=(

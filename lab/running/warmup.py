@@ -38,7 +38,7 @@ KINEMATICS = "kinematics"  # the key of the step every run waits for
 FIGURES = "warmup-seconds.json"  # beside numba's cache: each step's seconds the last time it compiled here
 # reference s of a step on the 2-core machine of docs/log.md with an empty cache, used only as the
 # ratio of one step to another where this machine has no figure of its own (scaled by its own steps)
-REFERENCE_SECONDS = {KINEMATICS: 2.5, "pose": 12.0, "limbs": 2.5}
+REFERENCE_SECONDS = {KINEMATICS: 2.5, "pose": 9.5, "limbs": 2.5}
 LOADS = "_load"  # in FIGURES: the machine's busy factor (busy()) when each figure was taken
 SCALED_BY = 5.0  # s: compiled steps this long in all scale the estimates by themselves, else the load does
 
