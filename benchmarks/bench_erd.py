@@ -32,6 +32,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("LAB_THREADS", "1")
 
 import argparse  # noqa: E402
+import json  # noqa: E402
 import concurrent.futures as cf  # noqa: E402
 import logging  # noqa: E402
 import multiprocessing  # noqa: E402
@@ -144,7 +145,8 @@ def main(argv=None) -> None:
                 rows[n] = {"robot": n, "load": os.getloadavg()[0], "reason": f"worker died: {_one_line(e)}"}
             r = rows[n]
             print(f"[{len(rows)}/{len(names)} {time.perf_counter() - t0:.0f} s] {n}: "
-                  f"{r.get('reason') or 'ok'}", file=sys.stderr, flush=True)
+                  f"{r.get('reason') or 'ok'} {json.dumps({k: v for k, v in r.items() if k != 'trace'})}",
+                  file=sys.stderr, flush=True)  # each row as it comes: a sweep cut short keeps what it measured
             if r.get("trace"):
                 print(r["trace"], file=sys.stderr, flush=True)
     print(f"\n`python benchmarks/bench_erd.py {' '.join(argv if argv is not None else sys.argv[1:])}`\n")
