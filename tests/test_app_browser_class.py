@@ -1,6 +1,7 @@
 """A class in a real browser (Debian's headless chromium, Playwright) at 1366 x 768: a student's lesson
 link opens *My experiment* with its part in view, **Start my run** answers in view; the presenter's
-**Show the chart large** draws the chart across most of the page, its type large. APP_SCREENSHOT_DIR
+**Show the chart large** draws the chart across most of the page, its type large, the lab's panel folded
+beside it until it closes. APP_SCREENSHOT_DIR
 keeps the screenshots."""
 
 from __future__ import annotations
@@ -81,6 +82,12 @@ def test_a_students_lesson_and_the_presenters_large_chart_at_1366x768(tmp_path):
             assert float(title.evaluate("e => parseFloat(getComputedStyle(e).fontSize)")) >= 24
             assert chart.locator("circle title").count() in (12, 13)  # each point's student, on hover
             assert presenter.get_by_text("2 finished runs left out", exact=False).count() >= 1
+            # the lab's panel folded to its rail under the chart (docked beside the lesson's column, it
+            # was under the chart's right third), and back when the chart closes
+            show = presenter.get_by_role("button", name="Show the chart large")
+            sync_api.expect(show).to_be_hidden(timeout=30_000)
+            presenter.get_by_role("button", name="Close the chart").click(timeout=30_000)
+            sync_api.expect(show).to_be_visible(timeout=30_000)
             browser.close()
     finally:
         app.stop()

@@ -172,7 +172,7 @@ class ClassBoard:
         self.new_button.on_click(lambda e: self.new_board())
         self.big_button.on_click(lambda e: self.show_big(e.client))
         self.csv_button.on_click(lambda e: self.download(e.client))
-        self._big: dict[int, tuple] = {}  # a presenter tab's id -> (its large chart's column, its html)
+        self._big: dict[int, tuple] = {}  # a presenter tab's id -> (its large chart's column, its html, its lab panel)
         self._drawn = None
         self._ids: dict[str, str] = {}  # dropdown label -> run id
         self._shows: dict[str, str] = {}  # "Run to show" label -> run id
@@ -258,7 +258,7 @@ class ClassBoard:
         if self.chart.content != content:
             self.chart.content = content
         big = chart_svg(rows, axis, big=True)
-        for cid, (_column, shown) in list(self._big.items()):
+        for cid, (_column, shown, _main) in list(self._big.items()):
             try:
                 if shown.content != big:
                     shown.content = big
@@ -287,16 +287,20 @@ class ClassBoard:
         with column.add_tab("Class chart"):
             close = gui.add_button("Close the chart")
             shown = gui.add_html(chart_svg(self.runs.board_rows(going=False), axis, big=True))
-        column.float(x=8, y=8, width=BIG_WIDTH, height=BIG_HEIGHT)  # over the scene (and a lesson's column)
+        column.float(x=8, y=8, width=BIG_WIDTH, height=BIG_HEIGHT)  # over the scene, beside a lesson's column
+        # the lab's panel folded to its rail while the chart is shown: docked right beside a lesson's
+        # column, it leaves the scene too narrow for the chart, which then lay over the panel
+        gui.main_panel.minimize()
         close.on_click(lambda _e, cid=client.client_id: self.close_big(cid))
-        self._big[client.client_id] = (column, shown)
+        self._big[client.client_id] = (column, shown, gui.main_panel)
         return None
 
     def close_big(self, client_id: int) -> None:
-        column = self._big.pop(client_id, (None, None))[0]
+        column, _shown, main = self._big.pop(client_id, (None, None, None))
         if column is not None:
             try:
                 column.remove()
+                main.expand()  # the lab's panel back
             except Exception:  # noqa: BLE001 - that tab has gone
                 pass
 
