@@ -9,7 +9,9 @@ of its own with one thread (OPENBLAS_NUM_THREADS=1, LAB_THREADS=1):
     position   lab.evolve(arm, seconds=S) (its default method, CMA-ES, with the defaults the lab picks
                for an unknown arm): the held-out median error in % of the reach (lab.experiments.arms
                held_out, --goals goals), then lab.solve(controller, arm, goals) (the network and at most
-               3 refinement steps): the share within 0.1 mm
+               3 refinement steps; the goals its proposals miss tried again from the arm's seed table,
+               robots.seeds): the share within 0.1 mm; and the same with table=0 (the network's
+               proposals alone)
     pose       on a 5-7 joint chain: lab.evolve(arm, seconds=S, goal="pose"), then lab.solve(controller,
                arm, poses) with the pose default (TRAC-IK's terms: 1e-5 m, 1e-5 rad, 5 ms a pose): the
                share solved, and lab.solve(None, arm, poses), the solver alone from the rest pose
@@ -21,6 +23,7 @@ gets less CPU, and the share falls; the `load` column is the 1-minute load avera
     python benchmarks/bench_erd.py                          # all 72, 60 s runs, one at a time (hours)
     python benchmarks/bench_erd.py --jobs 4                 # four robots at once (four cores)
     python benchmarks/bench_erd.py --robots ur3,panda,bravo7_no_ee --seconds 10
+    python benchmarks/bench_erd.py --joints 6,7 --no-pose   # the arms of 6-7 joints, position only
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ def erd_names() -> list[str]:
     return sorted(erd.ROBOTS)
 
 
-def row(name: str, seconds: float, n_goals: int, n_poses: int) -> dict:
+def row(name: str, seconds: float, n_goals: int, n_poses: int, joints=None, with_pose: bool = True) -> dict:
     """One robot's figures (a dict; `reason` says where it stopped)."""
     logging.getLogger("robots").setLevel(logging.ERROR)  # the frame picked is in the row
     import lab
@@ -65,6 +68,8 @@ def row(name: str, seconds: float, n_goals: int, n_poses: int) -> dict:
     except Exception as e:  # noqa: BLE001 - refused: its reason is the row
         return {**out, "loads": False, "reason": _one_line(e)}
     out.update(loads=True, frame=",".join(arm.effectors), joints=arm.nq)
+    if joints is not None and arm.nq not in joints:
+        return {**out, "skipped": True}
     stage = "position training"
     try:
         t = time.perf_counter()
@@ -73,9 +78,10 @@ def row(name: str, seconds: float, n_goals: int, n_poses: int) -> dict:
         stage = "held-out error"
         out["median_pct"] = arms.held_out(arm, run.controller, n=n_goals)["median_pct"]
         stage = "refinement"
-        s = lab.solve(run.controller, arm, arms.held_out_goals(arm, n_goals), progress=False)
-        out["refined"] = 100 * float(s.success)
-        if arm.nq in POSE_JOINTS and not arm.is_tree:
+        goals = arms.held_out_goals(arm, n_goals)
+        out["refined"] = 100 * float(lab.solve(run.controller, arm, goals, progress=False).success)
+        out["refined_network"] = 100 * float(lab.solve(run.controller, arm, goals, table=0, progress=False).success)
+        if with_pose and arm.nq in POSE_JOINTS and not arm.is_tree:
             poses = pose.sample_poses(arm, n_poses, seed=POSE_SEED)
             stage = "pose solver"
             lab.solve(None, arm, poses[:2], progress=False)  # its kernels loaded (or compiled) first
@@ -100,16 +106,20 @@ def _one_line(e: BaseException) -> str:
 def table(rows: list[dict], seconds: float) -> str:
     f = lambda v, fmt: "" if v is None else format(v, fmt)  # noqa: E731
     lines = [f"| robot | loads | frame picked | joints | held-out median, % of reach ({seconds:g} s CMA-ES) | "
-             "refined within 0.1 mm, % | pose, TRAC-IK's terms, network + solver, % | pose, solver alone, % | "
-             "generations | load | reason |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "refined within 0.1 mm, % | the same, the network's proposals alone, % | "
+             "pose, TRAC-IK's terms, network + solver, % | pose, solver alone, % | generations | load | reason |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
+        if r.get("skipped"):
+            continue
         lines.append(
             f"| `erd:{r['robot']}` | {'yes' if r.get('loads') else 'no'} | {('`' + r['frame'] + '`') if r.get('frame') else ''} "
             f"| {r.get('joints', '')} | {f(r.get('median_pct'), '.2f')} | {f(r.get('refined'), '.1f')} "
+            f"| {f(r.get('refined_network'), '.1f')} "
             f"| {f(r.get('pose'), '.1f') if 'pose' in r else ('' if r.get('joints') in POSE_JOINTS else 'n/a')} "
             f"| {f(r.get('solver'), '.1f')} | {r.get('generations', '')} | {r['load']:.1f} "
             f"| {r.get('reason', '').replace('|', '/')} |")
+    rows = [r for r in rows if not r.get("skipped")]
     loaded = [r for r in rows if r.get("loads")]
     trained = [r for r in loaded if "median_pct" in r]
     lines.append("")
@@ -124,8 +134,15 @@ def main(argv=None) -> None:
     ap.add_argument("--jobs", type=int, default=1, help="robots measured at once, each in its own process")
     ap.add_argument("--goals", type=int, default=1000, help="held-out position goals")
     ap.add_argument("--poses", type=int, default=200, help="held-out poses (5-7 joint chains)")
+    ap.add_argument("--joints", default=None, help="comma-separated joint counts: only the robots whose picked "
+                                                  "chain has one of them (default: every robot)")
+    ap.add_argument("--no-pose", action="store_true", help="position goals only (no pose training or solving)")
     args = ap.parse_args(argv)
     names = args.robots.split(",") if args.robots else erd_names()
+    try:
+        joints = None if args.joints is None else {int(j) for j in args.joints.split(",")}
+    except ValueError:
+        sys.exit(f"error: --joints takes comma-separated whole numbers, got {args.joints!r}")
     unknown = sorted(set(names) - set(erd_names()))
     if unknown:
         sys.exit(f"error: not example-robot-data robots: {', '.join(unknown)}")
@@ -136,7 +153,8 @@ def main(argv=None) -> None:
     t0 = time.perf_counter()
     with cf.ProcessPoolExecutor(max_workers=max(1, args.jobs), mp_context=multiprocessing.get_context("spawn"),
                                 max_tasks_per_child=1) as pool:
-        futures = {pool.submit(row, n, args.seconds, args.goals, args.poses): n for n in names}
+        futures = {pool.submit(row, n, args.seconds, args.goals, args.poses, joints, not args.no_pose): n
+                   for n in names}
         for fut in cf.as_completed(futures):
             n = futures[fut]
             try:

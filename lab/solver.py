@@ -42,7 +42,7 @@ import robots
 from lab.problem.controllers import proposals as _proposals
 from lab.problem.controllers import swept_proposals
 from lab.problem.robot import load_arm
-from robots import pose, pose_solve
+from robots import pose, pose_solve, seeds
 from robots.ik import RefineResult, default_tolerance, pose_tolerances, refine
 
 
@@ -97,11 +97,14 @@ STEPS = 3  # refinement steps by default (position goals; pose goals with steps 
 # (5 ms a pose, 1e-5 m, 1e-5 rad; docs/results/pose.md), which meets them on 99.75-100 % of poses
 POSE_SECONDS, POSE_TOL = 0.005, 1e-5
 SWEEP_KEEP = 4  # of which the nearest each goal are proposed
+# position goals left outside tolerance: tried again from this many entries of the arm's seed table
+# (robots.seeds), the nearest each goal (docs/results/your-robot.md)
+TABLE = 8
 
 
 def solve(controller, arm, goals, *, q0=None, steps: int | None = None, tol: float | None = None,
           angle_tol: float | None = None, seconds: float | None = None, seed: int | None = 0,
-          sweep: int = SWEEP, progress: bool = True) -> Solution:
+          sweep: int = SWEEP, table: int = TABLE, progress: bool = True) -> Solution:
     """Joint angles that put the arm on `goals`: the controller's answers (every head's, as
     proposals), then at most `steps` refinement steps (robots.ik.refine) toward each goal.
 
@@ -123,7 +126,11 @@ def solve(controller, arm, goals, *, q0=None, steps: int | None = None, tol: flo
     refined by steps, a pose controller with the closed-form reach): where no answer of the
     controller's is within tolerance, its answers with one joint at a time set to `sweep` values over
     its range and the closed form solving the rest are proposed too, the SWEEP_KEEP nearest each goal after the
-    controller's own (lab.problem.controllers.swept_proposals; 0: none). ValueError, naming the problem, for a
+    controller's own (lab.problem.controllers.swept_proposals; 0: none). table (position goals refined by
+    steps): the goals no proposal brings within tolerance are tried again, each from the `table` entries
+    of the arm's seed table (robots.seeds: joint vectors drawn within the limits) that reach nearest it,
+    as refine's proposals, and keep the nearer answer (Solution.choice: the number of proposals plus the
+    entry's rank; 0: none). ValueError, naming the problem, for a
     controller made for other goals or another arm, and for goals refine refuses.
 
     An empty batch (0 goals) gives an empty Solution of the same shapes ((0, nq) joint angles).
@@ -135,6 +142,8 @@ def solve(controller, arm, goals, *, q0=None, steps: int | None = None, tol: flo
         raise ValueError(f"steps must be an integer >= 0, got {steps!r}")
     if isinstance(sweep, bool) or not isinstance(sweep, (int, np.integer)) or sweep < 0:
         raise ValueError(f"sweep must be an integer >= 0 (values of the swept joint), got {sweep!r}")
+    if isinstance(table, bool) or not isinstance(table, (int, np.integer)) or table < 0:
+        raise ValueError(f"table must be an integer >= 0 (the seed table's entries tried a goal), got {table!r}")
     if not isinstance(arm, (str, robots.Arm)):
         raise ValueError(f"arm must be a robots.Arm or a robot's name, got {type(arm).__name__}")
     arm = load_arm(arm)  # a registered name, erd:NAME or a URDF path (lab/problem/robot.py)
@@ -192,7 +201,7 @@ def solve(controller, arm, goals, *, q0=None, steps: int | None = None, tol: flo
             raise ValueError(f"{arm.name}: angle_tol applies to pose goals (n, 4, 4); these goals have shape "
                              f"{goals.shape}")
         tol = default_tolerance(arm) if tol is None else float(tol)
-    args = (controller, arm, steps, tol, angle_tol, seconds, seed, sweep, is_pose)
+    args = (controller, arm, steps, tol, angle_tol, seconds, seed, sweep, table, is_pose)
     n = len(goals)
     if 0 < n <= CHUNK:  # one chunk (a drag's one pose): no copies, no progress line
         with _compile_notice(is_pose, controller):
@@ -238,7 +247,7 @@ class _Progress:
             self.bar.close()
 
 
-def _chunk(controller, arm, steps, tol, angle_tol, seconds, seed, sweep, is_pose, goals, extra, offset,
+def _chunk(controller, arm, steps, tol, angle_tol, seconds, seed, sweep, table, is_pose, goals, extra, offset,
            t0) -> Solution:
     """solve on checked goals (at most CHUNK of them), the goals[offset:] of the call; tol and
     angle_tol resolved; extra: the caller's q0 of these goals, (k, n, nq), or None; seconds since t0."""
@@ -270,9 +279,29 @@ def _chunk(controller, arm, steps, tol, angle_tol, seconds, seed, sweep, is_pose
                          angle_tol=angle_tol)
     else:
         r = refine(arm, goals, seeds, steps=steps, tol=tol, angle_tol=angle_tol)
+        if not is_pose and table and not r.converged.all():
+            r = _from_table(arm, goals, r, len(seeds), table, steps)
     return Solution(q=r.q, error=r.error, angle=r.angle, converged=r.converged, tol=r.tol, angle_tol=r.angle_tol,
                     steps=r.steps, choice=r.choice, network_error=first_error if network else None,
                     network_angle=first_angle if network else None, seconds=time.perf_counter() - t0)
+
+
+def _from_table(arm, goals, r: RefineResult, k: int, table: int, steps: int) -> RefineResult:
+    """r with the goals it left outside tolerance refined again from the `table` entries of the arm's
+    seed table nearest each (robots.seeds; refine's proposals: each its first step, the nearest after
+    it the rest), each goal keeping the nearer answer; its choice then k (r's proposals) plus the
+    entry's rank (refine's choice among the entries)."""
+    miss = np.flatnonzero(~r.converged)
+    again = refine(arm, goals[miss], seeds.table(arm).nearest(goals[miss], table), steps=steps, tol=r.tol)
+    better = again.error < r.error[miss]
+    at = miss[better]
+    if not len(at):
+        return r
+    q, error, taken = r.q.copy(), r.error.copy(), r.steps.copy()
+    choice = np.zeros(len(goals), np.int64) if r.choice is None else r.choice.copy()
+    q[at], error[at], taken[at] = again.q[better], again.error[better], again.steps[better]
+    choice[at] = k + (again.choice[better] if again.choice is not None else 0)
+    return RefineResult(q, error, taken, r.seconds + again.seconds, choice, tol=r.tol)
 
 
 def _empty(controller, arm, extra, tol, angle_tol, is_pose, t0) -> Solution:

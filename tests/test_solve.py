@@ -36,8 +36,10 @@ def test_the_shipped_so100_controller_reaches_a_tenth_of_a_millimetre_on_held_ou
     np.testing.assert_array_equal(s.converged, s.error < 1e-4)
     np.testing.assert_allclose(s.error, np.linalg.norm(arm.fk(s.q) - goals, axis=1), rtol=0, atol=1e-12)
     expected = refine(arm, goals, proposals(controller, goals))
-    np.testing.assert_array_equal(s.q, expected.q)
-    np.testing.assert_array_equal(s.choice, expected.choice)
+    met = expected.converged  # the heads' own answers where they meet the goal; the seed table tried the rest
+    np.testing.assert_array_equal(s.q[met], expected.q[met])
+    np.testing.assert_array_equal(s.choice[met], expected.choice[met])
+    assert np.all(s.error <= expected.error) and s.converged.sum() >= met.sum()
     np.testing.assert_allclose(s.network_error, np.linalg.norm(arm.fk(controller(goals)) - goals, axis=1), atol=1e-12)
     assert np.median(s.network_error) > 10 * np.median(s.error)
 
