@@ -31,6 +31,7 @@ import viser
 
 import lab
 import lab.running.worker as lab_worker
+from lab.recording.service import WriterService
 
 from app import any_robot
 from app.classroom.access import Access, is_loopback
@@ -116,15 +117,17 @@ SWITCH_INTERVAL = 0.001
 warnings.filterwarnings("ignore", message="Queued a .* on a closed connection", category=UserWarning)
 
 
-def rerun_recorder(folder: str):
-    """A recorder for LabState: a lab.recording.logger.RerunLogger per run (None when the module is missing)."""
+def rerun_recorder(folder: str, service=None):
+    """A recorder for LabState: a lab.recording.logger.RerunLogger per run (None when the module is
+    missing), written by `service` (a lab.recording.service.WriterService: one process for all the
+    app's recordings) or, without one, by a writer process a run."""
     try:
         from lab.recording.logger import RerunLogger
     except ImportError:
         return None
 
     def record(runner):
-        logger = RerunLogger(runner, path=folder.rstrip("/") + "/")
+        logger = RerunLogger(runner, path=folder.rstrip("/") + "/", service=service)
         runner.subscribe(logger)
         record.live.add(logger)
         return logger
@@ -162,8 +165,11 @@ class LabApp:
             startup, startups = None, startup_controller
         # a warmed-up training process, the kernels of this robot's Start (its time budget: budget_for) first
         lab_worker.prestart(robot, first=lab.TrainConfig.preset(robot=robot, seconds=budget_for(robot) or None))
+        # one writer process for every recording of the app (the shared runs' and the students'), started
+        # with the first: a class's runs do not each pay a process's start and exit (docs/results/class.md)
+        self.writers = WriterService(start=False) if record else None
         self.state = LabState(robot, notebook, startup=startup, startups=startups,
-                              recorder=rerun_recorder(recordings) if record else None,
+                              recorder=rerun_recorder(recordings, self.writers) if record else None,
                               limits=limits_for(is_loopback(host), limits), speed=speed, goal=goal)
         self.startup_note = self.state.shown.source
         self.recordings = recordings
@@ -171,7 +177,8 @@ class LabApp:
         self.upload_refusal = self.access.refusal  # uploads: viewers are refused as a transfer starts
         # students' own runs (a viewer's "My experiment"), queued to worker processes of their own
         self.class_runs = ClassRuns(notebook, self.state.limits, workers=class_workers, runner=class_runner,
-                                    recorder=rerun_recorder(recordings.rstrip("/") + "/class") if record else None)
+                                    recorder=rerun_recorder(recordings.rstrip("/") + "/class", self.writers)
+                                    if record else None)
         # the render loop, the run's reader and viser's thread pool all update handles: each update's
         # wake-up of viser's sender must reach its event loop safely (see app/viser_private.py)
         install_loop_safe_wakeups()
@@ -524,4 +531,6 @@ class LabApp:
             logger.block_on_end = False  # the writer finishes the file after we have gone
         self.state.reset() if self.state.running else None
         self._thread.join(timeout=5)
+        if self.writers is not None:  # its process ends once the files it writes are closed
+            self.writers.close()
         self.server.stop()

@@ -5,6 +5,7 @@ presenter's shared run trains and the presenter drags a goal.
     python benchmarks/bench_class.py --students 30 --seconds 3 --workers 1
     python benchmarks/bench_class.py --ray 127.0.0.1:6390           # the runs on a Ray cluster's actors
     python benchmarks/bench_class.py --default --spread 60          # each the panel's default run, Starts over a minute
+    python benchmarks/bench_class.py --default --spread 60 --record # ... each run recorded, as the classroom server does
 
 Each student tab (app/probe.py, one event loop for all, in this process) gets a name, a planar CMA-ES
 run with a time budget of --seconds, and presses "Start my run"; the presenter's tab drags its goal
@@ -15,7 +16,8 @@ Class board took to show each run's end (the largest), and that every run finish
 notebook entry with its student's name. --default: each student presses Start on *My experiment*'s
 default run (the robot, method and length the panel offers; only the seed is the student's own),
 --spread S: the Starts one after another over S seconds (a class pressing Start within a minute:
-60); class_wall_s is then the first Start to the last run's end. With --ray ADDRESS the runs go to that Ray cluster (as
+60); class_wall_s is then the first Start to the last run's end. --record: the shared run and every
+student run recorded (.rrd, a Rerun writer process each), as `python -m app` does. With --ray ADDRESS the runs go to that Ray cluster (as
 `python -m app --ray ADDRESS`; "local": a local instance), at most its CPUs at once unless --workers
 says otherwise, and it counts the runs each node trained.
 """
@@ -46,6 +48,7 @@ def main() -> None:
     ap.add_argument("--hz", type=float, default=10.0, help="the presenter's drags a second")
     ap.add_argument("--default", action="store_true", help="each student runs My experiment's default (only the seed set)")
     ap.add_argument("--spread", type=float, default=0.0, help="the Starts spread evenly over this many seconds")
+    ap.add_argument("--record", action="store_true", help="record every run (.rrd), as the classroom server does")
     args = ap.parse_args()
 
     import numpy as np
@@ -64,7 +67,7 @@ def main() -> None:
     folder = tempfile.mkdtemp(prefix="bench-class-")
     token = "bench-class-presenter-token"
     app = LabApp(port=0, notebook=os.path.join(folder, "notebook.db"), recordings=os.path.join(folder, "rec"),
-                 record=False, presenter_token=token, class_workers=workers, class_runner=runner, startup=None, speed=20.0,
+                 record=args.record, presenter_token=token, class_workers=workers, class_runner=runner, startup=None, speed=20.0,
                  limits={"population": 200})
     loop = asyncio.new_event_loop()
     threading.Thread(target=loop.run_forever, daemon=True, name="probes").start()

@@ -169,11 +169,13 @@ class RerunLogger:
         (scalars and controllers: all).
     compact: compact the file after closing it (the writer process does, after close() returns).
     overwrite: replace a file already at `path` (by default such a path is refused, FileExistsError).
+    service: a lab.recording.service.WriterService that writes this recording in its process (many
+        recordings, one process: a classroom server's), instead of a writer process of its own.
     """
 
     def __init__(self, source, problem: Problem | None = None, path: str | os.PathLike | None = None, *,
                  pose_every: int = 10, compact: bool = True, hyperparameters: dict | None = None,
-                 overwrite: bool = False, block_on_end: bool = True):
+                 overwrite: bool = False, block_on_end: bool = True, service=None):
         config, problem, run_id = _resolve_source(source, problem)
         if not (isinstance(pose_every, int) and pose_every >= 1):
             raise ValueError(f"pose_every must be an integer >= 1, got {pose_every!r}")
@@ -195,14 +197,20 @@ class RerunLogger:
             self._failure: str | None = None  # failure()'s line, once made
             self._said = False
             # Rerun's own log lines off (unless RUST_LOG says otherwise): a failure is one line of ours (failure())
-            self._proc = pipes.start("lab.recording.writer", env={"RUST_LOG": "off"},
-                                     pass_fds=() if held is None else (held,))
+            if service is not None:  # its process, already started, gets the pipes and the lock's descriptor
+                self._proc = service.open(held)
+                held_by_writer = None
+            else:
+                self._proc = pipes.start("lab.recording.writer", env={"RUST_LOG": "off"},
+                                         pass_fds=() if held is None else (held,))
+                held_by_writer = held
             self._fd = self._proc.stdin.fileno()
             pipes.grow(self._fd)
             self._send(("start", {
                 "path": str(self.path), "config": config.to_dict(), "method": {k: getattr(method, k) for k in METHOD_VIEW}, "run_id": run_id, "robot": problem.arm.name,
                 "train_goals": np.asarray(problem.train_goals), "goal_seed": problem.goal_seed,
-                "hyperparameters": hyperparameters, "pose_every": pose_every, "compact": compact, "busy_fd": held}))
+                "hyperparameters": hyperparameters, "pose_every": pose_every, "compact": compact,
+                "busy_fd": held_by_writer}))
         except BaseException:  # nothing started: the claimed name is given back
             if not replaced and self.path.is_file() and self.path.stat().st_size == 0:
                 self.path.unlink(missing_ok=True)
@@ -214,7 +222,7 @@ class RerunLogger:
 
     @property
     def pid(self) -> int:
-        """The writer process's id."""
+        """The writer process's id (a service's: the process that writes this recording and others)."""
         return self._proc.pid
 
     # ------------------------------------------------------------------ subscriber API

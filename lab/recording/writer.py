@@ -236,12 +236,30 @@ def main() -> int:
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
     os.nice(10)  # the optimizer (and the app) first when the two cores are busy; the pipe waits
     ack = claim_stdout()
-    stream = messages(sys.stdin.fileno())
+    if sys.argv[1:2] == ["--serve"]:
+        return serve(int(sys.argv[2]))
+    code = _one(sys.stdin.fileno(), ack)
+    if code is None:  # the stream is gone undropped: its flush could hang this process's exit
+        os._exit(1)
+    return code
+
+
+def _one(fd: int, ack: int, busy_fd: int | None = None) -> int | None:
+    """Write the recording whose messages come on fd, telling `ack` "C" once it is closed and complete
+    (then compacting it after a clean close), or "E" and why. The exit code: 0, 1 (a nearly full
+    disk: closed with its footer), 2 (no start message); None where writing failed, whose Rerun
+    stream is left undropped: Rerun's RecordingStream flushes, with no time limit, when it is
+    dropped, and a dead file sink never finishes that flush. busy_fd: the file's lock (serve(); a
+    lone writer's is named in the start message), released once the file is closed, or on failure."""
+    stream = messages(fd)
     first = next(stream, None)
     if not first or first[0][0] != "start":
-        print("rerun writer: no start message on stdin", file=sys.stderr)
+        print("rerun writer: no start message on its input", file=sys.stderr)
+        release(busy_fd)
         return 2
     header = first[0][1]
+    if busy_fd is not None:
+        header["busy_fd"] = busy_fd
     try:
         return _write(header, first, stream, ack)
     except NearlyFull as e:  # closed with its footer: readable; not compacted (that needs room)
@@ -249,9 +267,58 @@ def main() -> int:
         return 1
     except Exception as e:  # a full disk, a vanished folder: one line to the logger, no traceback
         _tell(ack, b"E" + _why(e, header["path"]).encode("utf-8", "replace"))
-        # at once: Rerun's RecordingStream flushes, with no time limit, when it is dropped, and a
-        # dead file sink never finishes that flush
-        os._exit(1)
+        _undropped.append(sys.exc_info())  # the traceback holds the stream: never dropped (see above)
+        return None
+    finally:
+        if busy_fd is not None:  # served: this process goes on, so the lock is let go here
+            release(header.pop("busy_fd", None))
+
+
+_undropped: list = []  # failed recordings' streams (in their tracebacks), never dropped
+
+
+def serve(control: int) -> int:
+    """One writer process for many recordings (lab/recording/service.py): each recording's message
+    pipe, ack pipe and file lock arrive as descriptors on the `control` socket (SCM_RIGHTS), and a
+    thread writes it as a writer process of its own would (_one), telling its ack pipe "C" (closed),
+    then a zero byte once compacted, then closing it. Ends when the control socket does (the app has gone)
+    and every recording it holds is closed: a recording's pipe outlives the app, as a lone writer's."""
+    import socket
+    import threading
+
+    sock = socket.socket(fileno=control)
+    threads = []
+    while True:
+        try:
+            _, fds, _, _ = socket.recv_fds(sock, 16, 3)
+        except OSError:
+            break
+        if len(fds) not in (2, 3):  # end of the control stream (the app has gone), or a message without its pipes
+            for fd in fds:
+                os.close(fd)
+            if not fds:
+                break
+            continue
+        threads = [t for t in threads if t.is_alive()]
+        fd, ack, *busy = fds  # no lock where flock is missing
+        t = threading.Thread(target=_served, args=(fd, ack, busy[0] if busy else None), name=f"recording-{fd}")
+        t.start()
+        threads.append(t)
+    for t in threads:
+        t.join()
+    return 0
+
+
+def _served(fd: int, ack: int, busy_fd: int | None) -> None:
+    """One recording of serve(): its messages on fd; its lock's descriptor released once it is closed."""
+    try:
+        _one(fd, ack, busy_fd)
+    except BaseException:  # noqa: BLE001 - one recording's failure is its own (said on its ack pipe)
+        pass
+    finally:
+        os.close(fd)
+        _tell(ack, b"\0")  # lab.recording.service.DONE: closed and compacted, as a lone writer's exit says
+        os.close(ack)
 
 
 def _write(header: dict, first: list, stream, ack: int) -> int:
@@ -285,7 +352,7 @@ def _write(header: dict, first: list, stream, ack: int) -> int:
         writer.end(summary)
     finally:
         writer.close()
-    release(header.get("busy_fd"))  # closed with its footer: no longer being written (lab/recording/busy.py)
+    release(header.pop("busy_fd", None))  # closed with its footer: no longer being written (lab/recording/busy.py)
     _tell(ack, b"C")
     if clean and header["compact"]:
         compact(writer.path)
