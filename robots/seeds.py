@@ -20,7 +20,7 @@ import weakref
 import numpy as np
 from scipy.spatial import cKDTree
 
-SIZE = 4096  # entries of an arm's table (about 10 ms to build on a 6-joint arm)
+SIZE = 4096  # entries of an arm's table (3.5-15 ms to build: docs/results/your-robot.md)
 SEED = 20_241  # the generator's seed: the same table on every machine that draws the same numbers
 
 
