@@ -67,7 +67,7 @@ def row(name: str, seconds: float, n_goals: int, n_poses: int, joints=None, with
         arm = robots.load("erd:" + name)
     except Exception as e:  # noqa: BLE001 - refused: its reason is the row
         return {**out, "loads": False, "reason": _one_line(e)}
-    out.update(loads=True, frame=",".join(arm.effectors), joints=arm.nq)
+    out.update(loads=True, frame=",".join(arm.effectors), joints=arm.nq, no_pose=not with_pose)
     if joints is not None and arm.nq not in joints:
         return {**out, "skipped": True}
     stage = "position training"
@@ -116,7 +116,7 @@ def table(rows: list[dict], seconds: float) -> str:
             f"| `erd:{r['robot']}` | {'yes' if r.get('loads') else 'no'} | {('`' + r['frame'] + '`') if r.get('frame') else ''} "
             f"| {r.get('joints', '')} | {f(r.get('median_pct'), '.2f')} | {f(r.get('refined'), '.1f')} "
             f"| {f(r.get('refined_network'), '.1f')} "
-            f"| {f(r.get('pose'), '.1f') if 'pose' in r else ('' if r.get('joints') in POSE_JOINTS else 'n/a')} "
+            f"| {f(r.get('pose'), '.1f') if 'pose' in r else (('not run' if r.get('no_pose') else '') if r.get('joints') in POSE_JOINTS else 'n/a')} "
             f"| {f(r.get('solver'), '.1f')} | {r.get('generations', '')} | {r['load']:.1f} "
             f"| {r.get('reason', '').replace('|', '/')} |")
     rows = [r for r in rows if not r.get("skipped")]
