@@ -734,8 +734,8 @@ def test_every_shipped_real_arm_controller_seeds_a_refinement_to_a_tenth_of_a_mi
 # a tree's shipped controller: (most held-out median over goals and effectors, % of each effector's reach;
 # least share of held-out goals with every effector within 0.1 mm after at most 3 steps). The aim is 2 % and
 # 99 % on every tree (the team's aim: 1 %); g1 reaches 99 % refined with its limbs solved in closed form
-# first (robots.limbs; docs/results/trees.md).
-TREE_FIGURES = {"talos-legs": (1.0, 0.99), "allegro": (1.0, 0.99), "solo12": (1.0, 0.99), "g1": (2.0, 0.99)}
+# first (robots.limbs; docs/results/trees.md), and is held to 1.8 % and 99.8 % (measured 1.75 %, 99.90 %).
+TREE_FIGURES = {"talos-legs": (1.0, 0.99), "allegro": (1.0, 0.99), "solo12": (1.0, 0.99), "g1": (1.8, 0.998)}
 
 
 @pytest.mark.parametrize("robot", [n for n in robots.names() if robots.kind(n) == "tree"])
