@@ -97,6 +97,20 @@ def test_a_closed_phone_tab_leaves_no_narrow_table_entry(app):
     assert wait_until(lambda: not app.board._phones, 30)
 
 
+def test_a_presenters_phone_is_told_the_large_chart_is_for_a_wide_screen(app):
+    """A phone's bottom sheet folds a panel into a closed section: there, Show the chart large showed
+    nothing. It says why in the board's folder instead."""
+    phone = phone_tab(urllib.parse.unquote(app.presenter_url.split("websocket=")[1]))
+    try:
+        client = session_of(app, phone).client
+        assert wait_until(lambda: client.client_id in app.board._phones, 30)
+        why = app.board.show_big(client)
+        assert why.startswith("refused: the large chart is for a wide screen")
+        assert app.board.board_message.content == why and client.client_id not in app.board._big
+    finally:
+        phone.close()
+
+
 def test_the_presenters_share_this_lesson_holds_its_own_link_with_the_token_and_a_viewer_never_sees_it(app):
     presenter = tab_of(urllib.parse.unquote(app.presenter_url.split("websocket=")[1]))
     viewer = tab_of(app.url)

@@ -280,6 +280,11 @@ class ClassBoard:
         buttons are shared controls), redrawn with the board; its button closes it."""
         if client is None:
             return "refused: no tab to show the chart in"
+        if client.client_id in self._phones:  # a phone's bottom sheet folds a panel into a closed section
+            why = ("refused: the large chart is for a wide screen (the projector's tab); on a phone the "
+                   "board's chart above is the whole chart")
+            self.board_message.content = why
+            return why
         self.close_big(client.client_id)
         gui = client.gui
         axis = self.axis.value if self.axis.value in AXES else "hidden units"
