@@ -42,8 +42,9 @@ import robots
 from lab.problem.controllers import proposals as _proposals
 from lab.problem.controllers import swept_proposals
 from lab.problem.robot import load_arm
-from robots import pose, pose_solve, seeds
+from robots import pose, pose_solve
 from robots.ik import RefineResult, default_tolerance, pose_tolerances, refine
+from robots.seeds import table as seed_table
 
 
 @dataclass(frozen=True)
@@ -292,7 +293,7 @@ def _from_table(arm, goals, r: RefineResult, k: int, table: int, steps: int) -> 
     it the rest), each goal keeping the nearer answer; its choice then k (r's proposals) plus the
     entry's rank (refine's choice among the entries)."""
     miss = np.flatnonzero(~r.converged)
-    again = refine(arm, goals[miss], seeds.table(arm).nearest(goals[miss], table), steps=steps, tol=r.tol)
+    again = refine(arm, goals[miss], seed_table(arm).nearest(goals[miss], table), steps=steps, tol=r.tol)
     better = again.error < r.error[miss]
     at = miss[better]
     if not len(at):
